@@ -1,0 +1,138 @@
+"""Highway anchors (Eq. 12) and connectors to them (Section 3.4, Algorithm 4), for all roots at once."""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan import _grid
+from jaxplan.fabric import Fabric, Table, continuation_dp
+from jaxplan.params import FabricParams, validate_params
+
+
+class Connectors(NamedTuple):
+    """Anchors and connectors for every root (occupied, non-highway cell). H x W grid, A slots.
+
+    anchor: i32[H, W, 2], (row, col) of h*(R); -1 where R is no root or has no candidate.
+    raw: f32[H, W], objects the connector collects (R included, h* excluded); 0 without a connector.
+    length: f32[H, W], connector length, world units.
+    first_hop: i32[H, W, 2], (row, col) of the connector's first cell; -1 for none or a straight
+      fallback segment. heading: f32[H, W, 2], unit (x, y) direction of the connector's start.
+    via_raw, via_len: f32[H, W], the via-highway route: connector then P*(h*).
+    has_connector: bool[H, W], root with an anchor among the planned slots.
+    truncated: bool[], some roots' anchors did not fit in ``max_anchors`` slots.
+    anchors: i32[A], flat index of each planned anchor (-1 unused slot); slot: i32[H, W] slot of each
+      root's anchor (-1 none). tables: Table with a leading A axis, each anchor's K=1 connector table.
+    """
+
+    anchor: jax.Array
+    raw: jax.Array
+    length: jax.Array
+    first_hop: jax.Array
+    heading: jax.Array
+    via_raw: jax.Array
+    via_len: jax.Array
+    has_connector: jax.Array
+    truncated: jax.Array
+    anchors: jax.Array
+    slot: jax.Array
+    tables: Table
+
+
+def choose_anchors(heat, highways, occupied, centers, anchor_lambda, *, block_rows: int = 8):
+    """``i32[H, W]`` flat index of ``h*(R)`` for every cell (-1 for non-roots or no candidate).
+
+    heat: f32[H, W] objects; highways, occupied: bool[H, W]; centers: f32[H, W, 2] world units;
+    anchor_lambda: f32[] heat per world unit. Every root is scored against every candidate (Eq. 12),
+    ``block_rows`` grid rows of roots at a time to bound memory at ``block_rows * W * H * W`` floats.
+    """
+    h, w = heat.shape
+    candidate = (highways & occupied).reshape(-1)
+    flat_heat = heat.reshape(-1)
+    flat_centers = centers.reshape(-1, 2)
+    pad = (-h) % block_rows
+    blocks = jnp.pad(centers, ((0, pad), (0, 0), (0, 0))).reshape(-1, block_rows * w, 2)
+
+    def best(block):
+        d = jnp.linalg.norm(block[:, None, :] - flat_centers[None], axis=-1)
+        score = jnp.where(candidate[None], flat_heat[None] - anchor_lambda * d, -jnp.inf)
+        return jnp.argmax(score, axis=1).astype(jnp.int32)   # first max: lowest row-major index
+
+    anchor = jax.lax.map(best, blocks).reshape(-1)[: h * w].reshape(h, w)
+    roots = occupied & ~highways
+    return jnp.where(roots & jnp.any(candidate), anchor, -1)
+
+
+def _toward(centers, anchor_flat):
+    """Distance ``f32[H, W]`` and unit vector ``f32[H, W, 2]`` from every centre to one anchor."""
+    c_h = centers.reshape(-1, 2)[jnp.maximum(anchor_flat, 0)]
+    delta = c_h - centers
+    dist = jnp.linalg.norm(delta, axis=-1)
+    unit = jnp.where(dist[..., None] > 0, delta / jnp.maximum(dist, 1e-30)[..., None], 0.0)
+    return dist, unit
+
+
+def _connector_table(scene, fabric: Fabric, params: FabricParams, anchor_flat, centers):
+    h, w = fabric.occupied.shape
+    goal = (jnp.arange(h * w) == anchor_flat).reshape(h, w)
+    dist, unit = _toward(centers, anchor_flat)
+    table, _, _, _ = continuation_dp(
+        scene.obj, fabric.occupied & ~goal, goal, dist, unit, params.theta_tol_deg, scene.cell_size,
+        monotone=params.monotone, k=1, max_hops=params.resolved_max_hops((h, w)))
+    return table
+
+
+def _plan(scene, params: FabricParams, fabric: Fabric, max_anchors: int) -> Connectors:
+    h, w = fabric.occupied.shape
+    centers = _grid.cell_centers((h, w), scene.cell_size, scene.origin)
+    anchor_flat = choose_anchors(fabric.heat, fabric.highways, fabric.occupied, centers, params.anchor_lambda)
+    anchors = jnp.unique(anchor_flat, size=max_anchors + 1, fill_value=-1)
+    # unique() sorts, so a -1 (cells without anchor) comes first: drop it and keep max_anchors slots.
+    anchors = jnp.where(anchors[0] < 0, anchors[1:], anchors[:-1])
+    anchors = jnp.where((anchors >= 0) & (jnp.arange(max_anchors) < jnp.sum(anchors >= 0)), anchors, -1)
+    tables = jax.lax.map(lambda a: _connector_table(scene, fabric, params, a, centers), anchors)
+
+    match = (anchor_flat[None] == anchors[:, None, None]) & (anchors[:, None, None] >= 0)
+    slot = jnp.where(jnp.any(match, 0), jnp.argmax(match, 0), -1).astype(jnp.int32)
+    has = slot >= 0
+    safe_slot = jnp.maximum(slot, 0)
+    rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    pick = lambda a: a[safe_slot, rows, cols, 0]  # noqa: E731
+    raw = jnp.where(has, pick(tables.raw), 0.0)
+    length = jnp.where(has, pick(tables.length), 0.0)
+    d0 = jnp.where(has, pick(tables.next_dir), -1)
+    steps = (d0 >= 0) & (d0 < _grid.FALLBACK)
+    safe_dir = jnp.clip(d0, 0, 7)
+    rc = jnp.stack([rows, cols], -1).astype(jnp.int32)
+    first_hop = jnp.where(steps[..., None], rc + jnp.asarray(_grid.DIRS_ARRAY)[safe_dir], -1)
+    a_flat = jnp.maximum(anchor_flat, 0)
+    # a straight fallback connector points from the root straight at its anchor
+    delta = centers.reshape(-1, 2)[a_flat] - centers
+    norm = jnp.linalg.norm(delta, axis=-1, keepdims=True)
+    straight = jnp.where(norm > 0, delta / jnp.maximum(norm, 1e-30), 0.0)
+    heading = jnp.where(steps[..., None], jnp.asarray(_grid.STEP_UNIT)[safe_dir],
+                        jnp.where(has[..., None], straight, 0.0))
+    anchor_rc = jnp.where((anchor_flat >= 0)[..., None], jnp.stack([a_flat // w, a_flat % w], -1), -1)
+    via_raw = jnp.where(has, raw + fabric.value.reshape(-1)[a_flat], 0.0)
+    via_len = jnp.where(has, length + fabric.length.reshape(-1)[a_flat], 0.0)
+    truncated = jnp.any((anchor_flat >= 0) & ~has)
+    return Connectors(anchor_rc.astype(jnp.int32), raw, length, first_hop.astype(jnp.int32), heading,
+                      via_raw, via_len, has, truncated, anchors, slot, tables)
+
+
+_plan_jit = jax.jit(_plan, static_argnums=3)
+
+
+def plan_connectors(scene, params: FabricParams | None, fabric: Fabric, *, max_anchors: int = 32) -> Connectors:
+    """Anchors (Eq. 12) for all roots and connectors to them, one DP per distinct anchor (batched).
+
+    ``max_anchors`` (static) bounds the number of distinct anchors planned; roots whose anchor does
+    not fit are flagged by ``Connectors.truncated`` and get no connector.
+    """
+    params = FabricParams() if params is None else params
+    if not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(params)):
+        validate_params(params)
+    if not isinstance(max_anchors, int) or max_anchors < 1:
+        raise ValueError(f"max_anchors: must be an int >= 1; got {max_anchors!r}.")
+    return _plan_jit(scene, params, fabric, max_anchors)

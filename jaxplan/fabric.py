@@ -1,0 +1,303 @@
+"""The trajectory fabric: a wavefront dynamic program over the successor graph (Section 3.2).
+
+For every occupied cell at once, the kernel keeps a *continuation table* of the K best paths to the
+goal, ranked lexicographically by ``(raw, -len)`` (Eq. 5). One round recomputes every cell's table
+from its neighbours' tables (max-plus over 8 directions x K continuations, plus the boundary
+fallback); rounds repeat until nothing changes. With the strict monotone rule the successor graph is
+a DAG, so after ``k`` rounds every table is exact for paths of at most ``k`` hops and the loop stops
+one round after the longest path is resolved. No per-source search, no Python loop over cells.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan import _grid, heatmap, visibility
+from jaxplan.params import FabricParams, validate_params
+
+
+class Table(NamedTuple):
+    """Continuation table, K entries per cell sorted best first.
+
+    raw: f32[H, W, K], objects collected (source included); -inf for unused entries.
+    length: f32[H, W, K], world units; +inf for unused entries.
+    next_dir: i32[H, W, K], direction index of the first step (0-7), 8 = boundary fallback, -1 unused.
+    next_rank: i32[H, W, K], entry of the neighbour's table the path continues with; -1 when the first
+      step enters a goal cell (the path ends there) and for fallback or unused entries.
+    """
+
+    raw: jax.Array
+    length: jax.Array
+    next_dir: jax.Array
+    next_rank: jax.Array
+
+
+class Fabric(NamedTuple):
+    """Everything ``build_fabric`` computes for one grid. Shapes for an H x W grid.
+
+    value: f32[H, W], J(C) = raw(P*(C)), objects; 0 where not occupied.
+    length: f32[H, W], L(C) = len(P*(C)), world units; 0 where not occupied.
+    first_hop: i32[H, W, 2], (row, col) of u(C); -1 where undefined.
+    heading: f32[H, W, 2], unit (x, y) vector c -> u(C); 0 where undefined.
+    fallback: bool[H, W], occupied cells with no feasible successor (boundary fallback).
+    occupied: bool[H, W], non-target cells with obj > 0.
+    feasible: bool[H, W, 8], feasible successor in each direction (Eq. 1 and the monotone rule).
+    table: Table, the K-best continuation table.
+    psi: f32[H, W], propagated raw mass (Eqs. 7-8), objects.
+    heat: f32[H, W], look-back heatmap (Eq. 10), objects; 0 on target cells.
+    highways: bool[H, W], highway cells (Eq. 11).
+    rounds: i32[], DP rounds run. converged: bool[], whether the DP reached its fixed point.
+    """
+
+    value: jax.Array
+    length: jax.Array
+    first_hop: jax.Array
+    heading: jax.Array
+    fallback: jax.Array
+    occupied: jax.Array
+    feasible: jax.Array
+    table: Table
+    psi: jax.Array
+    heat: jax.Array
+    highways: jax.Array
+    rounds: jax.Array
+    converged: jax.Array
+
+
+# ----------------------------------------------------------------------------------------------
+# The dynamic program
+
+
+def _top_k_lex(raw, length, k: int, len_tol):
+    """The k best of M candidates by ``(raw, -length)``, ties to the lower candidate index.
+
+    raw, length: f32[M, H, W] (candidate-major, so every reduction is an elementwise pass over
+    whole planes). Lengths within ``len_tol`` (relative, plus the same absolute amount in world
+    units) count as equal: equal-length paths summed in another step order differ in the last bits,
+    and the tie must go to the direction order, not to rounding. Returns ``(raw, length, index)``,
+    each ``[k, H, W]``; unused entries have raw -inf, length +inf, index 0. k rounds of a
+    lexicographic argmax are cheaper than a sort for small k.
+    """
+    positions = jnp.arange(raw.shape[0], dtype=jnp.int32)[:, None, None]
+    out_raw, out_len, out_idx = [], [], []
+    for _ in range(k):
+        best_raw = jnp.max(raw, axis=0)
+        is_best = raw == best_raw
+        best_len = jnp.min(jnp.where(is_best, length, jnp.inf), axis=0)
+        near = is_best & (length <= best_len + len_tol * (1.0 + best_len))
+        # first index of the lexicographic best; a min-reduce is much cheaper than argmax on CPU
+        idx = jnp.min(jnp.where(near, positions, raw.shape[0]), axis=0)
+        used = best_raw > -jnp.inf
+        chosen_len = jnp.min(jnp.where(positions == idx, length, jnp.inf), axis=0)
+        out_raw.append(best_raw)
+        out_len.append(jnp.where(used, chosen_len, jnp.inf))
+        out_idx.append(jnp.where(used, idx, 0))
+        raw = jnp.where(positions == idx, -jnp.inf, raw)
+    return jnp.stack(out_raw), jnp.stack(out_len), jnp.stack(out_idx)
+
+
+class _Graph(NamedTuple):
+    """What one DP round needs besides the table; all fixed during the loop."""
+
+    obj: jax.Array           # f32[H, W]
+    feasible: jax.Array      # bool[8, H, W]
+    enters_goal: jax.Array   # bool[8, H, W], feasible and the neighbour is a goal cell
+    fallback: jax.Array      # bool[H, W]
+    fallback_len: jax.Array  # f32[H, W], world units
+    step_len: jax.Array      # f32[8], world units
+
+
+def _candidates(raw, length, g: _Graph):
+    """Every cell's 8*K + 1 candidate paths, ``f32[8K + 1, H, W]`` (direction-major, then rank,
+    then the fallback). raw, length: the table, ``[K, H, W]``."""
+    k = raw.shape[0]
+    first_rank = (jnp.arange(k) == 0)[:, None, None]
+    cand_raw, cand_len = [], []
+    for d, (dr, dc) in enumerate(_grid.DIRS):
+        via_cell = g.feasible[d] & ~g.enters_goal[d]
+        via_goal = g.enters_goal[d] & first_rank
+        nb_raw = _grid.shift_planes(raw, dr, dc, -jnp.inf)
+        nb_len = _grid.shift_planes(length, dr, dc, jnp.inf)
+        cand_raw.append(jnp.where(via_cell, g.obj + nb_raw, jnp.where(via_goal, g.obj, -jnp.inf)))
+        cand_len.append(g.step_len[d] + jnp.where(via_goal, 0.0, nb_len))
+    cand_raw.append(jnp.where(g.fallback, g.obj, -jnp.inf)[None])
+    cand_len.append(g.fallback_len[None])
+    return jnp.concatenate(cand_raw), jnp.concatenate(cand_len)
+
+
+def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *,
+                    monotone: bool, k: int, max_hops: int):
+    """Run the wavefront DP toward ``goal``; returns ``(table, feasible[8,H,W], rounds, converged)``.
+
+    obj: f32[H, W] objects; occupied: bool[H, W] expandable cells; goal: bool[H, W] cells whose entry
+    ends a path; dist: f32[H, W] world units to the goal (also the fallback length); tvec: f32[H, W, 2]
+    unit (x, y) direction of the closest goal point. ``k`` and ``max_hops`` are static.
+    """
+    feasible = visibility.feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone, cell_size)
+    enters_goal = feasible & _grid.neighbours(goal, False)
+    graph = _Graph(
+        obj=jnp.asarray(obj, jnp.float32),
+        feasible=feasible,
+        enters_goal=enters_goal,
+        fallback=occupied & ~jnp.any(feasible, axis=0),
+        fallback_len=jnp.asarray(dist, jnp.float32),
+        step_len=jnp.asarray(_grid.STEP_CELLS) * cell_size,
+    )
+    shape = (k,) + obj.shape
+    len_tol = _grid.LENGTH_TIE_EPS * cell_size
+
+    def cond(carry):
+        return carry[-1] & (carry[-2] < max_hops)
+
+    def body(carry):
+        raw, length, idx, rounds, _ = carry
+        new_raw, new_len, new_idx = _top_k_lex(*_candidates(raw, length, graph), k, len_tol)
+        changed = ~(jnp.array_equal(new_raw, raw) & jnp.array_equal(new_len, length)
+                    & jnp.array_equal(new_idx, idx))
+        return new_raw, new_len, new_idx, rounds + 1, changed
+
+    start = (jnp.full(shape, -jnp.inf), jnp.full(shape, jnp.inf), jnp.zeros(shape, jnp.int32),
+             jnp.int32(0), jnp.bool_(True))
+    raw, length, idx, rounds, changed = jax.lax.while_loop(cond, body, start)
+    return _table(raw, length, idx, enters_goal, k), feasible, rounds, ~changed
+
+
+def _table(raw, length, idx, enters_goal, k: int) -> Table:
+    """Decode candidate indices into (next_dir, next_rank) and move K last: ``[H, W, K]``."""
+    used = raw > -jnp.inf
+    direction = jnp.where(idx == _grid.N_DIRS * k, _grid.FALLBACK, idx // k)
+    into_goal = jnp.take_along_axis(enters_goal, jnp.clip(direction, 0, 7), axis=0)
+    step = used & (direction < _grid.FALLBACK)
+    next_dir = jnp.where(used, direction, -1)
+    next_rank = jnp.where(step & ~into_goal, idx % k, -1)
+    last = lambda a: jnp.moveaxis(a, 0, -1)  # noqa: E731
+    return Table(last(raw), last(jnp.where(used, length, jnp.inf)), last(next_dir), last(next_rank))
+
+
+# ----------------------------------------------------------------------------------------------
+# First hops, headings and the fabric
+
+
+def first_hops(table: Table, tvec, cell_size):
+    """From entry 0: ``(first_hop i32[H,W,2], heading f32[H,W,2], hop_len f32[H,W], dir i32[H,W])``.
+
+    A fallback cell's hop is the in-grid neighbour best aligned with t(C) (conventions).
+    """
+    h, w = table.raw.shape[:2]
+    d0 = table.next_dir[..., 0]
+    hop_dir = jnp.where(d0 == _grid.FALLBACK, visibility.fallback_direction(tvec), d0)
+    defined = hop_dir >= 0
+    safe = jnp.where(defined, hop_dir, 0)
+    rc = jnp.stack(jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij"), -1).astype(jnp.int32)
+    hop = jnp.where(defined[..., None], rc + jnp.asarray(_grid.DIRS_ARRAY)[safe], -1)
+    heading = jnp.where(defined[..., None], jnp.asarray(_grid.STEP_UNIT)[safe], 0.0)
+    hop_len = jnp.where(defined, jnp.asarray(_grid.STEP_CELLS)[safe] * cell_size, 0.0)
+    return hop, heading, hop_len, jnp.where(defined, hop_dir, -1)
+
+
+def _build(scene, params: FabricParams) -> Fabric:
+    obj = jnp.asarray(scene.obj, jnp.float32)
+    target = jnp.asarray(scene.target_mask, bool)
+    occupied = ~target & (obj > 0)
+    table, feasible, rounds, converged = continuation_dp(
+        obj, occupied, target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
+        monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape))
+    hop, heading, hop_len, _ = first_hops(table, scene.tvec, scene.cell_size)
+    value = jnp.where(occupied, table.raw[..., 0], 0.0)
+    length = jnp.where(occupied, table.length[..., 0], 0.0)
+    path_next = jnp.where((table.next_dir[..., 0] >= 0) & (table.next_dir[..., 0] < _grid.FALLBACK),
+                          table.next_dir[..., 0], -1)
+    psi = heatmap.propagated_mass(value, occupied, path_next, params.resolved_max_hops(obj.shape))
+    heat = heatmap.heat(psi, occupied, heading, hop_len, target, scene.cell_size)
+    highways = heatmap.highways(heat, target, params.tau_h, relative=params.highway_relative,
+                                smoothing=params.highway_smoothing, nms=params.highway_nms)
+    return Fabric(value, length, hop, heading, table.next_dir[..., 0] == _grid.FALLBACK, occupied,
+                  jnp.moveaxis(feasible, 0, -1), table, psi, heat, highways, rounds, converged)
+
+
+_build_jit = jax.jit(_build)
+
+
+def _is_concrete(scene) -> bool:
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(scene))
+
+
+def build_fabric(scene, params: FabricParams | None = None) -> Fabric:
+    """Build the whole fabric (visibility, DP, first hops, psi, heatmap, highways) for ``scene``.
+
+    Jitted; ``vmap`` it over ``FabricParams`` (traced fields) or over stacked scenes of one shape.
+    Concrete inputs are validated first and raise ``ValueError`` naming the bad field.
+    """
+    params = FabricParams() if params is None else params
+    if _is_concrete(params):
+        validate_params(params)
+    return _build_jit(scene, params)
+
+
+# ----------------------------------------------------------------------------------------------
+# Path extraction
+
+
+class Paths(NamedTuple):
+    """Paths read from a continuation table, one row per query.
+
+    cells: i32[B, S, 2], (row, col) of the source, then each cell entered (the final goal cell
+      included); rows padded with -1.
+    n_cells: i32[B], valid rows of ``cells``.  raw: f32[B], length: f32[B] (world units) from the
+    table.  fallback: bool[B], the path ends with a boundary fallback.  complete: bool[B], the walk
+    ended within ``S - 1`` steps (False means ``max_steps`` was too small).
+    """
+
+    cells: jax.Array
+    n_cells: jax.Array
+    raw: jax.Array
+    length: jax.Array
+    fallback: jax.Array
+    complete: jax.Array
+
+
+def _walk(table: Table, source, rank, max_steps: int):
+    dirs = jnp.asarray(_grid.DIRS_ARRAY)
+
+    def step(carry, _):
+        rc, rk, done, fell_back = carry
+        d = table.next_dir[rc[0], rc[1], rk]
+        moves = (~done) & (d >= 0) & (d < _grid.FALLBACK)
+        nxt_rk = table.next_rank[rc[0], rc[1], rk]
+        new_rc = jnp.where(moves, rc + dirs[jnp.clip(d, 0, 7)], rc)
+        fell_back = fell_back | ((~done) & (d == _grid.FALLBACK))
+        done = done | ~moves | (nxt_rk < 0)
+        return (new_rc, jnp.where(moves, jnp.maximum(nxt_rk, 0), rk), done, fell_back), \
+            jnp.where(moves, new_rc, -1)
+
+    start = (source.astype(jnp.int32), rank.astype(jnp.int32), jnp.bool_(False), jnp.bool_(False))
+    (_, _, done, fell_back), visited = jax.lax.scan(step, start, None, length=max_steps)
+    cells = jnp.concatenate([source[None].astype(jnp.int32), visited], 0)
+    n = 1 + jnp.sum(visited[:, 0] >= 0)
+    r, c = source[0], source[1]
+    return Paths(cells, n, table.raw[r, c, rank], table.length[r, c, rank], fell_back, done)
+
+
+def extract_paths(fabric: Fabric, sources, ranks=None, *, max_steps: int | None = None) -> Paths:
+    """Read paths for many sources in one batched call (``vmap`` of a fixed-length walk).
+
+    fabric: a ``Fabric`` (its continuation table is read); sources: i32[B, 2] (row, col); ranks:
+    i32[B] table entries (default 0, the selected path). max_steps: static walk length; default =
+    the DP's round count, which bounds every path's hop count (read on the host, so pass it
+    explicitly under ``jit``).
+    """
+    sources = jnp.asarray(sources, jnp.int32).reshape(-1, 2)
+    ranks = jnp.zeros(sources.shape[0], jnp.int32) if ranks is None else jnp.asarray(ranks, jnp.int32)
+    if max_steps is None:
+        max_steps = max(1, int(fabric.rounds))
+    return _extract_jit(fabric.table, sources, ranks, max_steps)
+
+
+def _extract(table, sources, ranks, max_steps):
+    return jax.vmap(lambda s, r: _walk(table, s, r, max_steps))(sources, ranks)
+
+
+_extract_jit = jax.jit(_extract, static_argnums=3)

@@ -1,0 +1,85 @@
+"""Propagated mass psi (Eqs. 7-8), the look-back heatmap (Eq. 10, Algorithm 3) and highways (Eq. 11)."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan import _grid
+
+
+def propagated_mass(value, occupied, path_next, max_hops: int):
+    """``psi: f32[H, W]``, the max of J(R) over sources R whose selected path visits each cell.
+
+    value: f32[H, W] J, objects. occupied: bool[H, W]. path_next: i32[H, W], direction (0-7) of the
+    selected path's next cell, -1 where the path ends (goal entered next step counts: the goal cell is
+    the next cell) or for non-sources. max_hops: static bound on path length.
+
+    The selected paths form a forest (P*(C) = C + P*(u(C))), so instead of walking every path we push
+    maxima down the forest by pointer doubling: after level k every cell holds the max over sources at
+    most 2^k - 1 steps upstream. log2(max_hops) scatter-max passes over the grid.
+    """
+    h, w = value.shape
+    n = h * w
+    flat_index = jnp.arange(n, dtype=jnp.int32).reshape(h, w)
+    step = jnp.asarray(_grid.DIRS_ARRAY)[jnp.clip(path_next, 0, 7)]
+    rows = jnp.arange(h)[:, None] + step[..., 0]
+    cols = jnp.arange(w)[None, :] + step[..., 1]
+    pointer = jnp.where(path_next >= 0, rows * w + cols, flat_index).reshape(n)
+    mass = jnp.where(occupied, value, 0.0).reshape(n)
+    levels = max(1, int(max_hops).bit_length())
+
+    def level(_, carry):
+        mass, pointer = carry
+        mass = mass.at[pointer].max(mass)
+        return mass, pointer[pointer]
+
+    mass, _ = jax.lax.fori_loop(0, levels, level, (mass, pointer))
+    return mass.reshape(h, w)
+
+
+def heat(psi, occupied, heading, hop_len, target, cell_size):
+    """``H: f32[H, W]`` look-back heatmap (Eq. 10) as an 8-neighbour stencil.
+
+    psi: f32[H, W] objects; occupied: bool[H, W]; heading: f32[H, W, 2] unit (x, y) v(C), zero where
+    u(C) is undefined; hop_len: f32[H, W] |c1 - c| world units (0 where undefined); target: bool[H, W].
+    The near-field gate |x - c| <= |c1 - c| <= s*sqrt(2) means only the 8 neighbours of X can
+    contribute, so each X looks back along the 8 directions at the source C = X - step.
+    """
+    eps = _grid.GATE_EPS * cell_size
+    offsets = jnp.asarray(_grid.STEP_UNIT * _grid.STEP_CELLS[:, None]) * cell_size   # [8, 2] x - c
+    dist = jnp.asarray(_grid.STEP_CELLS) * cell_size                                  # [8] |x - c|
+    src_heading = _grid.sources_of(heading, 0.0)                                      # [8, H, W, 2]
+    src_psi = _grid.sources_of(psi, 0.0)
+    src_ok = _grid.sources_of(occupied & (hop_len > 0), False)
+    src_hop = _grid.sources_of(hop_len, 0.0)
+    forward = jnp.einsum("dhwx,dx->dhw", src_heading, offsets)                        # v . (x - c)
+    gate = src_ok & (dist[:, None, None] <= src_hop + eps) & (forward > eps)
+    contribution = jnp.where(gate, forward / dist[:, None, None] * src_psi, 0.0)
+    return jnp.where(target, 0.0, jnp.max(contribution, axis=0))
+
+
+def _smooth(h):
+    """Mean over the in-grid cells of each 3x3 block."""
+    ones = jnp.ones_like(h)
+    total = h + jnp.sum(_grid.neighbours(h, 0.0), axis=0)
+    count = ones + jnp.sum(_grid.neighbours(ones, 0.0), axis=0)
+    return total / count
+
+
+def _ridge(h):
+    """Non-max suppression: X survives if it is >= both neighbours along at least one of 4 axes."""
+    nb = _grid.neighbours(h, 0.0)
+    axes = ((3, 4), (1, 6), (0, 7), (2, 5))          # horizontal, vertical, diagonal, anti-diagonal
+    return jnp.any(jnp.stack([(h >= nb[a]) & (h >= nb[b]) for a, b in axes]), axis=0)
+
+
+def highways(heat_map, target, tau_h, *, relative: bool = True, smoothing: bool = False, nms: bool = False):
+    """``bool[H, W]`` highway cells (Eq. 11): non-target, positive heat at or above the threshold.
+
+    heat_map: f32[H, W] objects; target: bool[H, W]; tau_h: f32[], fraction of max heat when
+    ``relative`` (static) else objects. ``smoothing`` / ``nms`` (static) as in docs/conventions.md.
+    """
+    h = _smooth(heat_map) if smoothing else heat_map
+    threshold = tau_h * jnp.max(h) if relative else tau_h
+    keep = ~target & (h > 0) & (h >= threshold)
+    return keep & _ridge(h) if nms else keep

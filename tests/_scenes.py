@@ -1,0 +1,66 @@
+"""Random scenes for property tests (hypothesis strategies) and a bridge to the serial reference."""
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import strategies as st
+from shapely import affinity
+from shapely.geometry import MultiPolygon, Polygon
+
+from jaxplan import Scene, circle
+from jaxplan.reference import reference_fabric
+
+ANGLES = (30.0, 45.0, 60.0, 75.0, 90.0, 120.0)
+TARGET_KINDS = ("circle", "box", "triangle", "multipolygon")
+
+
+def _target(kind: str, h: int, w: int, rng: np.random.Generator):
+    """A target that covers at least the centre of one random cell (unit cells, origin 0)."""
+    r, c = rng.integers(h), rng.integers(w)
+    cx, cy = c + 0.5, r + 0.5
+    size = rng.uniform(0.6, max(0.7, min(h, w) / 3))
+    if kind == "circle":
+        return circle((cx, cy), size, resolution=24)
+    if kind == "box":
+        return Polygon([(cx - size, cy - size * 0.7), (cx + size * 0.8, cy - size * 0.7),
+                        (cx + size * 0.8, cy + size), (cx - size, cy + size)])
+    if kind == "triangle":
+        tri = Polygon([(cx - size, cy - size), (cx + size * 1.2, cy - size * 0.5), (cx, cy + size * 1.3)])
+        return affinity.rotate(tri, rng.uniform(0, 360), origin=(cx, cy))
+    first = circle((cx, cy), min(size, 1.2), resolution=16)
+    r2, c2 = rng.integers(h), rng.integers(w)
+    second = circle((c2 + 0.5, r2 + 0.5), 0.6, resolution=16)
+    if first.intersects(second):
+        return first
+    return MultiPolygon([first, second])
+
+
+# Grid shapes from 1x1 to 30x30. A fixed menu rather than any (H, W): every new shape compiles the
+# kernels again, and a handful of shapes keeps the suite fast while covering the edge sizes.
+SHAPES = ((1, 1), (1, 6), (6, 1), (2, 3), (5, 5), (7, 12), (13, 9), (16, 16), (30, 30))
+
+
+@st.composite
+def scenes(draw, max_side: int = 30, integer_counts: bool = True):
+    """A random Scene: size, density, target shape and counts."""
+    h, w = draw(st.sampled_from([s for s in SHAPES if max(s) <= max_side]))
+    density = draw(st.sampled_from((0.2, 0.5, 0.8, 1.0)))
+    kind = draw(st.sampled_from(TARGET_KINDS))
+    seed = draw(st.integers(0, 2**31 - 1))
+    rng = np.random.default_rng(seed)
+    if integer_counts:
+        counts = rng.integers(1, 6, (h, w)).astype(np.float32)
+    else:  # distinct-ish real counts, so exact ties between paths are rare
+        counts = np.round(rng.uniform(0.5, 5.0, (h, w)), 3).astype(np.float32)
+    obj = np.where(rng.random((h, w)) < density, counts, 0.0).astype(np.float32)
+    return Scene.from_arrays(obj, _target(kind, h, w, rng), cell_size=1.0)
+
+
+def reference_of(scene: Scene, params, **kw):
+    """The serial reference on exactly the scene's geometry arrays (float64 copies)."""
+    return reference_fabric(
+        np.asarray(scene.obj, np.float64), np.asarray(scene.target_mask),
+        np.asarray(scene.dist, np.float64), np.asarray(scene.tvec, np.float64),
+        float(scene.cell_size), float(params.theta_tol_deg), monotone=params.monotone, k=params.k,
+        max_hops=params.max_hops, tau_h=float(params.tau_h), highway_relative=params.highway_relative,
+        highway_smoothing=params.highway_smoothing, highway_nms=params.highway_nms,
+        anchor_lambda=float(params.anchor_lambda), **kw)
