@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan import _grid, heatmap, visibility
+from jaxplan import _grid, _kbest, heatmap, visibility
 from jaxplan.params import FabricParams, validate_params
 
 
@@ -49,7 +49,8 @@ class Fabric(NamedTuple):
     psi: f32[H, W], propagated raw mass (Eqs. 7-8), objects.
     heat: f32[H, W], look-back heatmap (Eq. 10), objects; 0 on target cells.
     highways: bool[H, W], highway cells (Eq. 11).
-    rounds: i32[], DP rounds run. converged: bool[], whether the DP reached its fixed point.
+    rounds: i32[], solver iterations (wavefront rounds or policy-iteration steps).
+    converged: bool[], whether the solver reached its fixed point.
     """
 
     value: jax.Array
@@ -69,34 +70,6 @@ class Fabric(NamedTuple):
 
 # ----------------------------------------------------------------------------------------------
 # The dynamic program
-
-
-def _top_k_lex(raw, length, k: int, len_tol):
-    """The k best of M candidates by ``(raw, -length)``, ties to the lower candidate index.
-
-    raw, length: f32[M, H, W] (candidate-major, so every reduction is an elementwise pass over
-    whole planes). Lengths within ``len_tol`` (relative, plus the same absolute amount in world
-    units) count as equal: equal-length paths summed in another step order differ in the last bits,
-    and the tie must go to the direction order, not to rounding. Returns ``(raw, length, index)``,
-    each ``[k, H, W]``; unused entries have raw -inf, length +inf, index 0. k rounds of a
-    lexicographic argmax are cheaper than a sort for small k.
-    """
-    positions = jnp.arange(raw.shape[0], dtype=jnp.int32)[:, None, None]
-    out_raw, out_len, out_idx = [], [], []
-    for _ in range(k):
-        best_raw = jnp.max(raw, axis=0)
-        is_best = raw == best_raw
-        best_len = jnp.min(jnp.where(is_best, length, jnp.inf), axis=0)
-        near = is_best & (length <= best_len + len_tol * (1.0 + best_len))
-        # first index of the lexicographic best; a min-reduce is much cheaper than argmax on CPU
-        idx = jnp.min(jnp.where(near, positions, raw.shape[0]), axis=0)
-        used = best_raw > -jnp.inf
-        chosen_len = jnp.min(jnp.where(positions == idx, length, jnp.inf), axis=0)
-        out_raw.append(best_raw)
-        out_len.append(jnp.where(used, chosen_len, jnp.inf))
-        out_idx.append(jnp.where(used, idx, 0))
-        raw = jnp.where(positions == idx, -jnp.inf, raw)
-    return jnp.stack(out_raw), jnp.stack(out_len), jnp.stack(out_idx)
 
 
 class _Graph(NamedTuple):
@@ -128,33 +101,34 @@ def _candidates(raw, length, g: _Graph):
     return jnp.concatenate(cand_raw), jnp.concatenate(cand_len)
 
 
-def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *,
-                    monotone: bool, k: int, max_hops: int):
-    """Run the wavefront DP toward ``goal``; returns ``(table, feasible[8,H,W], rounds, converged)``.
-
-    obj: f32[H, W] objects; occupied: bool[H, W] expandable cells; goal: bool[H, W] cells whose entry
-    ends a path; dist: f32[H, W] world units to the goal (also the fallback length); tvec: f32[H, W, 2]
-    unit (x, y) direction of the closest goal point. ``k`` and ``max_hops`` are static.
-    """
+def _graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone: bool) -> _Graph:
     feasible = visibility.feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone, cell_size)
-    enters_goal = feasible & _grid.neighbours(goal, False)
-    graph = _Graph(
+    return _Graph(
         obj=jnp.asarray(obj, jnp.float32),
         feasible=feasible,
-        enters_goal=enters_goal,
+        enters_goal=feasible & _grid.neighbours(goal, False),
         fallback=occupied & ~jnp.any(feasible, axis=0),
         fallback_len=jnp.asarray(dist, jnp.float32),
         step_len=jnp.asarray(_grid.STEP_CELLS) * cell_size,
     )
-    shape = (k,) + obj.shape
-    len_tol = _grid.LENGTH_TIE_EPS * cell_size
+
+
+def _wavefront_dp(graph: _Graph, cell_size, k: int, max_hops: int):
+    """Synchronous rounds of the K-best recursion until nothing changes (or ``max_hops`` rounds).
+
+    Returns ``(raw, length, direction, rank)`` as ``[K, H, W]``, rounds and whether it converged.
+    """
+    shape = (k,) + graph.obj.shape
+    key = jnp.arange(_grid.N_DIRS * k + 1, dtype=jnp.int32)[:, None, None]   # (direction, rank) order
 
     def cond(carry):
         return carry[-1] & (carry[-2] < max_hops)
 
     def body(carry):
         raw, length, idx, rounds, _ = carry
-        new_raw, new_len, new_idx = _top_k_lex(*_candidates(raw, length, graph), k, len_tol)
+        cand_raw, cand_len = _candidates(raw, length, graph)
+        tol = _kbest.length_tolerance(jnp.min(cand_len, axis=0), cell_size)
+        new_raw, new_len, _, new_idx = _kbest.select_top_k(cand_raw, cand_len, jnp.broadcast_to(key, cand_raw.shape), k, tol)
         changed = ~(jnp.array_equal(new_raw, raw) & jnp.array_equal(new_len, length)
                     & jnp.array_equal(new_idx, idx))
         return new_raw, new_len, new_idx, rounds + 1, changed
@@ -162,17 +136,52 @@ def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *
     start = (jnp.full(shape, -jnp.inf), jnp.full(shape, jnp.inf), jnp.zeros(shape, jnp.int32),
              jnp.int32(0), jnp.bool_(True))
     raw, length, idx, rounds, changed = jax.lax.while_loop(cond, body, start)
-    return _table(raw, length, idx, enters_goal, k), feasible, rounds, ~changed
-
-
-def _table(raw, length, idx, enters_goal, k: int) -> Table:
-    """Decode candidate indices into (next_dir, next_rank) and move K last: ``[H, W, K]``."""
-    used = raw > -jnp.inf
     direction = jnp.where(idx == _grid.N_DIRS * k, _grid.FALLBACK, idx // k)
+    return raw, length, direction, idx % k, rounds, ~changed
+
+
+def _ranks_from_directions(direction):
+    """``i32[K, H, W]``: entry j continues with the neighbour's entry equal to the number of better
+    entries that start with the same step (C's paths through N are N's paths, in N's order)."""
+    k = direction.shape[0]
+    same = direction[:, None] == direction[None, :]                     # [i, j, H, W]
+    earlier = jnp.triu(jnp.ones((k, k), bool), 1)[..., None, None]      # i < j
+    return jnp.sum(same & earlier, axis=0).astype(jnp.int32)
+
+
+def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *,
+                    monotone: bool, k: int, max_hops: int, solver: str = "auto"):
+    """The K-best continuation table toward ``goal``: ``(table, feasible[8,H,W], rounds, converged)``.
+
+    obj: f32[H, W] objects; occupied: bool[H, W] expandable cells; goal: bool[H, W] cells whose entry
+    ends a path; dist: f32[H, W] world units to the goal (also the fallback length); tvec: f32[H, W, 2]
+    unit (x, y) direction of the closest goal point. ``k``, ``max_hops`` and ``solver`` are static.
+    solver: "wavefront" (synchronous rounds; works without the monotone rule), "policy" (policy
+    iteration + sidetracks, ``jaxplan._kbest``; needs the monotone rule) or "auto" (policy when
+    monotone). Both give the same table; ``rounds`` counts wavefront rounds or policy iterations.
+    """
+    graph = _graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone)
+    use_policy = solver == "policy" or (solver == "auto" and monotone)
+    if use_policy and not monotone:
+        raise ValueError("solver='policy' needs the monotone rule (an acyclic successor graph); "
+                         "use solver='wavefront' or 'auto' with monotone=False.")
+    if use_policy:
+        best_raw, best_len, policy, rounds = _kbest.best_paths(graph, occupied, cell_size, max_hops)
+        raw, length, direction = _kbest.kbest_tables(best_raw, best_len, policy, graph, occupied, k, cell_size)
+        rank = _ranks_from_directions(direction)
+        converged = rounds < max_hops
+    else:
+        raw, length, direction, rank, rounds, converged = _wavefront_dp(graph, cell_size, k, max_hops)
+    return _table(raw, length, direction, rank, graph.enters_goal), graph.feasible, rounds, converged
+
+
+def _table(raw, length, direction, rank, enters_goal) -> Table:
+    """Mask unused entries, mark steps into a goal cell (rank -1) and move K last: ``[H, W, K]``."""
+    used = raw > -jnp.inf
     into_goal = jnp.take_along_axis(enters_goal, jnp.clip(direction, 0, 7), axis=0)
-    step = used & (direction < _grid.FALLBACK)
+    step = used & (direction >= 0) & (direction < _grid.FALLBACK)
     next_dir = jnp.where(used, direction, -1)
-    next_rank = jnp.where(step & ~into_goal, idx % k, -1)
+    next_rank = jnp.where(step & ~into_goal, rank, -1)
     last = lambda a: jnp.moveaxis(a, 0, -1)  # noqa: E731
     return Table(last(raw), last(jnp.where(used, length, jnp.inf)), last(next_dir), last(next_rank))
 
@@ -204,7 +213,8 @@ def _build(scene, params: FabricParams) -> Fabric:
     occupied = ~target & (obj > 0)
     table, feasible, rounds, converged = continuation_dp(
         obj, occupied, target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
-        monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape))
+        monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape),
+        solver=params.solver)
     hop, heading, hop_len, _ = first_hops(table, scene.tvec, scene.cell_size)
     value = jnp.where(occupied, table.raw[..., 0], 0.0)
     length = jnp.where(occupied, table.length[..., 0], 0.0)
@@ -281,18 +291,44 @@ def _walk(table: Table, source, rank, max_steps: int):
     return Paths(cells, n, table.raw[r, c, rank], table.length[r, c, rank], fell_back, done)
 
 
+def _table_hops(table: Table):
+    """``i32[H, W, K]`` grid steps of every table entry, by pointer doubling over (cell, entry)."""
+    h, w, k = table.raw.shape
+    n = h * w * k
+    steps = (table.next_dir >= 0) & (table.next_dir < _grid.FALLBACK)
+    d = jnp.asarray(_grid.DIRS_ARRAY)[jnp.clip(table.next_dir, 0, 7)]
+    rows = jnp.arange(h)[:, None, None] + d[..., 0]
+    cols = jnp.arange(w)[None, :, None] + d[..., 1]
+    continues = steps & (table.next_rank >= 0)
+    pointer = jnp.append(jnp.where(continues, (rows * w + cols) * k + table.next_rank, n).reshape(-1), n)
+    hops = jnp.append(steps.astype(jnp.int32).reshape(-1), 0)
+
+    def unfinished(carry):
+        return jnp.any(carry[1][:-1] != n)
+
+    def double(carry):
+        hops, pointer = carry
+        return hops + hops[pointer], pointer[pointer]
+
+    hops, _ = jax.lax.while_loop(unfinished, double, (hops, pointer))
+    return hops[:-1].reshape(h, w, k)
+
+
+table_hops = jax.jit(_table_hops)
+
+
 def extract_paths(fabric: Fabric, sources, ranks=None, *, max_steps: int | None = None) -> Paths:
     """Read paths for many sources in one batched call (``vmap`` of a fixed-length walk).
 
     fabric: a ``Fabric`` (its continuation table is read); sources: i32[B, 2] (row, col); ranks:
     i32[B] table entries (default 0, the selected path). max_steps: static walk length; default =
-    the DP's round count, which bounds every path's hop count (read on the host, so pass it
-    explicitly under ``jit``).
+    1 + the longest entry of the table (``table_hops``, read on the host, so pass it explicitly under
+    ``jit``).
     """
     sources = jnp.asarray(sources, jnp.int32).reshape(-1, 2)
     ranks = jnp.zeros(sources.shape[0], jnp.int32) if ranks is None else jnp.asarray(ranks, jnp.int32)
     if max_steps is None:
-        max_steps = max(1, int(fabric.rounds))
+        max_steps = 1 + int(jnp.max(table_hops(fabric.table)))   # +1: a final fallback is a scan step
     return _extract_jit(fabric.table, sources, ranks, max_steps)
 
 

@@ -14,7 +14,8 @@ import jax
 import numpy as np
 
 _TRACED = ("theta_tol_deg", "tau_h", "anchor_lambda", "slack_tau")
-_STATIC = ("monotone", "k", "max_hops", "highway_relative", "highway_smoothing", "highway_nms")
+_STATIC = ("monotone", "k", "max_hops", "highway_relative", "highway_smoothing", "highway_nms",
+           "solver")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,6 +32,8 @@ class FabricParams:
       k: continuation-table depth K (>= 1).
       max_hops: DP round cap; None = H*W + 1 with the monotone rule, 2*(H+W) without.
       highway_relative, highway_smoothing, highway_nms: highway extraction options (Eq. 11).
+      solver: "auto" (policy iteration with the monotone rule, wavefront without), "policy" or
+        "wavefront"; all give the same fabric (see ``fabric.continuation_dp``).
     """
 
     theta_tol_deg: Any = 60.0
@@ -43,6 +46,7 @@ class FabricParams:
     highway_relative: bool = True
     highway_smoothing: bool = False
     highway_nms: bool = False
+    solver: str = "auto"
 
     def replace(self, **changes) -> "FabricParams":
         return dataclasses.replace(self, **changes)
@@ -90,5 +94,10 @@ def validate_params(params: FabricParams) -> None:
         raise ValueError(f"FabricParams.k: the continuation-table depth must be an int >= 1; got {params.k!r}.")
     if params.max_hops is not None and (not isinstance(params.max_hops, (int, np.integer)) or params.max_hops < 1):
         raise ValueError(f"FabricParams.max_hops: must be None or an int >= 1; got {params.max_hops!r}.")
+    if params.solver not in ("auto", "policy", "wavefront"):
+        raise ValueError(f"FabricParams.solver: must be 'auto', 'policy' or 'wavefront'; got {params.solver!r}.")
+    if params.solver == "policy" and not params.monotone:
+        raise ValueError("FabricParams.solver: 'policy' needs monotone=True (an acyclic successor graph); "
+                         "use 'auto' or 'wavefront'.")
     if not isinstance(params.monotone, (bool, np.bool_)):
         raise ValueError(f"FabricParams.monotone: must be True or False; got {params.monotone!r}.")

@@ -64,3 +64,28 @@ def reference_of(scene: Scene, params, **kw):
         max_hops=params.max_hops, tau_h=float(params.tau_h), highway_relative=params.highway_relative,
         highway_smoothing=params.highway_smoothing, highway_nms=params.highway_nms,
         anchor_lambda=float(params.anchor_lambda), **kw)
+
+
+def has_borderline_step(scene: Scene, theta_tol_deg: float, margin: float = 5e-7) -> bool:
+    """Whether any cone or monotone test of the scene lies within ``margin`` of its threshold.
+
+    The kernels decide those in float32 (rounding ~1e-7) and the reference in float64, so such a step may be
+    feasible in one and not the other; tests comparing the two skip such scenes.
+    """
+    from jaxplan import _grid
+
+    tvec = np.asarray(scene.tvec, np.float64)
+    dist = np.asarray(scene.dist, np.float64)
+    s = float(scene.cell_size)
+    h, w = dist.shape
+    cos_t = np.cos(np.deg2rad(theta_tol_deg)) - _grid.CONE_EPS
+    for i, (dr, dc) in enumerate(_grid.DIRS):
+        unit = np.array([dc, dr], np.float64) / np.hypot(dr, dc)
+        cone = tvec @ unit - cos_t
+        nb = np.full((h, w), np.nan)
+        rs, cs = slice(max(0, -dr), h - max(0, dr)), slice(max(0, -dc), w - max(0, dc))
+        nb[rs, cs] = dist[max(0, dr):h + min(0, dr), max(0, dc):w + min(0, dc)]
+        mono = (dist - _grid.MONOTONE_EPS * s) - nb
+        if np.any(np.abs(cone) < margin) or np.any(np.abs(mono[np.isfinite(mono)]) < 2 * margin * s):
+            return True
+    return False

@@ -6,13 +6,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxplan import FabricParams, build_fabric, builtin_scene, plan_connectors
-from tests._scenes import reference_of, scenes
+from tests._scenes import has_borderline_step, reference_of, scenes
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scene=scenes(max_side=16, integer_counts=False), theta=st.sampled_from((45.0, 60.0, 90.0)),
        lam=st.sampled_from((0.0, 0.5, 2.0)), tau_h=st.sampled_from((0.3, 0.6)))
 def test_anchors_and_connectors_equal_reference(scene, theta, lam, tau_h):
+    if has_borderline_step(scene, theta):
+        return  # float32 vs float64 may decide a step at its threshold differently
     params = FabricParams(theta_tol_deg=theta, anchor_lambda=lam, tau_h=tau_h)
     fab = build_fabric(scene, params)
     ref = reference_of(scene, params)

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from jaxplan import FabricParams, Scene, build_fabric, circle, extract_paths
 from jaxplan import fabric as fabric_module
-from tests._scenes import ANGLES, reference_of, scenes
+from tests._scenes import ANGLES, has_borderline_step, reference_of, scenes
 
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -29,6 +29,8 @@ def _tables_equal(fab, ref):
 @SETTINGS
 @given(scene=scenes(), theta=st.sampled_from(ANGLES))
 def test_value_length_and_table_equal_reference(scene, theta):
+    if has_borderline_step(scene, theta):
+        return  # float32 vs float64 may decide a step at its threshold differently
     params = FabricParams(theta_tol_deg=theta)
     fab = build_fabric(scene, params)
     ref = reference_of(scene, params, with_connectors=False)
@@ -46,6 +48,8 @@ def test_value_length_and_table_equal_reference(scene, theta):
 @SETTINGS
 @given(scene=scenes(integer_counts=False), theta=st.sampled_from(ANGLES))
 def test_psi_heat_highways_equal_reference_where_unique(scene, theta):
+    if has_borderline_step(scene, theta):
+        return
     params = FabricParams(theta_tol_deg=theta)
     fab = build_fabric(scene, params)
     ref = reference_of(scene, params, with_connectors=False)
@@ -63,6 +67,8 @@ def test_psi_heat_highways_equal_reference_where_unique(scene, theta):
 @settings(max_examples=25, deadline=None)
 @given(scene=scenes(max_side=5), theta=st.sampled_from((60.0, 90.0, 120.0, 150.0)))
 def test_without_monotone_rule_matches_reference_or_bounds_it(scene, theta):
+    if has_borderline_step(scene, theta):
+        return
     params = FabricParams(theta_tol_deg=theta, monotone=False, max_hops=8)
     fab = build_fabric(scene, params)
     ref = reference_of(scene, params, with_connectors=False)
@@ -76,6 +82,17 @@ def test_without_monotone_rule_matches_reference_or_bounds_it(scene, theta):
                           for r in range(value.shape[0])])
         reachable = has_path & (steps < params.max_hops)
         assert np.all(value[reachable] >= ref.value[reachable])
+
+
+@settings(max_examples=30, deadline=None)
+@given(scene=scenes(), theta=st.sampled_from(ANGLES), k=st.sampled_from((1, 2, 4)))
+def test_policy_solver_equals_wavefront_solver(scene, theta, k):
+    fast = build_fabric(scene, FabricParams(theta_tol_deg=theta, k=k, solver="policy"))
+    plain = build_fabric(scene, FabricParams(theta_tol_deg=theta, k=k, solver="wavefront"))
+    assert bool(fast.converged) and bool(plain.converged)
+    np.testing.assert_array_equal(np.asarray(fast.table.raw), np.asarray(plain.table.raw))
+    np.testing.assert_allclose(np.asarray(fast.table.length), np.asarray(plain.table.length), rtol=1e-5, atol=1e-4)
+    np.testing.assert_array_equal(np.asarray(fast.first_hop), np.asarray(plain.first_hop))
 
 
 # ---------------------------------------------------------------------------------- paths

@@ -1,0 +1,353 @@
+"""The ``jaxplan`` command line: ``jaxplan fabric``, ``jaxplan demo`` and ``jaxplan scenes``.
+
+Every subcommand has ``--help`` with an example. Bad input (a missing scene file, an unknown built-in
+name, an out-of-range parameter) prints one ``error: ...`` line to stderr and exits with code 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import tempfile
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+
+from jaxplan.scene import BUILTIN_SCENES, DEFAULT_SCENE
+
+__all__ = ["main"]
+
+EXIT_BAD_INPUT = 2
+
+FABRIC_ARRAYS = ("value", "length", "first_hop", "heading", "psi", "heat", "highways", "fallback",
+                 "occupied", "table_raw", "table_len", "table_next_dir", "table_next_rank", "rounds",
+                 "converged")
+SUMMARY_KEYS = ("scene", "shape", "cell_size", "params", "total_mass", "occupied_cells",
+                "max_value_J", "highway_cells", "roots_with_connector", "dp_rounds", "converged",
+                "compile_ms", "warm_build_ms")
+
+_WARM_REPEATS = 5
+
+
+class CLIError(Exception):
+    """Bad command-line input; the message is printed as ``error: <message>``."""
+
+
+# --------------------------------------------------------------------------------------------------
+# Helpers
+# --------------------------------------------------------------------------------------------------
+
+def _load_scene(spec: str):
+    """A built-in scene by name, or a scene file (.npz / .json) by path."""
+    from jaxplan.scene import Scene, builtin_scene
+
+    if spec in BUILTIN_SCENES:
+        return builtin_scene(spec)
+    path = Path(spec)
+    if path.is_file():
+        try:
+            return Scene.load(path)
+        except OSError as exc:
+            raise CLIError(f"--scene: could not read {spec!r} ({exc.strerror or exc}).") from None
+    if path.suffix.lower() in (".npz", ".json") or os.sep in spec or path.exists():
+        raise CLIError(f"--scene: no such scene file {spec!r}.")
+    raise CLIError(f"--scene: {spec!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) "
+                   "nor an existing .npz/.json scene file.")
+
+
+def _params(args):
+    from jaxplan.params import FabricParams, validate_params
+
+    params = FabricParams(theta_tol_deg=args.theta_tol, tau_h=getattr(args, "tau_h", 0.5),
+                          k=getattr(args, "k", 4), monotone=not getattr(args, "no_monotone", False))
+    validate_params(params)  # before any expensive work; raises ValueError naming the field
+    return params
+
+
+def _params_dict(params) -> dict:
+    out = {}
+    for key in ("theta_tol_deg", "tau_h", "anchor_lambda", "slack_tau", "monotone", "k",
+                "max_hops", "highway_relative", "highway_smoothing", "highway_nms"):
+        value = getattr(params, key)
+        if isinstance(value, (bool, np.bool_)) or value is None:
+            out[key] = None if value is None else bool(value)
+        elif isinstance(value, (int, np.integer)):
+            out[key] = int(value)
+        else:
+            out[key] = float(np.asarray(value))
+    return out
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Call ``write(binary_file)`` on a temp file next to ``path``, then rename it into place.
+
+    Nothing is left at ``path`` (or beside it) when ``write`` fails. The file gets the usual
+    permissions (0666 minus the umask), not mkstemp's 0600.
+    """
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def _timed(fn, *args):
+    """``(result, milliseconds)`` of one call, waiting for every output array."""
+    import jax
+
+    start = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    return out, (time.perf_counter() - start) * 1e3
+
+
+# --------------------------------------------------------------------------------------------------
+# Subcommands
+# --------------------------------------------------------------------------------------------------
+
+def _cmd_fabric(args) -> int:
+    import jax
+
+    from jaxplan.fabric import build_fabric
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".npz":
+        raise CLIError(f"--out: the output file must end in '.npz'; got {args.out!r}.")
+    params = _params(args)
+    scene = _load_scene(args.scene)
+    fabric = jax.block_until_ready(build_fabric(scene, params))
+    arrays = {
+        "value": fabric.value, "length": fabric.length, "first_hop": fabric.first_hop,
+        "heading": fabric.heading, "psi": fabric.psi, "heat": fabric.heat,
+        "highways": fabric.highways, "fallback": fabric.fallback, "occupied": fabric.occupied,
+        "table_raw": fabric.table.raw, "table_len": fabric.table.length,
+        "table_next_dir": fabric.table.next_dir, "table_next_rank": fabric.table.next_rank,
+        "rounds": fabric.rounds, "converged": fabric.converged,
+        # context for readers of the file
+        "target_mask": scene.target_mask, "cell_size": scene.cell_size, "origin": scene.origin,
+        "theta_tol_deg": np.float32(params.theta_tol_deg), "tau_h": np.float32(params.tau_h),
+        "k": np.int32(params.k), "monotone": np.bool_(params.monotone),
+    }
+    arrays = {key: np.asarray(value) for key, value in arrays.items()}
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        _atomic_write(out, lambda fh: np.savez_compressed(fh, **arrays))
+    except OSError as exc:
+        raise CLIError(f"--out: could not write {str(out)!r} ({exc.strerror or exc}).") from None
+    h, w = scene.shape
+    print(f"fabric of {scene.name or args.scene} ({h}x{w}): J max {float(arrays['value'].max()):g}, "
+          f"{int(arrays['highways'].sum())} highway cells, {int(arrays['rounds'])} DP rounds, "
+          f"converged={bool(arrays['converged'])}")
+    print(f"wrote {out}")
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")  # the demo only writes files; works without a display
+    import jax
+    import matplotlib.pyplot as plt
+    from tqdm import tqdm
+
+    from jaxplan.connectors import plan_connectors
+    from jaxplan.fabric import build_fabric
+    from jaxplan.viz import plot_fabric
+
+    params = _params(args)
+    scene = _load_scene(args.scene)  # bad input fails here, before the progress bar starts
+    out_dir = Path(args.out)
+    stages = ["build fabric (first call compiles)", "warm builds", "plan connectors", "plot"]
+    with tqdm(total=len(stages), desc="jaxplan demo", unit="stage", file=sys.stderr,
+              leave=False) as bar:
+        bar.set_postfix_str(stages[0])
+        fabric, compile_ms = _timed(build_fabric, scene, params)
+        bar.update()
+        bar.set_postfix_str(stages[1])
+        warm = [_timed(build_fabric, scene, params)[1] for _ in range(_WARM_REPEATS)]
+        warm_ms = statistics.median(warm)
+        bar.update()
+        bar.set_postfix_str(stages[2])
+        connectors = jax.block_until_ready(plan_connectors(scene, params, fabric))
+        bar.update()
+        bar.set_postfix_str(stages[3])
+        fig = plot_fabric(scene, fabric, connectors)
+        bar.update()
+
+    png = out_dir / "fabric.png"
+    summary_path = out_dir / "summary.json"
+    h, w = scene.shape
+    summary = {
+        "scene": scene.name or args.scene,
+        "shape": [h, w],
+        "cell_size": float(np.asarray(scene.cell_size)),
+        "params": _params_dict(params),
+        "total_mass": float(np.asarray(scene.total_mass)),
+        "occupied_cells": int(np.asarray(fabric.occupied).sum()),
+        "max_value_J": float(np.asarray(fabric.value).max()),
+        "highway_cells": int(np.asarray(fabric.highways).sum()),
+        "roots_with_connector": int(np.asarray(connectors.has_connector).sum()),
+        "connectors_truncated": bool(np.asarray(connectors.truncated)),
+        "dp_rounds": int(np.asarray(fabric.rounds)),
+        "converged": bool(np.asarray(fabric.converged)),
+        "compile_ms": round(compile_ms, 3),
+        "warm_build_ms": round(warm_ms, 3),
+        "timing_note": ("compile_ms: wall time of the first build_fabric call (trace + compile + "
+                        "run; small if this process had compiled it already); warm_build_ms: "
+                        f"median of {_WARM_REPEATS} further calls; both with "
+                        "jax.block_until_ready."),
+        "backend": jax.default_backend(),
+        "jax_version": jax.__version__,
+        "outputs": {"figure": str(png), "summary": str(summary_path)},
+    }
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        _atomic_write(png, lambda fh: fig.savefig(fh, format="png", dpi=120))
+        text = json.dumps(summary, indent=2) + "\n"
+        _atomic_write(summary_path, lambda fh: fh.write(text.encode()))
+    except OSError as exc:
+        raise CLIError(f"--out: could not write into {str(out_dir)!r} "
+                       f"({exc.strerror or exc}).") from None
+    finally:
+        plt.close(fig)
+
+    print(f"scene {summary['scene']!r}: {h}x{w}, cell size {summary['cell_size']:g}, "
+          f"total mass {summary['total_mass']:g}, {summary['occupied_cells']} occupied cells")
+    print(f"fabric (theta_tol {summary['params']['theta_tol_deg']:g} deg): max J "
+          f"{summary['max_value_J']:g}, {summary['highway_cells']} highway cells, "
+          f"{summary['roots_with_connector']} roots with a connector, {summary['dp_rounds']} DP "
+          f"rounds, converged={summary['converged']}")
+    print(f"build_fabric on {summary['backend']}: first call {compile_ms:.1f} ms (incl. compile), "
+          f"warm {warm_ms:.2f} ms (median of {_WARM_REPEATS})")
+    print(f"wrote {png}")
+    print(f"wrote {summary_path}")
+    return 0
+
+
+def _cmd_scenes(args) -> int:
+    from jaxplan.scene import builtin_scene
+
+    rows = []
+    for name in BUILTIN_SCENES:
+        scene = builtin_scene(name)
+        h, w = scene.shape
+        rows.append((name + (" (default)" if name == DEFAULT_SCENE else ""), f"{h}x{w}",
+                     type(scene.target).__name__, str(int(np.asarray(scene.occupied).sum())),
+                     f"{float(np.asarray(scene.total_mass)):g}"))
+    header = ("name", "shape", "target", "occupied", "mass")
+    widths = [max(len(r[i]) for r in rows + [header]) for i in range(len(header))]
+    for row in [header] + rows:
+        print("  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip())
+    return 0
+
+
+# --------------------------------------------------------------------------------------------------
+# Parser
+# --------------------------------------------------------------------------------------------------
+
+def _angle(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an angle in degrees, got {text!r}") from None
+
+
+def _wrap(text: str) -> str:
+    return textwrap.fill(" ".join(text.split()), width=79)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    fmt = argparse.RawDescriptionHelpFormatter
+    scene_help = (f"a built-in scene name ({', '.join(BUILTIN_SCENES)}) or a scene file "
+                  "(.npz or .json, see docs/scene-format.md)")
+    parser = argparse.ArgumentParser(
+        prog="jaxplan", formatter_class=fmt,
+        description=_wrap("Environment-first planning for aggregate transport: build the "
+                          "trajectory fabric (visibility, K-best paths, heatmap, highways) of a "
+                          "scene with JAX."),
+        epilog="examples:\n  jaxplan demo\n  jaxplan fabric --scene corridor --out fabric.npz\n"
+               "  jaxplan scenes\n\nRun 'jaxplan COMMAND --help' for the options of a command.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser(
+        "fabric", formatter_class=fmt, help="build the fabric of a scene and save its arrays (.npz)",
+        description=_wrap("Load a scene, build its fabric with build_fabric and write the arrays "
+                          "to a compressed .npz: " + ", ".join(FABRIC_ARRAYS) + " (table_* are "
+                          "the K-best continuation table, [H, W, K]), plus target_mask, "
+                          "cell_size, origin and the parameters. The file is written atomically "
+                          "(temp file + rename)."),
+        epilog="example:\n  jaxplan fabric --scene default --theta-tol 45 --out out/fabric.npz\n"
+               "  python -c \"import numpy as np; print(np.load('out/fabric.npz')['value'].max())\"")
+    p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help)
+    p.add_argument("--theta-tol", type=_angle, default=60.0, metavar="DEG",
+                   help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); "
+                        "default 60")
+    p.add_argument("--tau-h", type=float, default=0.5, metavar="X",
+                   help="highway threshold (Eq. 11), a fraction of max heat; default 0.5")
+    p.add_argument("--k", type=int, default=4, metavar="K",
+                   help="depth of the continuation table (K best paths per cell); default 4")
+    p.add_argument("--no-monotone", action="store_true",
+                   help="drop the strict monotone rule (hop-capped DP; see docs/conventions.md)")
+    p.add_argument("--out", required=True, metavar="OUT.npz", help="output file (.npz)")
+    p.set_defaults(func=_cmd_fabric)
+
+    p = sub.add_parser(
+        "demo", formatter_class=fmt,
+        help="build fabric + connectors of a scene, write a Fig. 2d plot and a summary",
+        description=_wrap("Build the fabric and the highway connectors of a scene (default: the "
+                          f"built-in {DEFAULT_SCENE!r} scene), then write DIR/fabric.png "
+                          "(heatmap, first-hop headings, connector headings, highways) and "
+                          "DIR/summary.json (sizes, totals, DP rounds, compile and warm build "
+                          "times). The first build compiles, which takes a few seconds."),
+        epilog="example:\n  jaxplan demo --scene corridor --theta-tol 45 --out out/corridor")
+    p.add_argument("--scene", default=DEFAULT_SCENE, metavar="NAME_OR_FILE",
+                   help=scene_help + f"; default {DEFAULT_SCENE!r}")
+    p.add_argument("--out", default="out/demo", metavar="DIR",
+                   help="output directory (created if missing); default out/demo")
+    p.add_argument("--theta-tol", type=_angle, default=60.0, metavar="DEG",
+                   help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); "
+                        "default 60")
+    p.set_defaults(func=_cmd_demo)
+
+    p = sub.add_parser(
+        "scenes", formatter_class=fmt, help="list the built-in scenes",
+        description=_wrap("List the built-in scenes with their grid shape, target type, number "
+                          "of occupied cells and total mass. Use a name with --scene."),
+        epilog="example:\n  jaxplan scenes\n  jaxplan demo --scene two_targets")
+    p.set_defaults(func=_cmd_scenes)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Run the CLI with ``argv`` (default ``sys.argv[1:]``); returns 0 on success.
+
+    Bad input raises ``SystemExit(2)`` after printing ``error: <message>`` to stderr (argparse's
+    own usage errors exit with 2 as well).
+    """
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (CLIError, ValueError) as exc:
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(EXIT_BAD_INPUT) from None
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
