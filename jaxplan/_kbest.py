@@ -62,23 +62,27 @@ def length_tolerance(length, cell_size):
 
 # ------------------------------------------------------------------------------------ policy iteration
 
-def _one_step_candidates(best_raw, best_len, g):
-    """``f32[9, H, W]`` raw and length of each first step (8 directions, then the fallback) followed
-    by the neighbour's current best path."""
-    raw, length = [], []
+def step_candidates(raw, length, g):
+    """Every cell's 8*K + 1 candidate paths, ``f32[8K + 1, H, W]``: a first step in each direction
+    followed by each of the neighbour's K table entries (direction-major, then rank), then the
+    fallback. raw, length: the table, ``[K, H, W]``; g: a ``visibility.SuccessorGraph``."""
+    k = raw.shape[0]
+    first_rank = (jnp.arange(k) == 0)[:, None, None]
+    cand_raw, cand_len = [], []
     for d, (dr, dc) in enumerate(_grid.DIRS):
         via_cell = g.feasible[d] & ~g.enters_goal[d]
-        nb_raw = _grid.shift_planes(best_raw, dr, dc, -jnp.inf)
-        nb_len = _grid.shift_planes(best_len, dr, dc, jnp.inf)
-        raw.append(jnp.where(via_cell, g.obj + nb_raw, jnp.where(g.enters_goal[d], g.obj, -jnp.inf)))
-        length.append(g.step_len[d] + jnp.where(g.enters_goal[d], 0.0, nb_len))
-    raw.append(jnp.where(g.fallback, g.obj, -jnp.inf))
-    length.append(g.fallback_len)
-    return jnp.stack(raw), jnp.stack(length)
+        via_goal = g.enters_goal[d] & first_rank
+        nb_raw = _grid.shift_planes(raw, dr, dc, -jnp.inf)
+        nb_len = _grid.shift_planes(length, dr, dc, jnp.inf)
+        cand_raw.append(jnp.where(via_cell, g.obj + nb_raw, jnp.where(via_goal, g.obj, -jnp.inf)))
+        cand_len.append(g.step_len[d] + jnp.where(via_goal, 0.0, nb_len))
+    cand_raw.append(jnp.where(g.fallback, g.obj, -jnp.inf)[None])
+    cand_len.append(g.fallback_len[None])
+    return jnp.concatenate(cand_raw), jnp.concatenate(cand_len)
 
 
 def _best_step(best_raw, best_len, g, cell_size):
-    raw, length = _one_step_candidates(best_raw, best_len, g)
+    raw, length = step_candidates(best_raw[None], best_len[None], g)
     top_raw = jnp.max(raw, axis=0)
     top_len = jnp.min(jnp.where(raw == top_raw, length, jnp.inf), axis=0)
     key = jnp.arange(9, dtype=jnp.int32)[:, None, None]

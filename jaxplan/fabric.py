@@ -1,11 +1,15 @@
-"""The trajectory fabric: a wavefront dynamic program over the successor graph (Section 3.2).
+"""The trajectory fabric: a dynamic program over the successor graph of the whole grid (Section 3.2).
 
 For every occupied cell at once, the kernel keeps a *continuation table* of the K best paths to the
-goal, ranked lexicographically by ``(raw, -len)`` (Eq. 5). One round recomputes every cell's table
-from its neighbours' tables (max-plus over 8 directions x K continuations, plus the boundary
-fallback); rounds repeat until nothing changes. With the strict monotone rule the successor graph is
-a DAG, so after ``k`` rounds every table is exact for paths of at most ``k`` hops and the loop stops
-one round after the longest path is resolved. No per-source search, no Python loop over cells.
+goal, ranked lexicographically by ``(raw, -len)`` (Eq. 5). Two solvers compute the same table:
+
+- the **wavefront**: one round recomputes every cell's table from its neighbours' tables (max-plus
+  over 8 directions x K continuations, plus the boundary fallback) until nothing changes. After
+  ``k`` rounds every table is exact for paths of at most ``k`` hops. Works without the monotone rule.
+- **policy iteration + sidetracks** (``jaxplan._kbest``, the default with the monotone rule): far
+  fewer grid passes on a DAG.
+
+No per-source search, no Python loop over cells. Then first hops, psi, heatmap and highways.
 """
 from __future__ import annotations
 
@@ -72,48 +76,7 @@ class Fabric(NamedTuple):
 # The dynamic program
 
 
-class _Graph(NamedTuple):
-    """What one DP round needs besides the table; all fixed during the loop."""
-
-    obj: jax.Array           # f32[H, W]
-    feasible: jax.Array      # bool[8, H, W]
-    enters_goal: jax.Array   # bool[8, H, W], feasible and the neighbour is a goal cell
-    fallback: jax.Array      # bool[H, W]
-    fallback_len: jax.Array  # f32[H, W], world units
-    step_len: jax.Array      # f32[8], world units
-
-
-def _candidates(raw, length, g: _Graph):
-    """Every cell's 8*K + 1 candidate paths, ``f32[8K + 1, H, W]`` (direction-major, then rank,
-    then the fallback). raw, length: the table, ``[K, H, W]``."""
-    k = raw.shape[0]
-    first_rank = (jnp.arange(k) == 0)[:, None, None]
-    cand_raw, cand_len = [], []
-    for d, (dr, dc) in enumerate(_grid.DIRS):
-        via_cell = g.feasible[d] & ~g.enters_goal[d]
-        via_goal = g.enters_goal[d] & first_rank
-        nb_raw = _grid.shift_planes(raw, dr, dc, -jnp.inf)
-        nb_len = _grid.shift_planes(length, dr, dc, jnp.inf)
-        cand_raw.append(jnp.where(via_cell, g.obj + nb_raw, jnp.where(via_goal, g.obj, -jnp.inf)))
-        cand_len.append(g.step_len[d] + jnp.where(via_goal, 0.0, nb_len))
-    cand_raw.append(jnp.where(g.fallback, g.obj, -jnp.inf)[None])
-    cand_len.append(g.fallback_len[None])
-    return jnp.concatenate(cand_raw), jnp.concatenate(cand_len)
-
-
-def _graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone: bool) -> _Graph:
-    feasible = visibility.feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone, cell_size)
-    return _Graph(
-        obj=jnp.asarray(obj, jnp.float32),
-        feasible=feasible,
-        enters_goal=feasible & _grid.neighbours(goal, False),
-        fallback=occupied & ~jnp.any(feasible, axis=0),
-        fallback_len=jnp.asarray(dist, jnp.float32),
-        step_len=jnp.asarray(_grid.STEP_CELLS) * cell_size,
-    )
-
-
-def _wavefront_dp(graph: _Graph, cell_size, k: int, max_hops: int):
+def _wavefront_dp(graph: visibility.SuccessorGraph, cell_size, k: int, max_hops: int):
     """Synchronous rounds of the K-best recursion until nothing changes (or ``max_hops`` rounds).
 
     Returns ``(raw, length, direction, rank)`` as ``[K, H, W]``, rounds and whether it converged.
@@ -126,7 +89,7 @@ def _wavefront_dp(graph: _Graph, cell_size, k: int, max_hops: int):
 
     def body(carry):
         raw, length, idx, rounds, _ = carry
-        cand_raw, cand_len = _candidates(raw, length, graph)
+        cand_raw, cand_len = _kbest.step_candidates(raw, length, graph)
         tol = _kbest.length_tolerance(jnp.min(cand_len, axis=0), cell_size)
         new_raw, new_len, _, new_idx = _kbest.select_top_k(cand_raw, cand_len, jnp.broadcast_to(key, cand_raw.shape), k, tol)
         changed = ~(jnp.array_equal(new_raw, raw) & jnp.array_equal(new_len, length)
@@ -160,7 +123,7 @@ def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *
     iteration + sidetracks, ``jaxplan._kbest``; needs the monotone rule) or "auto" (policy when
     monotone). Both give the same table; ``rounds`` counts wavefront rounds or policy iterations.
     """
-    graph = _graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone)
+    graph = visibility.successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone)
     use_policy = solver == "policy" or (solver == "auto" and monotone)
     if use_policy and not monotone:
         raise ValueError("solver='policy' needs the monotone rule (an acyclic successor graph); "

@@ -4,6 +4,9 @@ All functions are pure array kernels: one call covers every cell and all 8 direc
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax
 import jax.numpy as jnp
 
 from jaxplan import _grid
@@ -52,3 +55,33 @@ def fallback_direction(tvec):
     score = jnp.where(in_grid, cone_alignment(tvec), -jnp.inf)
     best = jnp.argmax(score, axis=0).astype(jnp.int32)
     return jnp.where(jnp.any(in_grid, axis=0), best, -1)
+
+
+class SuccessorGraph(NamedTuple):
+    """The successor graph of a grid, fixed while the fabric's dynamic program runs.
+
+    obj: f32[H, W] objects; feasible: bool[8, H, W] (``feasible_successors``); enters_goal:
+    bool[8, H, W] feasible steps into a goal cell; fallback: bool[H, W] occupied cells without a
+    feasible successor; fallback_len: f32[H, W] world units; step_len: f32[8] world units.
+    """
+
+    obj: jax.Array
+    feasible: jax.Array
+    enters_goal: jax.Array
+    fallback: jax.Array
+    fallback_len: jax.Array
+    step_len: jax.Array
+
+
+def successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone: bool) -> SuccessorGraph:
+    """Build the ``SuccessorGraph`` (arguments as in ``feasible_successors``; dist is also the
+    fallback length)."""
+    feasible = feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone, cell_size)
+    return SuccessorGraph(
+        obj=jnp.asarray(obj, jnp.float32),
+        feasible=feasible,
+        enters_goal=feasible & _grid.neighbours(goal, False),
+        fallback=occupied & ~jnp.any(feasible, axis=0),
+        fallback_len=jnp.asarray(dist, jnp.float32),
+        step_len=jnp.asarray(_grid.STEP_CELLS) * cell_size,
+    )
