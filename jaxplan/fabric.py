@@ -17,7 +17,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxplan import _grid, _kbest, heatmap, visibility
 from jaxplan.params import FabricParams, validate_params

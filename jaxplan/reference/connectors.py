@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from jaxplan.reference.search import (Candidate, Graph, reachable_mass_cyclic, reachable_mass_dag,
+from jaxplan.reference.search import (Candidate, Graph, reachable_cells, reachable_mass_cyclic, reachable_mass_dag,
                                       search_kbest)
 from jaxplan.reference.visibility import DIRS, MONOTONE_EPS, cone_ok, fallback_hop, in_grid
 
@@ -94,14 +94,7 @@ def anchor_graph(root, anchor, obj, occupied, cell_size, cos_theta, monotone):
         return out
 
     # Nodes reachable from the root (the only ones the search can touch).
-    nodes = {root}
-    stack = [root]
-    while stack:
-        u = stack.pop()
-        for _, nxt, is_goal in successors(u):
-            if not is_goal and nxt not in nodes:
-                nodes.add(nxt)
-                stack.append(nxt)
+    nodes = {root} | reachable_cells(root, successors)
     order = sorted(nodes, key=lambda cell: (dist_to_anchor(cell), cell))
 
     longest = None

@@ -292,22 +292,23 @@ def reachable_mass_dag(order, successors, obj: np.ndarray):
     return h_raw, longest
 
 
+def reachable_cells(start, successors) -> set:
+    """Non-goal cells reachable from ``start`` by one or more successor steps (depth-first)."""
+    seen = set()
+    stack = [start]
+    while stack:
+        u = stack.pop()
+        for _, nxt, is_goal in successors(u):
+            if not is_goal and nxt not in seen:
+                seen.add(nxt)
+                stack.append(nxt)
+    return seen
+
+
 def reachable_mass_cyclic(nodes, successors, obj: np.ndarray) -> dict:
     """``h_raw`` for a successor graph that may have cycles: a graph search from every node.
 
     The node itself is excluded even when a cycle leads back to it (a simple path cannot collect it
     twice). Returns ``{node: float}``.
     """
-    out = {}
-    for v in nodes:
-        seen = set()
-        stack = [v]
-        while stack:
-            u = stack.pop()
-            for _, nxt, is_goal in successors(u):
-                if not is_goal and nxt not in seen:
-                    seen.add(nxt)
-                    stack.append(nxt)
-        seen.discard(v)
-        out[v] = float(sum(obj[c] for c in seen))
-    return out
+    return {v: float(sum(obj[c] for c in reachable_cells(v, successors) - {v})) for v in nodes}
