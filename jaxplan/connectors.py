@@ -11,6 +11,9 @@ from jaxplan.fabric import Fabric, Table, continuation_dp
 from jaxplan.params import FabricParams, validate_params
 
 
+_ANCHOR_BATCH = 8   # connector DPs evaluated together by vmap
+
+
 class Connectors(NamedTuple):
     """Anchors and connectors for every root (occupied, non-highway cell). H x W grid, A slots.
 
@@ -64,13 +67,15 @@ def choose_anchors(heat, highways, occupied, centers, anchor_lambda, *, block_ro
     return jnp.where(roots & jnp.any(candidate), anchor, -1)
 
 
+def _norm_and_unit(delta):
+    """Length ``[...]`` and unit vector ``[..., 2]`` of ``delta: [..., 2]`` (zero vector for zero length)."""
+    norm = jnp.linalg.norm(delta, axis=-1)
+    return norm, jnp.where(norm[..., None] > 0, delta / jnp.maximum(norm, 1e-30)[..., None], 0.0)
+
+
 def _toward(centers, anchor_flat):
     """Distance ``f32[H, W]`` and unit vector ``f32[H, W, 2]`` from every centre to one anchor."""
-    c_h = centers.reshape(-1, 2)[jnp.maximum(anchor_flat, 0)]
-    delta = c_h - centers
-    dist = jnp.linalg.norm(delta, axis=-1)
-    unit = jnp.where(dist[..., None] > 0, delta / jnp.maximum(dist, 1e-30)[..., None], 0.0)
-    return dist, unit
+    return _norm_and_unit(centers.reshape(-1, 2)[jnp.maximum(anchor_flat, 0)] - centers)
 
 
 def _connector_table(scene, fabric: Fabric, params: FabricParams, anchor_flat, centers):
@@ -91,7 +96,9 @@ def _plan(scene, params: FabricParams, fabric: Fabric, max_anchors: int) -> Conn
     # unique() sorts, so a -1 (cells without anchor) comes first: drop it and keep max_anchors slots.
     anchors = jnp.where(anchors[0] < 0, anchors[1:], anchors[:-1])
     anchors = jnp.where((anchors >= 0) & (jnp.arange(max_anchors) < jnp.sum(anchors >= 0)), anchors, -1)
-    tables = jax.lax.map(lambda a: _connector_table(scene, fabric, params, a, centers), anchors)
+    # vmapped over distinct anchors, a few at a time so memory stays bounded on large grids
+    tables = jax.lax.map(lambda a: _connector_table(scene, fabric, params, a, centers), anchors,
+                         batch_size=min(_ANCHOR_BATCH, max_anchors))
 
     match = (anchor_flat[None] == anchors[:, None, None]) & (anchors[:, None, None] >= 0)
     slot = jnp.where(jnp.any(match, 0), jnp.argmax(match, 0), -1).astype(jnp.int32)
@@ -108,9 +115,7 @@ def _plan(scene, params: FabricParams, fabric: Fabric, max_anchors: int) -> Conn
     first_hop = jnp.where(steps[..., None], rc + jnp.asarray(_grid.DIRS_ARRAY)[safe_dir], -1)
     a_flat = jnp.maximum(anchor_flat, 0)
     # a straight fallback connector points from the root straight at its anchor
-    delta = centers.reshape(-1, 2)[a_flat] - centers
-    norm = jnp.linalg.norm(delta, axis=-1, keepdims=True)
-    straight = jnp.where(norm > 0, delta / jnp.maximum(norm, 1e-30), 0.0)
+    _, straight = _norm_and_unit(centers.reshape(-1, 2)[a_flat] - centers)
     heading = jnp.where(steps[..., None], jnp.asarray(_grid.STEP_UNIT)[safe_dir],
                         jnp.where(has[..., None], straight, 0.0))
     anchor_rc = jnp.where((anchor_flat >= 0)[..., None], jnp.stack([a_flat // w, a_flat % w], -1), -1)
