@@ -78,6 +78,35 @@ def random_obj(rng, h, w, p):
 # Brute force: every path by plain recursion
 
 
+def enumerate_paths(source, vis, is_goal, fallback_len, obj, s, max_hops):
+    """Every simple path from ``source`` (plain recursion), sorted best first.
+
+    Entries ``(raw, len, cells, dirs)``; order (raw, -len) with lengths rounded (equal up to float
+    noise), then the direction sequence.
+    """
+    paths = []
+
+    def rec(cells, dirs, raw, length):
+        succ = vis(*cells[-1])
+        if not succ:
+            paths.append((raw, length + fallback_len(cells[-1]), cells, dirs + (8,)))
+            return
+        if len(dirs) == max_hops:
+            return
+        for k, n in succ:
+            if n in cells:
+                continue
+            step = s * math.hypot(*DIRS[k])
+            if is_goal(n):
+                paths.append((raw, length + step, cells + (n,), dirs + (k,)))
+            else:
+                rec(cells + (n,), dirs + (k,), raw + obj[n], length + step)
+
+    rec((source,), (), obj[source], 0.0)
+    paths.sort(key=lambda p: (-p[0], round(p[1] / s, 7), p[3]))
+    return paths
+
+
 def brute_force(obj, target, dist, tvec, s, theta, monotone, max_hops):
     """{source: [(raw, len, cells, dirs), ...] all paths, sorted best first} for every occupied cell."""
     h, w = obj.shape
@@ -103,29 +132,8 @@ def brute_force(obj, target, dist, tvec, s, theta, monotone, max_hops):
         for c in range(w):
             if not occ[r, c]:
                 continue
-            paths = []
-
-            def rec(cells, dirs, raw, length):
-                v = cells[-1]
-                succ = vis(*v)
-                if not succ:
-                    paths.append((raw, length + dist[v], cells, dirs + (8,)))
-                    return
-                if len(dirs) == max_hops:
-                    return
-                for k, n in succ:
-                    if n in cells:
-                        continue
-                    step = s * math.hypot(*DIRS[k])
-                    if target[n]:
-                        paths.append((raw, length + step, cells + (n,), dirs + (k,)))
-                    else:
-                        rec(cells + (n,), dirs + (k,), raw + obj[n], length + step)
-
-            rec(((r, c),), (), obj[r, c], 0.0)
-            # (raw, -len), then the direction sequence (lengths rounded: equal up to float noise).
-            paths.sort(key=lambda p: (-p[0], round(p[1] / s, 7), p[3]))
-            result[(r, c)] = paths
+            result[(r, c)] = enumerate_paths((r, c), vis, lambda n: bool(target[n]),
+                                             lambda v: dist[v], obj, s, max_hops)
     return result
 
 
@@ -246,26 +254,7 @@ def brute_force_connector(obj, occupied, root, anchor, s, theta, monotone, max_h
             out.append((k, n))
         return out
 
-    found = []
-
-    def rec(cells, dirs, raw, length):
-        succ = vis(*cells[-1])
-        if not succ:
-            found.append((raw, length + to_anchor(cells[-1]), cells, dirs + (8,)))
-            return
-        if len(dirs) == max_hops:
-            return
-        for k, n in succ:
-            if n in cells:
-                continue
-            step = s * math.hypot(*DIRS[k])
-            if n == anchor:
-                found.append((raw, length + step, cells + (n,), dirs + (k,)))
-            else:
-                rec(cells + (n,), dirs + (k,), raw + obj[n], length + step)
-
-    rec((root,), (), obj[root], 0.0)
-    found.sort(key=lambda p: (-p[0], round(p[1] / s, 7), p[3]))
+    found = enumerate_paths(root, vis, lambda n: n == anchor, to_anchor, obj, s, max_hops)
     return found[0] if found else None
 
 
