@@ -221,7 +221,7 @@ def run_paper_grids(args, params, log):
                 row = {"n": n, "density": density, "seed": seed,
                        "occupied": int(np.asarray(fabric.occupied).sum()),
                        "mass": float(np.asarray(scene.total_mass)),
-                       "dp_rounds": int(fabric.rounds),
+                       "solver_iterations": int(fabric.rounds),
                        "jax_ms": float(np.median(jax_times)), "jax_ms_all": jax_times}
                 if not args.no_reference:
                     ref, ref_times = time_reference(scene, args.theta_tol, args.ref_repeats)
@@ -258,7 +258,7 @@ def run_paper_grids(args, params, log):
             rows = [r for r in instances if r["n"] == n and r["density"] == density]
             entry = {"n": n, "density": density,
                      "occupied_median": float(np.median([r["occupied"] for r in rows])),
-                     "dp_rounds_median": float(np.median([r["dp_rounds"] for r in rows])),
+                     "solver_iterations_median": float(np.median([r["solver_iterations"] for r in rows])),
                      "jax_ms": float(np.median([r["jax_ms"] for r in rows]))}
             if not args.no_reference:
                 entry["ref_ms"] = float(np.median([r["ref_ms"] for r in rows]))
@@ -285,7 +285,7 @@ def run_big(args, params, log):
             total_s = time.perf_counter() - t0
         row = {"n": n, "cells": n * n, "density": args.big_density,
                "occupied": int(np.asarray(fabric.occupied).sum()),
-               "dp_rounds": int(fabric.rounds), "converged": bool(fabric.converged),
+               "solver_iterations": int(fabric.rounds), "converged": bool(fabric.converged),
                "jax_ms": float(np.median(times)), "jax_ms_min": float(np.min(times)),
                "jax_ms_all": times, "first_call_ms": (total_s * 1e3 - sum(times)),
                "scene_build_s": scene_s,
@@ -293,7 +293,7 @@ def run_big(args, params, log):
                "device_peak_mb": _device_peak_mb(device)}
         rows.append(row)
         log(f"{n}x{n}: JAX {row['jax_ms']:.1f} ms (median of {len(times)}), "
-            f"{row['dp_rounds']} DP rounds, peak RSS +{row['peak_rss_delta_mb']:.0f} MB")
+            f"{row['solver_iterations']} solver iterations, peak RSS +{row['peak_rss_delta_mb']:.0f} MB")
         del fabric, scene
     fit = loglog_fit([r["cells"] for r in rows], [r["jax_ms"] for r in rows])
     return rows, fit, method
@@ -384,7 +384,7 @@ def markdown(result) -> str:
         lines.append("")
         lines.append("Per density (medians over seeds):")
         lines.append("")
-        head = "| Grid | density | occupied | DP rounds | JAX ms |"
+        head = "| Grid | density | occupied | solver iterations | JAX ms |"
         sep = "|---|---:|---:|---:|---:|"
         if has_ref:
             head += " reference ms | ratio |"
@@ -392,7 +392,7 @@ def markdown(result) -> str:
         lines += [head, sep]
         for d in pg["by_density"]:
             row = (f"| {d['n']}x{d['n']} | {d['density']:g} | {d['occupied_median']:.0f} | "
-                   f"{d['dp_rounds_median']:.0f} | {d['jax_ms']:.2f} |")
+                   f"{d['solver_iterations_median']:.0f} | {d['jax_ms']:.2f} |")
             if has_ref:
                 row += f" {d['ref_ms']:.1f} | {d['ratio']:.1f}x |"
             lines.append(row)
@@ -406,13 +406,13 @@ def markdown(result) -> str:
                      "'delta' is the peak during the first (compiling) call and the timed calls "
                      "minus the RSS just before them.")
         lines.append("")
-        lines.append("| Grid | cells | occupied | DP rounds | JAX ms (median) | min ms | "
+        lines.append("| Grid | cells | occupied | solver iterations | JAX ms (median) | min ms | "
                      "peak RSS delta MB | peak RSS MB | device peak MB |")
         lines.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
         for r in big["rows"]:
             dev = "-" if r["device_peak_mb"] is None else f"{r['device_peak_mb']:.0f}"
             lines.append(f"| {r['n']}x{r['n']} | {r['cells']:,} | {r['occupied']:,} | "
-                         f"{r['dp_rounds']} | {r['jax_ms']:.1f} | {r['jax_ms_min']:.1f} | "
+                         f"{r['solver_iterations']} | {r['jax_ms']:.1f} | {r['jax_ms_min']:.1f} | "
                          f"{r['peak_rss_delta_mb']:.0f} | {r['peak_rss_mb']:.0f} | {dev} |")
         lines.append("")
         fit = big["fit"]

@@ -27,7 +27,7 @@ FABRIC_ARRAYS = ("value", "length", "first_hop", "heading", "psi", "heat", "high
                  "occupied", "table_raw", "table_len", "table_next_dir", "table_next_rank", "rounds",
                  "converged")
 SUMMARY_KEYS = ("scene", "shape", "cell_size", "params", "total_mass", "occupied_cells",
-                "max_value_J", "highway_cells", "roots_with_connector", "dp_rounds", "converged",
+                "max_value_J", "highway_cells", "roots_with_connector", "solver_iterations", "converged",
                 "compile_ms", "warm_build_ms")
 
 _WARM_REPEATS = 5
@@ -148,7 +148,7 @@ def _cmd_fabric(args) -> int:
         raise CLIError(f"--out: could not write {str(out)!r} ({exc.strerror or exc}).") from None
     h, w = scene.shape
     print(f"fabric of {scene.name or args.scene} ({h}x{w}): J max {float(arrays['value'].max()):g}, "
-          f"{int(arrays['highways'].sum())} highway cells, {int(arrays['rounds'])} DP rounds, "
+          f"{int(arrays['highways'].sum())} highway cells, {int(arrays['rounds'])} solver iterations, "
           f"converged={bool(arrays['converged'])}")
     print(f"wrote {out}")
     return 0
@@ -200,7 +200,7 @@ def _cmd_demo(args) -> int:
         "highway_cells": int(np.asarray(fabric.highways).sum()),
         "roots_with_connector": int(np.asarray(connectors.has_connector).sum()),
         "connectors_truncated": bool(np.asarray(connectors.truncated)),
-        "dp_rounds": int(np.asarray(fabric.rounds)),
+        "solver_iterations": int(np.asarray(fabric.rounds)),
         "converged": bool(np.asarray(fabric.converged)),
         "compile_ms": round(compile_ms, 3),
         "warm_build_ms": round(warm_ms, 3),
@@ -227,8 +227,8 @@ def _cmd_demo(args) -> int:
           f"total mass {summary['total_mass']:g}, {summary['occupied_cells']} occupied cells")
     print(f"fabric (theta_tol {summary['params']['theta_tol_deg']:g} deg): max J "
           f"{summary['max_value_J']:g}, {summary['highway_cells']} highway cells, "
-          f"{summary['roots_with_connector']} roots with a connector, {summary['dp_rounds']} DP "
-          f"rounds, converged={summary['converged']}")
+          f"{summary['roots_with_connector']} roots with a connector, {summary['solver_iterations']} solver "
+          f"iterations, converged={summary['converged']}")
     print(f"build_fabric on {summary['backend']}: first call {compile_ms:.1f} ms (incl. compile), "
           f"warm {warm_ms:.2f} ms (median of {_WARM_REPEATS})")
     print(f"wrote {png}")
@@ -309,7 +309,7 @@ def _build_parser() -> argparse.ArgumentParser:
         description=_wrap("Build the fabric and the highway connectors of a scene (default: the "
                           f"built-in {DEFAULT_SCENE!r} scene), then write DIR/fabric.png "
                           "(heatmap, first-hop headings, connector headings, highways) and "
-                          "DIR/summary.json (sizes, totals, DP rounds, compile and warm build "
+                          "DIR/summary.json (sizes, totals, solver iterations, compile and warm build "
                           "times). The first build compiles, which takes a few seconds."),
         epilog="example:\n  jaxplan demo --scene corridor --theta-tol 45 --out out/corridor")
     p.add_argument("--scene", default=DEFAULT_SCENE, metavar="NAME_OR_FILE",
