@@ -6,15 +6,16 @@ a DAG, which allows two shortcuts that give the same table in far fewer grid pas
 
 1. **Policy iteration** for the selected paths. A policy (one successor per cell) is evaluated by
    pointer doubling along its forest (log2(hops) gathers), then every cell switches to a strictly
-   better successor given those values. Values only grow, so it terminates; in practice in 6-35
-   iterations instead of hundreds of wavefront rounds. A final pass re-picks the lowest-index
+   better successor given those values. Values only grow, so it terminates, typically after a few
+   to a few dozen iterations where the wavefront needs one round per hop of the longest path
+   (``Fabric.rounds`` holds the count for either solver). A final pass re-picks the lowest-index
    successor among exact ties, as the wavefront does.
 2. **Sidetracks** for the other K-1 entries (the idea of Eppstein's k-shortest paths). Every path
    from C follows the selected tree for a while, leaves it at some cell X by a non-tree step (a
    sidetrack) and continues with any path from there. Its value is J(C) plus the sidetrack's loss
    relative to J(X). The r-th best path has at most r sidetracks, so K-1 levels suffice: level m
-   ranks, at every cell, the sidetracks into the neighbours' level-(m-1) tables, then takes the best
-   K losses along each cell's tree path by pointer doubling (log2(hops) merges of two K-lists).
+   ranks, at every cell, the sidetracks into the neighbours' first m table entries, then takes the
+   best m losses along each cell's tree path by pointer doubling (log2(hops) merges of two m-lists).
 
 Lengths within ``1e-6 s (1 + len)`` are ties, broken by first-step direction, as in the wavefront.
 """
