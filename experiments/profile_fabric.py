@@ -1,7 +1,8 @@
 """Where the fabric's time goes: each stage of ``build_fabric`` jitted and timed on its own.
 
 Stages: successor graph (visibility), policy iteration (P*), K-best table levels (sidetracks), the
-first-hop / psi / heatmap / highway tail, and the whole ``build_fabric`` for comparison. Uses the
+first-hop / psi / heatmap / highway tail, and the whole ``build_fabric`` for comparison, with the
+default policy solver and with the plain wavefront solver (same result, one round per hop). Uses the
 benchmark's scenes (uniform random counts, central circle target). Prints a markdown table and
 writes ``experiments/results/fabric_profile.json``.
 
@@ -34,7 +35,7 @@ def _median_ms(fn, *args, repeats: int) -> float:
 
 def profile(n: int, density: float, seed: int, k: int, repeats: int) -> dict:
     scene = make_scene(n, density, seed)
-    params = FabricParams(k=k)
+    params = FabricParams(k=k, solver="policy")
     occupied = ~scene.target_mask & (scene.obj > 0)
     max_rounds = params.resolved_max_hops(scene.shape)
 
@@ -61,6 +62,9 @@ def profile(n: int, density: float, seed: int, k: int, repeats: int) -> dict:
         "kbest_levels_ms": _median_ms(kbest_fn, best_raw, best_len, policy, graph, repeats=repeats),
         "first_hop_psi_heat_highways_ms": _median_ms(jax.jit(tail), built, repeats=repeats),
         "build_fabric_ms": _median_ms(fabric.build_fabric, scene, params, repeats=repeats),
+        "wavefront_rounds": int(fabric.build_fabric(scene, params.replace(solver="wavefront")).rounds),
+        "wavefront_build_fabric_ms": _median_ms(fabric.build_fabric, scene, params.replace(solver="wavefront"),
+                                                repeats=repeats),
     }
 
 
@@ -75,9 +79,11 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
 
     rows = [profile(n, args.density, args.seed, k, args.repeats) for n in args.sizes for k in args.k]
-    keys = ("graph_ms", "policy_iteration_ms", "kbest_levels_ms", "first_hop_psi_heat_highways_ms", "build_fabric_ms")
-    lines = [f"| grid | K | PI iterations | {' | '.join(keys)} |", "|---|---:|---:|" + "---:|" * len(keys)]
-    lines += [f"| {r['grid']}x{r['grid']} | {r['k']} | {r['policy_iterations']} | "
+    keys = ("graph_ms", "policy_iteration_ms", "kbest_levels_ms", "first_hop_psi_heat_highways_ms", "build_fabric_ms",
+            "wavefront_build_fabric_ms")
+    lines = [f"| grid | K | PI iterations | wavefront rounds | {' | '.join(keys)} |",
+             "|---|---:|---:|---:|" + "---:|" * len(keys)]
+    lines += [f"| {r['grid']}x{r['grid']} | {r['k']} | {r['policy_iterations']} | {r['wavefront_rounds']} | "
               + " | ".join(f"{r[key]:.2f}" for key in keys) + " |" for r in rows]
     table = "\n".join(lines)
     print(table)
