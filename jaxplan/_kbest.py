@@ -30,30 +30,34 @@ from jaxplan import _grid
 def select_top_k(raw, length, key, k: int, tol):
     """The k best of M candidates by ``(raw, -length, key, index)``; lengths within ``tol`` tie.
 
-    raw, length: f32[M, ...]; key: i32[M, ...] (tie-break, smaller first); tol: f32[...] absolute
-    length tolerance. Returns ``(raw, length, key, index)``, each ``[k, ...]``; unused entries have
-    raw -inf, length +inf, key -1, index 0. k rounds of a lexicographic argmax over whole planes:
-    cheaper than a sort for small k, and every reduction is elementwise across cells.
+    raw, length: f32[M, ...]; key: i32[M, ...] tie-break (smaller first), or None when candidates
+    are already in key order (then the index decides and one reduction is saved); tol: f32[...]
+    absolute length tolerance. Returns ``(raw, length, key, index)``, each ``[k, ...]`` (key None
+    when given None); unused entries have raw -inf, length +inf, key -1, index 0. A chosen near-tie
+    reports the best length (it differs by at most ``tol``). k rounds of a lexicographic argmax over
+    whole planes: cheaper than a sort for small k, and every reduction is elementwise across cells.
     """
     m = raw.shape[0]
     positions = jnp.arange(m, dtype=jnp.int32).reshape((m,) + (1,) * (raw.ndim - 1))
-    big = jnp.iinfo(jnp.int32).max
-    out = ([], [], [], [])
+    out_raw, out_len, out_key, out_idx = [], [], [], []
     for _ in range(k):
         best_raw = jnp.max(raw, axis=0)
         is_best = raw == best_raw
         best_len = jnp.min(jnp.where(is_best, length, jnp.inf), axis=0)
         near = is_best & (length <= best_len + tol)
-        best_key = jnp.min(jnp.where(near, key, big), axis=0)
-        idx = jnp.min(jnp.where(near & (key == best_key), positions, m), axis=0)
-        chosen = positions == idx
+        if key is not None:
+            best_key = jnp.min(jnp.where(near, key, jnp.iinfo(jnp.int32).max), axis=0)
+            near = near & (key == best_key)
+        idx = jnp.min(jnp.where(near, positions, m), axis=0)
         used = best_raw > -jnp.inf
-        out[0].append(best_raw)
-        out[1].append(jnp.where(used, jnp.min(jnp.where(chosen, length, jnp.inf), axis=0), jnp.inf))
-        out[2].append(jnp.where(used, best_key, -1))
-        out[3].append(jnp.where(used, idx, 0))
-        raw = jnp.where(chosen, -jnp.inf, raw)
-    return tuple(jnp.stack(a) for a in out)
+        out_raw.append(best_raw)
+        out_len.append(jnp.where(used, best_len, jnp.inf))
+        out_idx.append(jnp.where(used, idx, 0))
+        if key is not None:
+            out_key.append(jnp.where(used, best_key, -1))
+        raw = jnp.where(positions == idx, -jnp.inf, raw)
+    stacked_key = jnp.stack(out_key) if key is not None else None
+    return jnp.stack(out_raw), jnp.stack(out_len), stacked_key, jnp.stack(out_idx)
 
 
 def length_tolerance(length, cell_size):
@@ -157,7 +161,7 @@ def _sidetrack_losses(table_raw, table_len, best_raw, best_len, policy, g, k: in
     table_raw, table_len: f32[k, H, W], the neighbours' first k entries (exact at level k). Returns
     loss raw / length and first-step direction, ``[k, H, W]`` each.
     """
-    raw, length, key = [], [], []
+    raw, length = [], []
     rank = jnp.arange(k)[:, None, None]
     # off the occupied set J = -inf; keep the subtraction finite there (nothing is feasible anyway)
     occupied = best_raw > -jnp.inf
@@ -170,11 +174,10 @@ def _sidetrack_losses(table_raw, table_len, best_raw, best_len, policy, g, k: in
         nb_len = _grid.shift_planes(table_len, dr, dc, jnp.inf)
         raw.append(jnp.where(via_cell, g.obj + nb_raw, jnp.where(via_goal, g.obj, -jnp.inf)) - base_raw)
         length.append(g.step_len[d] + jnp.where(via_goal, 0.0, nb_len) - base_len)
-        key.append(jnp.full((k,) + best_raw.shape, d, jnp.int32))
     tol = length_tolerance(best_len, cell_size)
-    loss_raw, loss_len, loss_dir, _ = select_top_k(
-        jnp.concatenate(raw), jnp.concatenate(length), jnp.concatenate(key), k, tol)
-    return loss_raw, loss_len, loss_dir
+    # candidates are direction-major, so index order is the direction tie-break
+    loss_raw, loss_len, _, index = select_top_k(jnp.concatenate(raw), jnp.concatenate(length), None, k, tol)
+    return loss_raw, loss_len, jnp.where(loss_raw > -jnp.inf, index // k, -1)
 
 
 def _best_along_tree(loss_raw, loss_len, loss_dir, pointer, tree_dir, tol, k: int):

@@ -81,7 +81,6 @@ def _wavefront_dp(graph: visibility.SuccessorGraph, cell_size, k: int, max_hops:
     Returns ``(raw, length, direction, rank)`` as ``[K, H, W]``, rounds and whether it converged.
     """
     shape = (k,) + graph.obj.shape
-    key = jnp.arange(_grid.N_DIRS * k + 1, dtype=jnp.int32)[:, None, None]   # (direction, rank) order
 
     def cond(carry):
         return carry[-1] & (carry[-2] < max_hops)
@@ -90,7 +89,8 @@ def _wavefront_dp(graph: visibility.SuccessorGraph, cell_size, k: int, max_hops:
         raw, length, idx, rounds, _ = carry
         cand_raw, cand_len = _kbest.step_candidates(raw, length, graph)
         tol = _kbest.length_tolerance(jnp.min(cand_len, axis=0), cell_size)
-        new_raw, new_len, _, new_idx = _kbest.select_top_k(cand_raw, cand_len, jnp.broadcast_to(key, cand_raw.shape), k, tol)
+        # candidates come in (direction, rank) order, which is the tie-break
+        new_raw, new_len, _, new_idx = _kbest.select_top_k(cand_raw, cand_len, None, k, tol)
         changed = ~(jnp.array_equal(new_raw, raw) & jnp.array_equal(new_len, length)
                     & jnp.array_equal(new_idx, idx))
         return new_raw, new_len, new_idx, rounds + 1, changed
