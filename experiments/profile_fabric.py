@@ -51,7 +51,7 @@ def profile(n: int, density: float, seed: int, k: int, repeats: int) -> dict:
         path_next = jnp.where((fab.table.next_dir[..., 0] >= 0) & (fab.table.next_dir[..., 0] < 8),
                               fab.table.next_dir[..., 0], -1)
         psi = heatmap.propagated_mass(fab.value, fab.occupied, path_next, max_rounds)
-        hop, heading, hop_len, _ = fabric.first_hops(fab.table, scene.tvec, scene.cell_size)
+        _, heading, hop_len = fabric.first_hops(fab.table, scene.tvec, scene.cell_size)
         heat = heatmap.heat(psi, fab.occupied, heading, hop_len, scene.target_mask, scene.cell_size)
         return psi, heat, heatmap.highways(heat, scene.target_mask, params.tau_h)
 

@@ -153,7 +153,7 @@ def _table(raw, length, direction, rank, enters_goal) -> Table:
 
 
 def first_hops(table: Table, tvec, cell_size):
-    """From entry 0: ``(first_hop i32[H,W,2], heading f32[H,W,2], hop_len f32[H,W], dir i32[H,W])``.
+    """From entry 0: ``(first_hop i32[H,W,2], heading f32[H,W,2], hop_len f32[H,W])``.
 
     A fallback cell's hop is the in-grid neighbour best aligned with t(C) (conventions).
     """
@@ -166,7 +166,7 @@ def first_hops(table: Table, tvec, cell_size):
     hop = jnp.where(defined[..., None], rc + jnp.asarray(_grid.DIRS_ARRAY)[safe], -1)
     heading = jnp.where(defined[..., None], jnp.asarray(_grid.STEP_UNIT)[safe], 0.0)
     hop_len = jnp.where(defined, jnp.asarray(_grid.STEP_CELLS)[safe] * cell_size, 0.0)
-    return hop, heading, hop_len, jnp.where(defined, hop_dir, -1)
+    return hop, heading, hop_len
 
 
 def _build(scene, params: FabricParams) -> Fabric:
@@ -177,7 +177,7 @@ def _build(scene, params: FabricParams) -> Fabric:
         obj, occupied, target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
         monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape),
         solver=params.solver)
-    hop, heading, hop_len, _ = first_hops(table, scene.tvec, scene.cell_size)
+    hop, heading, hop_len = first_hops(table, scene.tvec, scene.cell_size)
     value = jnp.where(occupied, table.raw[..., 0], 0.0)
     length = jnp.where(occupied, table.length[..., 0], 0.0)
     path_next = jnp.where((table.next_dir[..., 0] >= 0) & (table.next_dir[..., 0] < _grid.FALLBACK),
