@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -75,3 +76,46 @@ def cell_centers(shape, cell_size, origin):
     rows = (jnp.arange(h, dtype=jnp.float32) + 0.5) * cell_size + origin[1]
     x, y = jnp.meshgrid(cols, rows)
     return jnp.stack([x, y], axis=-1)
+
+
+def neighbour_index(direction):
+    """``i32[..., 2]`` (row, col) of the neighbour in ``direction`` (i32[H, W, ...], 0-7; other
+    values give the cell itself shifted by direction 0 and must be masked by the caller)."""
+    h, w = direction.shape[:2]
+    extra = (1,) * (direction.ndim - 2)
+    rows = jnp.arange(h).reshape((h, 1) + extra)
+    cols = jnp.arange(w).reshape((1, w) + extra)
+    step = jnp.asarray(DIRS_ARRAY)[jnp.clip(direction, 0, 7)]
+    return jnp.stack([rows + step[..., 0], cols + step[..., 1]], -1).astype(jnp.int32)
+
+
+def tree_pointer(direction, stops):
+    """``i32[H*W + 1]`` flat index of each cell's successor; ``H*W`` (a sink) where ``stops``.
+
+    direction: i32[H, W] step index 0-7 (ignored where ``stops``); stops: bool[H, W].
+    """
+    h, w = direction.shape
+    nb = neighbour_index(direction)
+    sink = h * w
+    return jnp.append(jnp.where(stops, sink, nb[..., 0] * w + nb[..., 1]).reshape(-1), sink).astype(jnp.int32)
+
+
+def sum_to_sink(values, pointer):
+    """Sum each array of ``values`` along ``pointer`` chains up to the sink (the last index).
+
+    values: tuple of [N + 1] arrays (the sink's entry 0); pointer: i32[N + 1], the sink pointing to
+    itself. Pointer doubling: log2(chain length) gather-and-add passes. Capped at enough passes for
+    any simple chain, so a cyclic pointer (possible only in an unconverged table) cannot hang it.
+    """
+    sink = pointer.shape[0] - 1
+    max_passes = max(1, sink).bit_length() + 1
+
+    def unfinished(carry):
+        return jnp.any(carry[1][:-1] != sink) & (carry[2] < max_passes)
+
+    def double(carry):
+        values, pointer, passes = carry
+        return tuple(v + v[pointer] for v in values), pointer[pointer], passes + 1
+
+    values, _, _ = jax.lax.while_loop(unfinished, double, (tuple(values), pointer, jnp.int32(0)))
+    return values

@@ -95,35 +95,20 @@ def _best_step(best_raw, best_len, g, cell_size):
     return top_raw, top_len, jnp.min(jnp.where(tie, key, 9), axis=0)
 
 
-def tree_pointer(direction, stops):
-    """``i32[H*W + 1]`` flat index of each cell's successor; ``H*W`` (a sink) where ``stops``.
-
-    direction: i32[H, W] step index 0-7 (ignored where ``stops``); stops: bool[H, W].
-    """
-    h, w = direction.shape
-    step = jnp.asarray(_grid.DIRS_ARRAY)[jnp.clip(direction, 0, 7)]
-    nxt = (jnp.arange(h)[:, None] + step[..., 0]) * w + jnp.arange(w)[None, :] + step[..., 1]
-    sink = h * w
-    return jnp.append(jnp.where(stops, sink, nxt).reshape(-1), sink).astype(jnp.int32)
+def _policy_pointer(policy, g, occupied):
+    """``i32[H*W + 1]`` successor of each cell under ``policy``; the sink where the path ends
+    (off the occupied set, a fallback, or a step into a goal cell)."""
+    into_goal = jnp.take_along_axis(g.enters_goal, jnp.clip(policy, 0, 7)[None], axis=0)[0]
+    return _grid.tree_pointer(policy, ~occupied | (policy == _grid.FALLBACK) | into_goal)
 
 
 def _evaluate(policy, g, occupied):
     """Raw and length ``f32[H, W]`` of following ``policy`` (0-7 step, 8 fallback) from every cell."""
     h, w = occupied.shape
-    into_goal = jnp.take_along_axis(g.enters_goal, jnp.clip(policy, 0, 7)[None], axis=0)[0]
-    pointer = tree_pointer(policy, ~occupied | (policy == _grid.FALLBACK) | into_goal)
     step_len = jnp.where(policy == _grid.FALLBACK, g.fallback_len, g.step_len[jnp.clip(policy, 0, 7)])
     raw = jnp.append(jnp.where(occupied, g.obj, 0.0).reshape(-1), 0.0)
     length = jnp.append(jnp.where(occupied, step_len, 0.0).reshape(-1), 0.0)
-
-    def unfinished(carry):
-        return jnp.any(carry[2][:-1] != h * w)
-
-    def double(carry):
-        raw, length, pointer = carry
-        return raw + raw[pointer], length + length[pointer], pointer[pointer]
-
-    raw, length, _ = jax.lax.while_loop(unfinished, double, (raw, length, pointer))
+    raw, length = _grid.sum_to_sink((raw, length), _policy_pointer(policy, g, occupied))
     raw = jnp.where(occupied, raw[:-1].reshape(h, w), -jnp.inf)
     return raw, jnp.where(occupied, length[:-1].reshape(h, w), jnp.inf)
 
@@ -216,8 +201,7 @@ def kbest_tables(best_raw, best_len, policy, g, occupied, k: int, cell_size):
     continues with one of the neighbour's r best paths, so level m needs only the neighbours' first m
     entries and keeps m losses per cell. That makes level m cost O(m^2) per cell, not O(K^2).
     """
-    into_goal = jnp.take_along_axis(g.enters_goal, jnp.clip(policy, 0, 7)[None], axis=0)[0]
-    pointer = tree_pointer(policy, ~occupied | (policy == _grid.FALLBACK) | into_goal)
+    pointer = _policy_pointer(policy, g, occupied)
     tol = length_tolerance(best_len, cell_size)
     table_raw, table_len, table_dir = best_raw[None], best_len[None], jnp.where(occupied, policy, -1)[None]
     for m in range(1, k):

@@ -111,8 +111,7 @@ def _plan(scene, params: FabricParams, fabric: Fabric, max_anchors: int) -> Conn
     d0 = jnp.where(has, pick(tables.next_dir), -1)
     steps = (d0 >= 0) & (d0 < _grid.FALLBACK)
     safe_dir = jnp.clip(d0, 0, 7)
-    rc = jnp.stack([rows, cols], -1).astype(jnp.int32)
-    first_hop = jnp.where(steps[..., None], rc + jnp.asarray(_grid.DIRS_ARRAY)[safe_dir], -1)
+    first_hop = jnp.where(steps[..., None], _grid.neighbour_index(safe_dir), -1)
     a_flat = jnp.maximum(anchor_flat, 0)
     # a straight fallback connector points from the root straight at its anchor
     _, straight = _norm_and_unit(centers.reshape(-1, 2)[a_flat] - centers)

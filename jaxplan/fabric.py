@@ -157,13 +157,11 @@ def first_hops(table: Table, tvec, cell_size):
 
     A fallback cell's hop is the in-grid neighbour best aligned with t(C) (conventions).
     """
-    h, w = table.raw.shape[:2]
     d0 = table.next_dir[..., 0]
     hop_dir = jnp.where(d0 == _grid.FALLBACK, visibility.fallback_direction(tvec), d0)
     defined = hop_dir >= 0
     safe = jnp.where(defined, hop_dir, 0)
-    rc = jnp.stack(jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij"), -1).astype(jnp.int32)
-    hop = jnp.where(defined[..., None], rc + jnp.asarray(_grid.DIRS_ARRAY)[safe], -1)
+    hop = jnp.where(defined[..., None], _grid.neighbour_index(safe), -1)
     heading = jnp.where(defined[..., None], jnp.asarray(_grid.STEP_UNIT)[safe], 0.0)
     hop_len = jnp.where(defined, jnp.asarray(_grid.STEP_CELLS)[safe] * cell_size, 0.0)
     return hop, heading, hop_len
@@ -258,21 +256,10 @@ def _table_hops(table: Table):
     h, w, k = table.raw.shape
     n = h * w * k
     steps = (table.next_dir >= 0) & (table.next_dir < _grid.FALLBACK)
-    d = jnp.asarray(_grid.DIRS_ARRAY)[jnp.clip(table.next_dir, 0, 7)]
-    rows = jnp.arange(h)[:, None, None] + d[..., 0]
-    cols = jnp.arange(w)[None, :, None] + d[..., 1]
+    nb = _grid.neighbour_index(table.next_dir)
     continues = steps & (table.next_rank >= 0)
-    pointer = jnp.append(jnp.where(continues, (rows * w + cols) * k + table.next_rank, n).reshape(-1), n)
-    hops = jnp.append(steps.astype(jnp.int32).reshape(-1), 0)
-
-    def unfinished(carry):
-        return jnp.any(carry[1][:-1] != n)
-
-    def double(carry):
-        hops, pointer = carry
-        return hops + hops[pointer], pointer[pointer]
-
-    hops, _ = jax.lax.while_loop(unfinished, double, (hops, pointer))
+    pointer = jnp.append(jnp.where(continues, (nb[..., 0] * w + nb[..., 1]) * k + table.next_rank, n).reshape(-1), n)
+    (hops,) = _grid.sum_to_sink((jnp.append(steps.astype(jnp.int32).reshape(-1), 0),), pointer)
     return hops[:-1].reshape(h, w, k)
 
 

@@ -19,13 +19,8 @@ def propagated_mass(value, occupied, path_next, max_hops: int):
     most 2^k - 1 steps upstream. log2(max_hops) scatter-max passes over the grid.
     """
     h, w = value.shape
-    n = h * w
-    flat_index = jnp.arange(n, dtype=jnp.int32).reshape(h, w)
-    step = jnp.asarray(_grid.DIRS_ARRAY)[jnp.clip(path_next, 0, 7)]
-    rows = jnp.arange(h)[:, None] + step[..., 0]
-    cols = jnp.arange(w)[None, :] + step[..., 1]
-    pointer = jnp.where(path_next >= 0, rows * w + cols, flat_index).reshape(n)
-    mass = jnp.where(occupied, value, 0.0).reshape(n)
+    pointer = _grid.tree_pointer(path_next, path_next < 0)       # path ends point at a sink
+    mass = jnp.append(jnp.where(occupied, value, 0.0).reshape(-1), 0.0)
     levels = max(1, int(max_hops).bit_length())
 
     def level(_, carry):
@@ -34,7 +29,7 @@ def propagated_mass(value, occupied, path_next, max_hops: int):
         return mass, pointer[pointer]
 
     mass, _ = jax.lax.fori_loop(0, levels, level, (mass, pointer))
-    return mass.reshape(h, w)
+    return mass[:-1].reshape(h, w)
 
 
 def heat(psi, occupied, heading, hop_len, target, cell_size):
