@@ -167,14 +167,15 @@ def first_hops(table: Table, tvec, cell_size):
     return hop, heading, hop_len
 
 
-def _build(scene, params: FabricParams) -> Fabric:
+def derive(scene, params: FabricParams, table: Table, feasible, rounds, converged) -> Fabric:
+    """Everything downstream of the continuation table: first hops, psi, heatmap, highways.
+
+    table: the K-best ``Table``; feasible: bool[8, H, W] successor mask it was computed on. Shared
+    by the full build and the selective rebuild (``jaxplan.rebuild``), which both end here.
+    """
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
     occupied = ~target & (obj > 0)
-    table, feasible, rounds, converged = continuation_dp(
-        obj, occupied, target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
-        monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape),
-        solver=params.solver)
     hop, heading, hop_len = first_hops(table, scene.tvec, scene.cell_size)
     value = jnp.where(occupied, table.raw[..., 0], 0.0)
     length = jnp.where(occupied, table.length[..., 0], 0.0)
@@ -186,6 +187,16 @@ def _build(scene, params: FabricParams) -> Fabric:
                                 smoothing=params.highway_smoothing, nms=params.highway_nms)
     return Fabric(value, length, hop, heading, table.next_dir[..., 0] == _grid.FALLBACK, occupied,
                   jnp.moveaxis(feasible, 0, -1), table, psi, heat, highways, rounds, converged)
+
+
+def _build(scene, params: FabricParams) -> Fabric:
+    obj = jnp.asarray(scene.obj, jnp.float32)
+    target = jnp.asarray(scene.target_mask, bool)
+    table, feasible, rounds, converged = continuation_dp(
+        obj, ~target & (obj > 0), target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
+        monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape),
+        solver=params.solver)
+    return derive(scene, params, table, feasible, rounds, converged)
 
 
 _build_jit = jax.jit(_build)

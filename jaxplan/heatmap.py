@@ -16,19 +16,24 @@ def propagated_mass(value, occupied, path_next, max_hops: int):
 
     The selected paths form a forest (P*(C) = C + P*(u(C))), so instead of walking every path we push
     maxima down the forest by pointer doubling: after level k every cell holds the max over sources at
-    most 2^k - 1 steps upstream. log2(max_hops) scatter-max passes over the grid.
+    most 2^k - 1 steps upstream. log2(longest path) scatter-max passes (capped by ``max_hops``).
     """
     h, w = value.shape
     pointer = _grid.tree_pointer(path_next, path_next < 0)       # path ends point at a sink
     mass = jnp.append(jnp.where(occupied, value, 0.0).reshape(-1), 0.0)
+    sink = h * w
     levels = max(1, int(max_hops).bit_length())
 
-    def level(_, carry):
-        mass, pointer = carry
-        mass = mass.at[pointer].max(mass)
-        return mass, pointer[pointer]
+    def unfinished(carry):   # stop once every chain has reached the sink (usually far below the cap)
+        _, pointer, level = carry
+        return jnp.any(pointer[:-1] != sink) & (level < levels)
 
-    mass, _ = jax.lax.fori_loop(0, levels, level, (mass, pointer))
+    def level(carry):
+        mass, pointer, level = carry
+        mass = mass.at[pointer].max(mass)
+        return mass, pointer[pointer], level + 1
+
+    mass, _, _ = jax.lax.while_loop(unfinished, level, (mass, pointer, jnp.int32(0)))
     return mass[:-1].reshape(h, w)
 
 

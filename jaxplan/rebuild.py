@@ -1,0 +1,240 @@
+"""Selective rebuild after a push (Section 3.5, Algorithm 5, Eq. 13).
+
+A push changes the counts of a few cells (``A_exec``). With the monotone rule the successor graph is
+a DAG, and a cell's continuation table depends only on its own count, on which neighbours are
+occupied, and on its successors' tables. So the tables that can change are exactly those of the
+cells that can *reach* ``A_exec`` through a successor step of the old or the new graph: the upstream
+closure of ``A_exec`` (``Affected.dirty``). The rebuild
+
+1. computes ``dirty`` by dilating ``A_exec`` backwards along successor steps until it stops growing;
+2. gathers the dirty cells into a compact buffer of static ``capacity`` and runs the K-best
+   recursion on that buffer only, warm-started from the old table, reading the unchanged tables of
+   all other cells, until nothing changes (on a DAG the fixed point is unique, so this equals the
+   from-scratch table exactly, ties included);
+3. recomputes the global quantities once (first hops, psi, heatmap, highways, occupied set),
+   as Algorithm 5 does.
+
+When the dirty set does not fit in ``capacity`` (or without the monotone rule, where the graph may
+have cycles) the rebuild falls back to the full build; ``Affected.full`` says so. The paper's
+``A_vis`` (Eq. 13: sources whose forward cone sees a changed cell) is computed by ``paper_sets``
+for reporting; it is not needed for exactness (and not sufficient for it: a path may bend out of
+its source's cone).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan import _grid, _kbest, visibility
+from jaxplan.fabric import Fabric, Table, _build, derive
+from jaxplan.params import FabricParams
+
+
+class Affected(NamedTuple):
+    """What a selective rebuild touched. H x W masks.
+
+    exec: bool[H, W], A_exec: non-target cells whose count changed.
+    dirty: bool[H, W], cells whose table was recomputed (upstream closure of A_exec).
+    n_dirty: i32[], number of dirty cells.  rounds: i32[], recursion rounds on the dirty buffer.
+    full: bool[], the dirty set overflowed ``capacity`` (or monotone is off): a full build ran.
+    """
+
+    exec: jax.Array
+    dirty: jax.Array
+    n_dirty: jax.Array
+    rounds: jax.Array
+    full: jax.Array
+
+
+def changed_cells(old_obj, new_obj, target_mask):
+    """``bool[H, W]`` A_exec: non-target cells whose count changed."""
+    return (jnp.asarray(old_obj) != jnp.asarray(new_obj)) & ~jnp.asarray(target_mask)
+
+
+def upstream_closure(seed, feasible_old, feasible_new):
+    """``bool[H, W]``: cells that reach ``seed`` through successor steps of either graph.
+
+    seed: bool[H, W]; feasible_old, feasible_new: bool[8, H, W]. One backward dilation per round.
+    """
+    edges = feasible_old | feasible_new
+
+    def grow(carry):
+        mask, _ = carry
+        reach = jnp.any(jnp.stack([edges[d] & _grid.shift(mask, dr, dc, False)
+                                   for d, (dr, dc) in enumerate(_grid.DIRS)]), axis=0)
+        new = mask | reach
+        return new, jnp.any(new != mask)
+
+    mask, _ = jax.lax.while_loop(lambda c: c[1], grow, (seed, jnp.bool_(True)))
+    return mask
+
+
+def _flat_neighbours(h: int, w: int):
+    """``i32[H*W, 8]`` flat index of each neighbour, ``H*W`` (the sink row) off the grid."""
+    rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    out = []
+    for dr, dc in _grid.DIRS:
+        r, c = rows + dr, cols + dc
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        out.append(jnp.where(inside, r * w + c, h * w).reshape(-1))
+    return jnp.stack(out, -1).astype(jnp.int32)
+
+
+def _compact_dp(graph: visibility.SuccessorGraph, table: Table, dirty, capacity: int, cell_size,
+                max_rounds: int):
+    """Recompute the table rows of the ``dirty`` cells (at most ``capacity``): ``(table, rounds)``.
+
+    The dirty rows live in a compact ``[K, capacity]`` buffer; a neighbour's table is read from the
+    buffer when it is dirty and from the old table (gathered once, before the loop) when it is not,
+    so a round costs O(capacity), not O(H W).
+    """
+    h, w, k = table.raw.shape
+    n = h * w
+    idx = jnp.nonzero(dirty.reshape(-1), size=capacity, fill_value=n)[0].astype(jnp.int32)
+    valid = idx < n
+    safe = jnp.minimum(idx, n - 1)
+    cols = lambda a: a.reshape(a.shape[0], -1)[:, safe]  # noqa: E731  [8, H, W] -> [8, cap]
+    into_goal = cols(graph.enters_goal) & valid
+    via_cell = (cols(graph.feasible) & valid & ~into_goal)[:, None]      # [8, 1, cap]
+    via_goal = (into_goal[:, None] & (jnp.arange(k) == 0)[None, :, None])
+    obj = graph.obj.reshape(-1)[safe]
+    fallback = graph.fallback.reshape(-1)[safe] & valid
+    fallback_len = graph.fallback_len.reshape(-1)[safe]
+    step_len = graph.step_len[:, None, None]
+
+    nb = _flat_neighbours(h, w)[safe].T                                  # [8, cap], n = off grid
+    position = jnp.full(n + 1, capacity, jnp.int32).at[idx].set(jnp.arange(capacity, dtype=jnp.int32))
+    nb_pos = position[nb]                                                # [8, cap], capacity = clean
+    nb_dirty = (nb_pos < capacity)[:, None]                              # [8, 1, cap]
+    rows = lambda a, fill: jnp.concatenate([a.reshape(n, k), jnp.full((1, k), fill, a.dtype)])  # noqa: E731
+    clean_raw = jnp.moveaxis(rows(table.raw, -jnp.inf)[nb], -1, 1)      # [8, K, cap]
+    clean_len = jnp.moveaxis(rows(table.length, jnp.inf)[nb], -1, 1)
+    safe_pos = jnp.minimum(nb_pos, capacity - 1)
+
+    def body(carry):
+        raw, length, best_idx, rounds, _ = carry                        # [K, cap] each
+        nb_raw = jnp.where(nb_dirty, jnp.moveaxis(raw[:, safe_pos], 0, 1), clean_raw)
+        nb_len = jnp.where(nb_dirty, jnp.moveaxis(length[:, safe_pos], 0, 1), clean_len)
+        cand_raw = jnp.where(via_cell, obj + nb_raw, jnp.where(via_goal, obj, -jnp.inf))
+        cand_len = step_len + jnp.where(via_goal, 0.0, nb_len)
+        cand_raw = jnp.concatenate([cand_raw.reshape(8 * k, -1), jnp.where(fallback, obj, -jnp.inf)[None]])
+        cand_len = jnp.concatenate([cand_len.reshape(8 * k, -1), fallback_len[None]])
+        tol = _kbest.length_tolerance(jnp.min(cand_len, axis=0), cell_size)
+        new_raw, new_len, _, new_idx = _kbest.select_top_k(cand_raw, cand_len, None, k, tol)
+        changed = ~(jnp.array_equal(new_raw, raw) & jnp.array_equal(new_len, length)
+                    & jnp.array_equal(new_idx, best_idx))
+        return new_raw, new_len, new_idx, rounds + 1, changed
+
+    # warm start: the old rows (any start converges on a DAG; a good one converges sooner)
+    start = (rows(table.raw, -jnp.inf)[idx].T, rows(table.length, jnp.inf)[idx].T,
+             jnp.full((k, capacity), -1, jnp.int32), jnp.int32(0), jnp.bool_(True))
+    raw, length, best_idx, rounds, _ = jax.lax.while_loop(lambda c: c[-1] & (c[-2] < max_rounds), body, start)
+
+    used = raw > -jnp.inf
+    direction = jnp.where(best_idx == 8 * k, _grid.FALLBACK, best_idx // k)
+    entered_goal = jnp.take_along_axis(into_goal, jnp.clip(direction, 0, 7), axis=0)
+    steps = used & (direction < _grid.FALLBACK)
+    next_dir = jnp.where(used, direction, -1)
+    next_rank = jnp.where(steps & ~entered_goal, best_idx % k, -1)
+    scatter = lambda a, new: a.reshape(n, k).at[idx].set(new.T, mode="drop").reshape(h, w, k)  # noqa: E731
+    return Table(scatter(table.raw, raw), scatter(table.length, length), scatter(table.next_dir, next_dir),
+                 scatter(table.next_rank, next_rank)), rounds
+
+
+def _selective(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
+    obj = jnp.asarray(scene.obj, jnp.float32)
+    target = jnp.asarray(scene.target_mask, bool)
+    occupied = ~target & (obj > 0)
+    graph = visibility.successor_graph(obj, occupied, target, scene.dist, scene.tvec, params.theta_tol_deg,
+                                       scene.cell_size, params.monotone)
+    dirty = upstream_closure(changed, jnp.moveaxis(fabric.feasible, -1, 0), graph.feasible)
+    n_dirty = jnp.sum(dirty, dtype=jnp.int32)
+
+    max_hops = params.resolved_max_hops(obj.shape)
+    buckets = capacity_buckets(capacity)
+
+    def partial_with(cap):
+        def run(_):
+            table, rounds = _compact_dp(graph, fabric.table, dirty, cap, scene.cell_size, max_hops)
+            return derive(scene, params, table, graph.feasible, rounds, rounds < max_hops)
+        return run
+
+    def full(_):
+        return _build(scene, params)
+
+    # the smallest buffer that holds the dirty set: the recursion's cost scales with the buffer
+    fits = jnp.asarray(buckets) >= n_dirty
+    branch = jnp.where(jnp.any(fits), jnp.argmax(fits), len(buckets))
+    rebuilt = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [full], None)
+    return rebuilt, Affected(changed, dirty, n_dirty, rebuilt.rounds, branch == len(buckets))
+
+
+def capacity_buckets(capacity: int) -> tuple[int, ...]:
+    """Dirty-buffer sizes compiled for one grid: 64, 256, 1024, ... up to ``capacity``."""
+    sizes = []
+    size = 64
+    while size < capacity:
+        sizes.append(size)
+        size *= 4
+    return tuple(sizes) + (capacity,)
+
+
+def _full_only(scene, params, changed):
+    rebuilt = _build(scene, params)
+    return rebuilt, Affected(changed, jnp.ones_like(changed), jnp.int32(changed.size), rebuilt.rounds, jnp.bool_(True))
+
+
+def default_capacity(shape) -> int:
+    """Dirty-buffer size: half the grid (beyond that a full build is about as fast)."""
+    h, w = shape
+    return max(1, (h * w) // 2)
+
+
+def _rebuild(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
+    if not params.monotone:
+        return _full_only(scene, params, changed)
+    return _selective(scene, params, fabric, changed, capacity)
+
+
+_rebuild_jit = jax.jit(_rebuild, static_argnums=4)
+
+
+def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, capacity: int | None = None):
+    """Update ``fabric`` (built for the counts before a push) to ``scene``'s counts after it.
+
+    scene: the scene after the push; fabric: the fabric before it; changed: bool[H, W], A_exec
+    (``changed_cells`` or ``Push.changed``). Returns ``(fabric, Affected)``; the fabric equals
+    ``build_fabric(scene, params)`` (``rounds`` aside). capacity: static dirty-buffer size
+    (default ``default_capacity``); a larger dirty set triggers a full build. Buffers of 64, 256, ...
+    cells up to ``capacity`` are compiled and the smallest that holds the dirty set runs. Jitted.
+    """
+    capacity = default_capacity(scene.shape) if capacity is None else int(capacity)
+    return _rebuild_jit(scene, params, fabric, jnp.asarray(changed, bool), capacity)
+
+
+def paper_sets(scene, changed, theta_tol_deg, *, block_rows: int = 8):
+    """The paper's ``(A_vis, A_all)`` of Eq. 13 as bool[H, W] masks.
+
+    A_vis: occupied cells C with some changed cell X such that t(C) . unit(x - c) >= cos(theta_tol).
+    Every cell against every changed cell, ``block_rows`` rows of cells at a time.
+    """
+    h, w = scene.shape
+    centres = scene.cell_centers().reshape(-1, 2)
+    flat_changed = changed.reshape(-1)
+    cos_t = visibility.cone_cos(theta_tol_deg)
+    pad = (-h) % block_rows
+    blocks_c = jnp.pad(scene.cell_centers(), ((0, pad), (0, 0), (0, 0))).reshape(-1, block_rows * w, 2)
+    blocks_t = jnp.pad(scene.tvec, ((0, pad), (0, 0), (0, 0))).reshape(-1, block_rows * w, 2)
+
+    def sees(args):
+        c, t = args
+        delta = centres[None] - c[:, None]
+        norm = jnp.linalg.norm(delta, axis=-1)
+        align = jnp.sum(delta * t[:, None], -1) / jnp.maximum(norm, 1e-30)
+        return jnp.any(flat_changed[None] & (norm > 0) & (align >= cos_t), axis=1)
+
+    vis = jax.lax.map(sees, (blocks_c, blocks_t)).reshape(-1)[: h * w].reshape(h, w)
+    vis = vis & scene.occupied
+    return vis, vis | changed

@@ -1,0 +1,111 @@
+"""Serial reference of the spill model and of pushing a route (``jaxplan.spillage``, ``jaxplan.execute``).
+
+Plain Python, float64, one sample at a time, written straight from docs/conventions.md.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+QUANTUM = 2.0 ** -10   # as jaxplan.execute.QUANTUM: spills land on the grid in these units
+
+
+def catmull_rom_samples(points, samples_per_step: int):
+    """Samples of the uniform Catmull-Rom spline through ``points`` (list of (x, y)).
+
+    Returns a list of dicts with ``pos``, ``tangent``, ``turn`` (signed radians), ``ds`` and
+    ``segment``, ``first`` (first sample of its segment), in travel order.
+    """
+    n = len(points)
+    p = [np.asarray(q, np.float64) for q in points]
+    out = []
+    for j in range(n - 1):
+        p1, p2 = p[j], p[j + 1]
+        p0 = p[j - 1] if j > 0 else 2 * p1 - p2
+        p3 = p[j + 2] if j + 2 <= n - 1 else 2 * p2 - p1
+        for q in range(samples_per_step):
+            t = (q + 0.5) / samples_per_step
+            pos = 0.5 * (2 * p1 + (p2 - p0) * t + (2 * p0 - 5 * p1 + 4 * p2 - p3) * t ** 2
+                         + (3 * p1 - p0 - 3 * p2 + p3) * t ** 3)
+            vel = 0.5 * ((p2 - p0) + 2 * (2 * p0 - 5 * p1 + 4 * p2 - p3) * t
+                         + 3 * (3 * p1 - p0 - 3 * p2 + p3) * t ** 2)
+            acc = 0.5 * (2 * (2 * p0 - 5 * p1 + 4 * p2 - p3) + 6 * (3 * p1 - p0 - 3 * p2 + p3) * t)
+            speed = math.hypot(vel[0], vel[1])
+            cross = vel[0] * acc[1] - vel[1] * acc[0]
+            turn = cross / speed ** 3 * speed / samples_per_step if speed > 0 else 0.0
+            tangent = vel / speed if speed > 0 else np.zeros(2)
+            out.append(dict(pos=pos, tangent=tangent, turn=turn, ds=speed / samples_per_step,
+                            segment=j, first=q == 0))
+    return out
+
+
+def spill_along(samples, waypoint_pickup, lam: float, threshold: float):
+    """``(delivered, [spill per sample])``: the load recurrence of ``spillage.curvature_spill``."""
+    load = 0.0
+    spills = []
+    for s in samples:
+        if s["first"]:
+            load += waypoint_pickup[s["segment"]]
+        spill = min(1.0, lam * abs(s["turn"])) * load
+        if spill < threshold:
+            spill = 0.0
+        load -= spill
+        spills.append(spill)
+    return load, spills
+
+
+def execute_route(obj, target_mask, dist, tvec, cell_size, origin, cells, fallback, *,
+                  lam: float, threshold: float, samples_per_step: int):
+    """Push the route ``cells`` (list of (row, col)) on a copy of ``obj``.
+
+    Returns ``(new_obj, info)`` with info keys ``collected``, ``spilled``, ``delivered`` (collected - spilled), ``residual_load`` (the
+    evaluator's delivered mass, before spills are rounded to ``QUANTUM``), ``length``,
+    ``samples``, ``spills``, ``drop_cells``.
+    """
+    obj = np.array(obj, np.float64)
+    h, w = obj.shape
+    ox, oy = origin
+
+    def centre(rc):
+        return np.array([ox + (rc[1] + 0.5) * cell_size, oy + (rc[0] + 0.5) * cell_size])
+
+    points = [centre(rc) for rc in cells]
+    last = cells[-1]
+    end = centre(last) + np.asarray(tvec[last]) * dist[last] if fallback else centre(last)
+    if fallback:
+        points.append(end)
+    seen = set()
+    pickup = []
+    for rc in cells:
+        take = rc not in seen and not target_mask[rc]
+        seen.add(rc)
+        pickup.append(obj[rc] if take else 0.0)
+    pickup.append(0.0)
+    samples = catmull_rom_samples(points, samples_per_step)
+    delivered, spills = spill_along(samples, pickup, lam, threshold)
+    spills = [round(v / QUANTUM) * QUANTUM for v in spills]   # what lands on the grid
+    collected = sum(pickup)
+    for rc, amount in zip(cells, pickup):
+        if amount > 0:
+            obj[rc] = 0.0
+    drops = []
+    for s, amount in zip(samples, spills):
+        drop = cells[s["segment"]]
+        if s["turn"] != 0:
+            left = np.array([-s["tangent"][1], s["tangent"][0]])
+            x, y = s["pos"] - math.copysign(1.0, s["turn"]) * left * cell_size
+            r, c = math.floor((y - oy) / cell_size), math.floor((x - ox) / cell_size)
+            if 0 <= r < h and 0 <= c < w and not target_mask[r, c]:
+                drop = (r, c)
+        drops.append(drop)
+        obj[drop] += amount
+    if fallback:
+        targets = [(r, c) for r in range(h) for c in range(w) if target_mask[r, c]]
+        deposit = min(targets, key=lambda rc: (float(np.sum((centre(rc) - end) ** 2)), rc))
+    else:
+        deposit = last
+    spilled = sum(spills)
+    obj[deposit] += collected - spilled
+    return obj, dict(collected=collected, spilled=spilled, delivered=collected - spilled, residual_load=delivered,
+                     length=sum(s["ds"] for s in samples), samples=samples, spills=spills, drop_cells=drops)

@@ -1,0 +1,181 @@
+"""Spillage along a pushed route: spline, curvature and ``Spill(P; Theta)`` (Section 3.2).
+
+A route's waypoints (cell centres, then the target cell it enters or its fallback point on the
+boundary) are joined by a uniform Catmull-Rom spline: it passes through every waypoint, is smooth,
+and is differentiable in the waypoints. Each segment between two waypoints is sampled at
+``samples_per_step`` midpoints. At sample ``i`` the pusher carries ``load_i`` objects; it picks up a
+cell's objects at the first sample of the segment leaving that cell, and turning spills
+
+    spill_i = lam * kappa_i * ds_i * load_i      (= lam * turning angle of the sample * load),
+
+clipped to the load and dropped when below ``threshold`` objects. ``kappa_i * ds_i`` rather than the
+paper's bare ``kappa_i`` makes the spill independent of how densely the spline is sampled: ``lam`` is
+the fraction of the load lost per radian of turning. Delivered = collected - sum(spill): the residual
+load at the end.
+
+The evaluator is pluggable: any ``evaluator(samples: PathSamples, pickup: f32[N], params) ->
+(delivered: f32[], spill: f32[N])`` can replace ``curvature_spill``; the planner and ``execute``
+only call it through that signature.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+_TINY = 1e-12   # guards |r'|^2 for a (degenerate) stationary spline point
+
+
+@dataclasses.dataclass(frozen=True)
+class SpillParams:
+    """Parameters of the curvature spill model.
+
+    Traced:
+      lam: f32[], fraction of the load spilled per radian of turning (>= 0).
+      threshold: f32[], objects; a sample's spill below it is ignored (>= 0).
+    Static:
+      samples_per_step: spline samples per segment between two waypoints (>= 1).
+      enabled: whether routes are selected by delivered mass (Eq. 6) rather than raw count (Eq. 5).
+    """
+
+    lam: Any = 0.05
+    threshold: Any = 1e-3
+    samples_per_step: int = 8
+    enabled: bool = True
+
+    def replace(self, **changes) -> "SpillParams":
+        return dataclasses.replace(self, **changes)
+
+
+jax.tree_util.register_dataclass(SpillParams, data_fields=["lam", "threshold"],
+                                 meta_fields=["samples_per_step", "enabled"])
+
+
+def validate_spill_params(params: SpillParams) -> None:
+    """Raise ``ValueError`` naming the field for out-of-range concrete spill parameters."""
+    if not isinstance(params, SpillParams):
+        raise ValueError(f"spill: expected a SpillParams, got {type(params).__name__}. "
+                         "Build one with jaxplan.SpillParams(lam=0.05).")
+    for name in ("lam", "threshold"):
+        value = getattr(params, name)
+        if isinstance(value, jax.core.Tracer):
+            continue
+        arr = np.asarray(value, np.float64)
+        if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+            raise ValueError(f"SpillParams.{name}: must be finite and >= 0; got {value!r}.")
+    if not isinstance(params.samples_per_step, (int, np.integer)) or params.samples_per_step < 1:
+        raise ValueError(f"SpillParams.samples_per_step: must be an int >= 1; got {params.samples_per_step!r}.")
+
+
+class PathSamples(NamedTuple):
+    """Dense samples of a route's spline; N = (S - 1) * samples_per_step for S waypoint slots.
+
+    pos: f32[N, 2], world (x, y).  tangent: f32[N, 2], unit direction of travel.
+    turn: f32[N], signed turning angle over the sample (radians, + = counter-clockwise), kappa * ds.
+    ds: f32[N], arc length of the sample, world units.  segment: i32[N], waypoint the sample leaves.
+    first: bool[N], first sample of its segment (where that waypoint's objects are picked up).
+    valid: bool[N], the sample lies on the route (False in padding).
+    """
+
+    pos: jax.Array
+    tangent: jax.Array
+    turn: jax.Array
+    ds: jax.Array
+    segment: jax.Array
+    first: jax.Array
+    valid: jax.Array
+
+
+def _control_points(waypoints, n_points):
+    """``[S-1, 4, 2]`` Catmull-Rom control points (P0, P1, P2, P3) of every segment; the ends are
+    extended by reflection (P_{-1} = 2 P_0 - P_1), so an end segment starts or ends straight."""
+    s = waypoints.shape[0]
+    idx = jnp.arange(s - 1)
+    last = jnp.maximum(n_points - 1, 1)
+    at = lambda i: waypoints[jnp.clip(i, 0, s - 1)]  # noqa: E731
+    p1, p2 = at(idx), at(idx + 1)
+    before = jnp.where((idx == 0)[:, None], 2 * p1 - p2, at(idx - 1))
+    after = jnp.where((idx + 1 >= last)[:, None], 2 * p2 - p1, at(idx + 2))
+    return jnp.stack([before, p1, p2, after], axis=1)
+
+
+def _catmull_rom(ctrl, t):
+    """Position, first and second derivative (per unit parameter) at ``t`` of segments ``ctrl``."""
+    p0, p1, p2, p3 = (ctrl[:, i][:, None, :] for i in range(4))
+    a = 2 * p1
+    b = p2 - p0
+    c = 2 * p0 - 5 * p1 + 4 * p2 - p3
+    d = 3 * p1 - p0 - 3 * p2 + p3
+    t = t[None, :, None]
+    pos = 0.5 * (a + b * t + c * t ** 2 + d * t ** 3)
+    vel = 0.5 * (b + 2 * c * t + 3 * d * t ** 2)
+    acc = 0.5 * (2 * c + 6 * d * t)
+    return pos, vel, acc
+
+
+def sample_route(waypoints, n_points, samples_per_step: int) -> PathSamples:
+    """Sample the spline through ``waypoints[:n_points]`` at the midpoints of ``samples_per_step``
+    equal parameter steps per segment.
+
+    waypoints: f32[S, 2] world (x, y), rows past ``n_points`` ignored; n_points: i32[] (>= 1).
+    """
+    waypoints = jnp.asarray(waypoints, jnp.float32)
+    s = waypoints.shape[0]
+    m = samples_per_step
+    ctrl = _control_points(waypoints, n_points)
+    t = (jnp.arange(m, dtype=jnp.float32) + 0.5) / m
+    pos, vel, acc = _catmull_rom(ctrl, t)                      # [S-1, m, 2]
+    speed2 = jnp.sum(vel ** 2, -1)
+    cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
+    # kappa * ds = cross / |r'|^3 * |r'| dt
+    turn = cross / jnp.maximum(speed2, _TINY) / m
+    ds = jnp.sqrt(speed2) / m
+    tangent = vel / jnp.sqrt(jnp.maximum(speed2, _TINY))[..., None]
+    segment = jnp.repeat(jnp.arange(s - 1, dtype=jnp.int32), m)
+    valid = segment < n_points - 1
+    flat = lambda a: a.reshape((-1,) + a.shape[2:])  # noqa: E731
+    return PathSamples(flat(pos), flat(tangent), jnp.where(valid, flat(turn), 0.0),
+                       jnp.where(valid, flat(ds), 0.0), segment,
+                       jnp.tile(jnp.arange(m) == 0, s - 1), valid)
+
+
+def pickups_per_sample(samples: PathSamples, waypoint_pickup):
+    """``f32[N]``: each waypoint's objects (``waypoint_pickup: f32[S]``) at its segment's first sample."""
+    return jnp.where(samples.first & samples.valid, waypoint_pickup[samples.segment], 0.0)
+
+
+def curvature_spill(samples: PathSamples, pickup, params: SpillParams):
+    """The default ``Spill(P; Theta)``: ``(delivered f32[], spill f32[N])`` in objects.
+
+    pickup: f32[N] objects picked up at each sample. A sequential scan because the load at a sample
+    depends on everything spilled before it.
+    """
+    fraction = jnp.clip(params.lam * jnp.abs(samples.turn), 0.0, 1.0)
+
+    def step(load, x):
+        pick, frac = x
+        load = load + pick
+        spill = frac * load
+        spill = jnp.where(spill >= params.threshold, spill, 0.0)
+        return load - spill, spill
+
+    delivered, spill = jax.lax.scan(step, jnp.float32(0.0), (pickup, fraction))
+    return delivered, spill
+
+
+Evaluator = Callable[[PathSamples, jax.Array, Any], tuple]
+
+
+def evaluate_route(waypoints, n_points, waypoint_pickup, params: SpillParams,
+                   evaluator: Evaluator = curvature_spill):
+    """``(delivered f32[], spill f32[N], samples)`` for one route; ``vmap`` it over routes.
+
+    waypoints: f32[S, 2] world units; n_points: i32[]; waypoint_pickup: f32[S] objects collected at
+    each waypoint (0 for the final target cell or fallback point and for repeated cells).
+    """
+    samples = sample_route(waypoints, n_points, params.samples_per_step)
+    delivered, spill = evaluator(samples, pickups_per_sample(samples, waypoint_pickup), params)
+    return delivered, jnp.where(samples.valid, spill, 0.0), samples

@@ -1,0 +1,126 @@
+"""Selective rebuild: after any sequence of pushes it equals a from-scratch build of the same grid."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from jaxplan import FabricParams, build_fabric, builtin_scene, extract_paths
+from jaxplan import execute as ex
+from jaxplan import rebuild as rb
+from jaxplan import spillage as sp
+from jaxplan.reference import rebuild as ref_rb
+from tests._scenes import ANGLES, scenes
+
+SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+# lengths are sums of s and s*sqrt(2) in a different order in each solver: equal up to rounding
+_FLOAT_FIELDS = {"length"}
+
+
+def assert_same_fabric(got, want):
+    for name in got._fields:
+        if name in ("rounds", "converged"):
+            continue
+        a, b = getattr(got, name), getattr(want, name)
+        if name == "table":
+            np.testing.assert_array_equal(np.asarray(a.raw), np.asarray(b.raw), err_msg="table.raw")
+            np.testing.assert_allclose(np.asarray(a.length), np.asarray(b.length), rtol=1e-6, err_msg="table.length")
+            np.testing.assert_array_equal(np.asarray(a.next_dir), np.asarray(b.next_dir), err_msg="table.next_dir")
+            np.testing.assert_array_equal(np.asarray(a.next_rank), np.asarray(b.next_rank), err_msg="table.next_rank")
+        elif name in _FLOAT_FIELDS:
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, err_msg=name)
+        else:
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
+
+
+def _push(scene, fabric, source, rank, spill):
+    h, w = scene.shape
+    paths = extract_paths(fabric, jnp.array([source]), jnp.array([rank]), max_steps=h * w + 1)
+    route = jax.tree.map(lambda a: a[0], ex.routes_from_paths(scene, paths))
+    return ex.execute_jit(scene, route, spill)
+
+
+@SETTINGS
+@given(scene=scenes(max_side=13, integer_counts=False), theta=st.sampled_from(ANGLES),
+       lam=st.sampled_from((0.0, 0.05, 0.5)), pushes=st.lists(st.tuples(st.integers(0, 2**16), st.integers(0, 3)),
+                                                              min_size=1, max_size=4))
+def test_selective_rebuild_equals_full_build_after_random_pushes(scene, theta, lam, pushes):
+    scene = scene.with_obj(ex.quantize(scene.obj))   # exact sums: see execute.QUANTUM
+    params = FabricParams(theta_tol_deg=theta)
+    spill = sp.SpillParams(lam=lam, threshold=0.01)
+    fabric = build_fabric(scene, params)
+    for seed, rank in pushes:
+        sources = np.argwhere(np.asarray(fabric.occupied))
+        if len(sources) == 0:
+            break
+        source = tuple(sources[seed % len(sources)])
+        rank = rank if np.isfinite(float(fabric.table.raw[source + (rank,)])) else 0
+        new_obj, push = _push(scene, fabric, source, rank, spill)
+        old_feasible = fabric.feasible
+        scene = scene.with_obj(new_obj)
+        fabric, affected = rb.selective_rebuild(scene, params, fabric, push.changed)
+        assert_same_fabric(fabric, build_fabric(scene, params))
+        want_dirty = ref_rb.upstream_closure(np.asarray(push.changed), np.asarray(old_feasible),
+                                             np.asarray(fabric.feasible))
+        np.testing.assert_array_equal(np.asarray(affected.dirty), want_dirty)
+        assert int(affected.n_dirty) == int(want_dirty.sum())
+
+
+@pytest.fixture(scope="module")
+def pushed():
+    """The default scene, its fabric, and the scene after pushing its best route."""
+    scene = builtin_scene()
+    scene = scene.with_obj(ex.quantize(scene.obj))
+    params = FabricParams()
+    fabric = build_fabric(scene, params)
+    source = tuple(int(v) for v in np.unravel_index(int(jnp.argmax(fabric.value)), fabric.value.shape))
+    new_obj, push = _push(scene, fabric, source, 0, sp.SpillParams(lam=0.1))
+    return scene.with_obj(new_obj), params, fabric, push
+
+
+def test_overflowing_capacity_falls_back_to_a_full_build(pushed):
+    scene, params, fabric, push = pushed
+    small, affected = rb.selective_rebuild(scene, params, fabric, push.changed, capacity=1)
+    assert bool(affected.full) and int(affected.n_dirty) > 1
+    assert_same_fabric(small, build_fabric(scene, params))
+    roomy, affected = rb.selective_rebuild(scene, params, fabric, push.changed)
+    assert not bool(affected.full)
+    assert_same_fabric(roomy, small)
+
+
+def test_without_the_monotone_rule_the_rebuild_is_a_full_build(pushed):
+    scene, params, fabric, push = pushed
+    params = params.replace(monotone=False)
+    rebuilt, affected = rb.selective_rebuild(scene, params, build_fabric(scene, params), push.changed)
+    assert bool(affected.full)
+    assert_same_fabric(rebuilt, build_fabric(scene, params))
+
+
+def test_no_change_keeps_the_fabric(pushed):
+    scene, params, _, _ = pushed
+    fabric = build_fabric(scene, params)
+    rebuilt, affected = rb.selective_rebuild(scene, params, fabric, jnp.zeros(scene.shape, bool))
+    assert int(affected.n_dirty) == 0
+    assert_same_fabric(rebuilt, fabric)
+
+
+def test_paper_sets_equal_reference(pushed):
+    scene, params, _, push = pushed
+    vis, everything = rb.paper_sets(scene, push.changed, params.theta_tol_deg)
+    want = ref_rb.a_vis(np.asarray(push.changed), np.asarray(scene.occupied), np.asarray(scene.tvec, np.float64),
+                        float(scene.cell_size), (0.0, 0.0), float(params.theta_tol_deg))
+    np.testing.assert_array_equal(np.asarray(vis), want)
+    np.testing.assert_array_equal(np.asarray(everything), want | np.asarray(push.changed))
+
+
+def test_rebuild_compiles_once_per_grid(pushed):
+    scene, params, fabric, push = pushed
+    rb.selective_rebuild(scene, params, fabric, push.changed)
+    before = rb._rebuild_jit._cache_size()
+    for lam in (0.2, 0.7):   # traced parameters change, shapes do not
+        rb.selective_rebuild(scene, params.replace(theta_tol_deg=lam * 100), fabric, push.changed)
+    assert rb._rebuild_jit._cache_size() == before
