@@ -130,6 +130,10 @@ def run_paper(out_dir, strategy: str = "performance", seed: int = 0,
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out: {str(out)!r} exists and is not a directory; pass a directory.")
+    try:  # before the simulation, so that an unusable directory fails fast
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out: could not create {str(out)!r} ({exc.strerror or exc}).") from None
     params = paper_scenario(seed=seed, v_after=v_after, deadline=deadline)
     result, trace = simulate_site(paper_config(strategy, record=True, n_steps=steps), params)
     summary = summarize(params, result, trace, strategy)
@@ -139,7 +143,6 @@ def run_paper(out_dir, strategy: str = "performance", seed: int = 0,
     summary["outputs"] = {"figure": str(png), "summary": str(js)}
     write = write or _plain_write
     try:
-        out.mkdir(parents=True, exist_ok=True)
         write(png, lambda fh: fig.savefig(fh, format="png", dpi=120))
         text = json.dumps(summary, indent=2) + "\n"
         write(js, lambda fh: fh.write(text.encode()))
