@@ -1,4 +1,4 @@
-"""The ``jaxplan`` command line: ``jaxplan fabric``, ``jaxplan demo`` and ``jaxplan scenes``.
+"""The ``jaxplan`` command line: ``fabric``, ``demo``, ``episode``, ``teams`` and ``scenes``.
 
 Every subcommand has ``--help`` with an example. Bad input (a missing scene file, an unknown built-in
 name, an out-of-range parameter) prints one ``error: ...`` line to stderr and exits with code 2.
@@ -166,7 +166,7 @@ def _cmd_demo(args) -> int:
     from jaxplan.fabric import build_fabric
     from jaxplan.viz import plot_fabric
 
-    params = _params(args)
+    params, spill, ep = _params(args), _spill_params(args), _episode_params(args)
     scene = _load_scene(args.scene)  # bad input fails here, before the progress bar starts
     out_dir = Path(args.out)
     stages = ["build fabric (first call compiles)", "warm builds", "plan connectors", "plot"]
@@ -215,13 +215,23 @@ def _cmd_demo(args) -> int:
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         _atomic_write(png, lambda fh: fig.savefig(fh, format="png", dpi=120))
-        text = json.dumps(summary, indent=2) + "\n"
-        _atomic_write(summary_path, lambda fh: fh.write(text.encode()))
+        _write_json(summary_path, summary)   # the fabric part lands even if the episode fails
     except OSError as exc:
         raise CLIError(f"--out: could not write into {str(out_dir)!r} "
                        f"({exc.strerror or exc}).") from None
     finally:
         plt.close(fig)
+
+    # the main job: an episode on the same scene (plan, push, spill, rebuild until delivered)
+    episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
+    summary["episode"] = _episode_summary(scene, args.scene, params, spill, ep, episode)
+    try:
+        summary["outputs"].update(_episode_files(scene, episode, out_dir, animate=not args.no_animation,
+                                                 fps=args.fps))
+        _write_json(summary_path, summary)
+    except OSError as exc:
+        raise CLIError(f"--out: could not write into {str(out_dir)!r} "
+                       f"({exc.strerror or exc}).") from None
 
     print(f"scene {summary['scene']!r}: {h}x{w}, cell size {summary['cell_size']:g}, "
           f"total mass {summary['total_mass']:g}, {summary['occupied_cells']} occupied cells")
@@ -231,8 +241,143 @@ def _cmd_demo(args) -> int:
           f"iterations, converged={summary['converged']}")
     print(f"build_fabric on {summary['backend']}: first call {compile_ms:.1f} ms (incl. compile), "
           f"warm {warm_ms:.2f} ms (median of {_WARM_REPEATS})")
-    print(f"wrote {png}")
-    print(f"wrote {summary_path}")
+    _print_episode(summary["episode"])
+    for path in summary["outputs"].values():
+        print(f"wrote {path}")
+    return 0
+
+
+def _spill_params(args):
+    from jaxplan.spillage import SpillParams, validate_spill_params
+
+    spill = SpillParams(lam=args.lam, threshold=args.spill_threshold)
+    validate_spill_params(spill)
+    return spill
+
+
+def _episode_params(args):
+    from jaxplan.episode import EpisodeParams, validate_episode_params
+
+    ep = EpisodeParams(rearrange_margin=args.rearrange_margin, stop_fraction=args.stop_fraction,
+                       max_pushes=args.max_pushes, source_rule=args.source_rule)
+    validate_episode_params(ep)
+    return ep
+
+
+def _write_json(path: Path, data) -> None:
+    text = json.dumps(data, indent=2) + "\n"
+    _atomic_write(path, lambda fh: fh.write(text.encode()))
+
+
+def _write_csv(path: Path, columns: dict) -> None:
+    names = list(columns)
+    lines = [",".join(names)] + [",".join(str(v) for v in row) for row in zip(*columns.values())]
+    _atomic_write(path, lambda fh: fh.write(("\n".join(lines) + "\n").encode()))
+
+
+def _episode_files(scene, episode, out_dir: Path, *, animate: bool, fps: int) -> dict:
+    """Write metrics (JSON, CSV), the final figure and the animation; returns their paths.
+
+    Files are written one by one, each atomically, cheapest first: if the animation fails the
+    metrics and the figure are already on disk.
+    """
+    import matplotlib.pyplot as plt
+    from tqdm import tqdm
+
+    from jaxplan.viz import animate_episode, plot_episode
+
+    paths = {"metrics_json": out_dir / "metrics.json", "metrics_csv": out_dir / "metrics.csv",
+             "episode_figure": out_dir / "episode.png"}
+    _write_json(paths["metrics_json"], {"totals": episode.totals(), "per_tick": episode.per_tick()})
+    _write_csv(paths["metrics_csv"], episode.per_tick())
+    fig = plot_episode(scene, episode)
+    try:
+        _atomic_write(paths["episode_figure"], lambda fh: fig.savefig(fh, format="png", dpi=110))
+    finally:
+        plt.close(fig)
+    if animate and episode.frames:
+        paths["animation"] = out_dir / "episode.gif"
+        tmp = out_dir / ".episode.gif.tmp.gif"
+        with tqdm(total=len(episode.frames), desc="animation", unit="frame", file=sys.stderr, leave=False) as bar:
+            try:
+                animate_episode(scene, episode, tmp, fps=fps, progress=lambda i, n: bar.update(1))
+                os.replace(tmp, paths["animation"])
+            finally:
+                if tmp.exists():
+                    tmp.unlink()
+    return {k: str(v) for k, v in paths.items()}
+
+
+def _run_episode(scene, params, spill, ep, *, record: bool):
+    from jaxplan.episode import run_episode
+
+    return run_episode(scene, params, spill, ep, record=record, progress=True)
+
+
+def _episode_summary(scene, spec, params, spill, ep, episode) -> dict:
+    import jax
+
+    totals = episode.totals()
+    h, w = scene.shape
+    return {
+        "scene": scene.name or spec,
+        "shape": [h, w],
+        "initial_mass": totals["initial_mass"],
+        "initial_remaining": totals["initial_remaining"],
+        "delivered": totals["delivered"],
+        "spilled": totals["spilled"],
+        "remaining": totals["remaining"],
+        "pushes": totals["pushes"],
+        "rearrange_pushes": totals["rearrange_pushes"],
+        "driven": totals["driven"],
+        "stop_reason": episode.stop_reason,
+        "message": episode.message,
+        "median_plan_ms": totals["median_plan_ms"],
+        "median_rebuild_ms": totals["median_rebuild_ms"],
+        "params": _params_dict(params),
+        "spill": {"lam": float(spill.lam), "threshold": float(spill.threshold),
+                  "samples_per_step": spill.samples_per_step},
+        "episode": {"rearrange_margin": float(ep.rearrange_margin), "stop_fraction": float(ep.stop_fraction),
+                    "max_pushes": ep.max_pushes, "source_rule": ep.source_rule},
+        "notes": ("masses in objects; delivered/spilled/remaining are the final cumulative values; "
+                  "spilled mass stays on the grid and may be pushed again; the first tick's "
+                  "plan/rebuild times include compilation (medians are robust to it)"),
+        "backend": jax.default_backend(),
+    }
+
+
+def _print_episode(summary: dict) -> None:
+    print(f"episode: {summary['pushes']} pushes ({summary['rearrange_pushes']} via highway), stop: "
+          f"{summary['stop_reason']} - {summary['message']}")
+    print(f"mass: initial {summary['initial_mass']:g}, delivered {summary['delivered']:.2f}, "
+          f"spilled (cumulative) {summary['spilled']:.2f}, remaining {summary['remaining']:.2f}")
+    if summary["median_plan_ms"] is not None:
+        print(f"per tick (median): plan {summary['median_plan_ms']:.2f} ms, selective rebuild "
+              f"{summary['median_rebuild_ms']:.2f} ms")
+
+
+def _cmd_episode(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    params, spill, ep = _params(args), _spill_params(args), _episode_params(args)
+    scene = _load_scene(args.scene)
+    out_dir = Path(args.out)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CLIError(f"--out: could not create {str(out_dir)!r} ({exc.strerror or exc}).") from None
+    episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
+    summary = _episode_summary(scene, args.scene, params, spill, ep, episode)
+    try:
+        summary["outputs"] = _episode_files(scene, episode, out_dir, animate=not args.no_animation, fps=args.fps)
+        summary["outputs"]["summary"] = str(out_dir / "summary.json")
+        _write_json(out_dir / "summary.json", summary)
+    except OSError as exc:
+        raise CLIError(f"--out: could not write into {str(out_dir)!r} ({exc.strerror or exc}).") from None
+    _print_episode(summary)
+    for name, path in summary["outputs"].items():
+        print(f"wrote {path}")
     return 0
 
 
@@ -287,6 +432,27 @@ def _wrap(text: str) -> str:
     return textwrap.fill(" ".join(text.split()), width=79)
 
 
+def _add_episode_options(p) -> None:
+    p.add_argument("--lam", type=float, default=0.05, metavar="X",
+                   help="spill model lambda: fraction of the load spilled per radian of turning, >= 0; "
+                        "default 0.05 (0 = no spillage)")
+    p.add_argument("--spill-threshold", type=float, default=1e-3, metavar="OBJ",
+                   help="per-sample spills below this many objects are ignored, >= 0; default 0.001")
+    p.add_argument("--max-pushes", type=int, default=200, metavar="N",
+                   help="push budget, >= 0; default 200")
+    p.add_argument("--rearrange-margin", type=float, default=0.1, metavar="X",
+                   help="choose Rearrange (connector + highway) when it collects more than (1 + X) "
+                        "times the direct route; >= 0, 'inf' never rearranges; default 0.1")
+    p.add_argument("--stop-fraction", type=float, default=0.02, metavar="X",
+                   help="stop when the mass outside the target is at most X of its initial value, "
+                        "in [0, 1); default 0.02")
+    p.add_argument("--source-rule", default="max_value", choices=("max_value", "nearest"),
+                   help="which occupied cell to push from: the one whose route collects most "
+                        "(max_value, default) or the one nearest the target")
+    p.add_argument("--fps", type=int, default=4, metavar="N", help="animation frames per second; default 4")
+    p.add_argument("--no-animation", action="store_true", help="skip the GIF (faster)")
+
+
 def _build_parser() -> argparse.ArgumentParser:
     fmt = argparse.RawDescriptionHelpFormatter
     scene_help = (f"a built-in scene name ({', '.join(BUILTIN_SCENES)}) or a scene file "
@@ -296,7 +462,8 @@ def _build_parser() -> argparse.ArgumentParser:
         description=_wrap("Environment-first planning for aggregate transport: build the "
                           "trajectory fabric (visibility, K-best paths, heatmap, highways) of a "
                           "scene with JAX."),
-        epilog="examples:\n  jaxplan demo\n  jaxplan fabric --scene corridor --out fabric.npz\n"
+        epilog="examples:\n  jaxplan demo\n  jaxplan episode --scene corridor --out out/corridor\n"
+               "  jaxplan fabric --scene corridor --out fabric.npz\n"
                "  jaxplan scenes\n\nRun 'jaxplan COMMAND --help' for the options of a command.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
@@ -324,12 +491,15 @@ def _build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "demo", formatter_class=fmt,
-        help="build fabric + connectors of a scene, write a Fig. 2d plot and a summary",
+        help="the main job on a scene: fabric figure, then a whole episode (push until delivered)",
         description=_wrap("Build the fabric and the highway connectors of a scene (default: the "
-                          f"built-in {DEFAULT_SCENE!r} scene), then write DIR/fabric.png "
-                          "(heatmap, first-hop headings, connector headings, highways) and "
-                          "DIR/summary.json (sizes, totals, solver iterations, compile and warm build "
-                          "times). The first build compiles, which takes a few seconds."),
+                          f"built-in {DEFAULT_SCENE!r} scene) and write DIR/fabric.png "
+                          "(heatmap, first-hop headings, connector headings, highways); then run an "
+                          "episode on it, as 'jaxplan episode' does, writing DIR/episode.png, "
+                          "DIR/episode.gif, DIR/metrics.json and DIR/metrics.csv. DIR/summary.json "
+                          "holds the fabric's sizes, totals and build times and, under 'episode', "
+                          "the initial mass and the final delivered, spilled and remaining mass. "
+                          "The first calls compile, which takes some seconds."),
         epilog="example:\n  jaxplan demo --scene corridor --theta-tol 45 --out out/corridor")
     p.add_argument("--scene", default=DEFAULT_SCENE, metavar="NAME_OR_FILE",
                    help=scene_help + f"; default {DEFAULT_SCENE!r}")
@@ -338,7 +508,32 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--theta-tol", type=_angle, default=60.0, metavar="DEG",
                    help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); "
                         "default 60")
+    _add_episode_options(p)
     p.set_defaults(func=_cmd_demo)
+
+    p = sub.add_parser(
+        "episode", formatter_class=fmt,
+        help="run a whole transport job on a scene: plan, push, spill, rebuild until delivered",
+        description=_wrap("Run an episode (docs/conventions.md, 'Episodes'): each tick picks a "
+                          "source, chooses Deliver (its best route to the target under the spill "
+                          "model) or Rearrange (a connector to a highway, then the highway), pushes "
+                          "it on the grid (collect, spill beside the path, deposit in the target) and "
+                          "selectively rebuilds the fabric, until the mass outside the target falls "
+                          "under --stop-fraction or --max-pushes is spent. Writes DIR/summary.json "
+                          "(initial mass; final delivered, spilled, remaining), DIR/metrics.json and "
+                          "DIR/metrics.csv (per tick: delivered, spilled, remaining, pushes, mode, "
+                          "distance driven, plan and rebuild times), DIR/episode.png and "
+                          "DIR/episode.gif (heatmap, headings, highways, connector and pushed route, "
+                          "tick by tick)."),
+        epilog="example:\n  jaxplan episode --scene default --out out/episode\n"
+               "  jaxplan episode --scene my_site.json --lam 0.1 --max-pushes 50 --out out/site")
+    p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help)
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
+    p.add_argument("--theta-tol", type=_angle, default=60.0, metavar="DEG",
+                   help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); "
+                        "default 60")
+    _add_episode_options(p)
+    p.set_defaults(func=_cmd_episode)
 
     p = sub.add_parser(
         "teams", formatter_class=fmt,

@@ -67,6 +67,23 @@ def choose_anchors(heat, highways, occupied, centers, anchor_lambda, *, block_ro
     return jnp.where(roots & jnp.any(candidate), anchor, -1)
 
 
+def anchor_for(heat, highways, occupied, centers, anchor_lambda, root):
+    """``i32[]`` flat index of ``h*(R)`` for one root ``R = root: i32[2]`` (-1: not a root, or no
+    candidate). The same rule as ``choose_anchors``, in O(H W) for one cell."""
+    h, w = heat.shape
+    candidate = (highways & occupied).reshape(-1)
+    d = jnp.linalg.norm(centers.reshape(-1, 2) - centers[root[0], root[1]], axis=-1)
+    score = jnp.where(candidate, heat.reshape(-1) - anchor_lambda * d, -jnp.inf)
+    is_root = occupied[root[0], root[1]] & ~highways[root[0], root[1]]
+    return jnp.where(is_root & jnp.any(candidate), jnp.argmax(score), -1).astype(jnp.int32)
+
+
+def connector_table(scene, fabric: Fabric, params: FabricParams, anchor_flat):
+    """The K=1 connector ``Table`` of every cell toward one anchor (flat index; Section 3.4)."""
+    centers = _grid.cell_centers(fabric.occupied.shape, scene.cell_size, scene.origin)
+    return _connector_table(scene, fabric, params, anchor_flat, centers)
+
+
 def _norm_and_unit(delta):
     """Length ``[...]`` and unit vector ``[..., 2]`` of ``delta: [..., 2]`` (zero vector for zero length)."""
     norm = jnp.linalg.norm(delta, axis=-1)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plot_fabric"]
+__all__ = ["animate_episode", "plot_episode", "plot_fabric"]
 
 # Above this many cells per side, counts are drawn as dots instead of numbers.
 _TEXT_MAX_SIDE = 30
@@ -249,3 +249,129 @@ def _draw_paths(ax, scene, fabric, path_sources, x0, y0, s) -> int:
         ax.plot(pts[0, 0], pts[0, 1], marker="o", color=color, markersize=5, zorder=8)
         drawn += 1
     return drawn
+
+
+# --------------------------------------------------------------------------------------------------
+# Episodes
+
+
+def plot_episode(scene, episode):
+    """The final figure of an episode: mass over pushes (left) and the final counts (right).
+
+    scene: the scene the episode started from; episode: :class:`jaxplan.episode.Episode`.
+    """
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12.5, 5.2))
+    pushes = np.concatenate([[0], episode.pushes])
+    start = lambda a, first: np.concatenate([[first], np.asarray(a, float)])  # noqa: E731
+    left.plot(pushes, start(episode.delivered, 0.0), color=_TARGET, lw=2, label="delivered (cumulative)")
+    left.plot(pushes, start(episode.remaining, episode.initial_remaining), color="black", lw=2,
+              label="remaining outside the target")
+    left.plot(pushes, start(episode.spilled, 0.0), color=_ORANGE, lw=1.5, ls="--",
+              label="spilled (cumulative; spilled mass is pushed again)")
+    rearr = np.nonzero(np.asarray(episode.mode) == 1)[0]
+    if len(rearr):
+        left.scatter(episode.pushes[rearr], np.asarray(episode.remaining)[rearr], marker="^", color=_HIGHWAY,
+                     edgecolor="black", zorder=5, label="Rearrange pushes (via highway)")
+    left.set_xlabel("push")
+    left.set_ylabel("mass (objects)")
+    left.set_title(f"{episode.n_pushes} pushes, stop: {episode.stop_reason}", fontsize=10)
+    left.grid(alpha=0.3)
+    left.legend(fontsize=8)
+
+    h, w = scene.shape
+    s = float(np.asarray(scene.cell_size))
+    x0, y0 = (float(v) for v in np.asarray(scene.origin))
+    extent = (x0, x0 + w * s, y0, y0 + h * s)
+    final = np.asarray(episode.final_obj, float)
+    target_mask = np.asarray(scene.target_mask, bool)
+    im = right.imshow(np.where(target_mask, np.nan, final), origin="lower", extent=extent, cmap="viridis",
+                      interpolation="nearest")
+    fig.colorbar(im, ax=right, fraction=0.046, pad=0.03).set_label("objects left per cell")
+    from matplotlib.collections import LineCollection
+
+    right.add_collection(LineCollection(_cell_edges(target_mask, x0, y0, s), colors=_TARGET, linewidths=1.2))
+    totals = episode.totals()
+    right.set_title(f"final counts: delivered {totals['delivered']:.1f} of {episode.initial_remaining:.1f}, "
+                    f"remaining {totals['remaining']:.1f}", fontsize=10)
+    right.set_aspect("equal")
+    right.set_xlabel("x (world units)")
+    right.set_ylabel("y (world units, up)")
+    fig.tight_layout()
+    return fig
+
+
+def animate_episode(scene, episode, path, *, fps: int = 4, dpi: int = 90, progress=None):
+    """Write the episode tick by tick as an animation (``.gif`` with Pillow, ``.mp4`` with ffmpeg).
+
+    Each frame shows the heatmap and first-hop headings *before* the push, highways, the connector
+    of a Rearrange push (orange) and the pushed route's spline (white). Needs ``run_episode(...,
+    record=True)``. progress: optional callable ``progress(i, n)`` after each rendered frame.
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib import animation
+    from matplotlib.collections import LineCollection
+
+    frames = episode.frames
+    if not frames:
+        raise ValueError("animate_episode: the episode has no frames; run it with record=True "
+                         "(and at least one push).")
+    h, w = scene.shape
+    s = float(np.asarray(scene.cell_size))
+    x0, y0 = (float(v) for v in np.asarray(scene.origin))
+    extent = (x0, x0 + w * s, y0, y0 + h * s)
+    xs = x0 + (np.arange(w) + 0.5) * s
+    ys = y0 + (np.arange(h) + 0.5) * s
+    cx, cy = np.meshgrid(xs, ys)
+    target_mask = np.asarray(scene.target_mask, bool)
+    vmax = max(float(np.max(f["heat"])) for f in frames) or 1.0
+    stride = _stride(h, w)
+    centre = lambda cells: np.stack([x0 + (cells[:, 1] + 0.5) * s, y0 + (cells[:, 0] + 0.5) * s], -1)  # noqa: E731
+
+    fig, ax = plt.subplots(figsize=(7.2, 6.4))
+    im = ax.imshow(frames[0]["heat"], origin="lower", extent=extent, cmap="hot", vmin=0, vmax=vmax,
+                   interpolation="nearest")
+    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03).set_label("heat H(X) before the push (objects)")
+    ax.add_collection(LineCollection(_cell_edges(target_mask, x0, y0, s), colors=_TARGET, linewidths=1.2))
+    highway_lines = LineCollection([], colors=_HIGHWAY, linewidths=0.9)
+    ax.add_collection(highway_lines)
+    quiver = ax.quiver(cx[::stride, ::stride], cy[::stride, ::stride], np.zeros_like(cx[::stride, ::stride]),
+                       np.zeros_like(cy[::stride, ::stride]), color=_GREEN, angles="xy", scale_units="xy",
+                       scale=1.0, width=0.004)
+    (spline_line,) = ax.plot([], [], color="white", lw=2.2)
+    (conn_line,) = ax.plot([], [], color=_ORANGE, lw=3.0, alpha=0.9)
+    (start_dot,) = ax.plot([], [], "o", color="white", markeredgecolor="black")
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_aspect("equal")
+    title = ax.set_title("")
+    n = len(frames)
+
+    def draw(i):
+        f = frames[i]
+        im.set_data(f["heat"])
+        highway_lines.set_segments(list(_cell_edges(f["highways"], x0, y0, s)))
+        # NaN hides the arrow: only occupied cells carry a heading
+        head = np.where(f["occupied"][..., None], f["heading"], np.nan)[::stride, ::stride] * 0.6 * s * stride
+        quiver.set_UVC(head[..., 0], head[..., 1])
+        spline = f["spline"]
+        spline_line.set_data(spline[:, 0], spline[:, 1]) if len(spline) else spline_line.set_data([], [])
+        conn = centre(f["connector"]) if len(f["connector"]) else np.zeros((0, 2))
+        conn_line.set_data(conn[:, 0], conn[:, 1])
+        first = centre(f["route"][:1])
+        start_dot.set_data(first[:, 0], first[:, 1])
+        mode = "Rearrange (connector + highway)" if f["mode"] else "Deliver"
+        title.set_text(f"push {i + 1}/{n}: {mode}; delivered {episode.delivered[i]:.1f}, "
+                       f"remaining {episode.remaining[i]:.1f}")
+        if progress is not None:
+            progress(i + 1, n)
+        return im, highway_lines, quiver, spline_line, conn_line, start_dot, title
+
+    anim = animation.FuncAnimation(fig, draw, frames=n, blit=False)
+    suffix = str(path).lower().rsplit(".", 1)[-1]
+    writer = animation.PillowWriter(fps=fps) if suffix == "gif" else animation.FFMpegWriter(fps=fps)
+    try:
+        anim.save(str(path), writer=writer, dpi=dpi)
+    finally:
+        plt.close(fig)

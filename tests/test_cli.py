@@ -110,14 +110,27 @@ def test_demo_outputs(demo_run, capsys):
     assert summary["max_value_J"] > 0 and summary["highway_cells"] >= 1
     assert 0 <= summary["roots_with_connector"] <= summary["occupied_cells"]
     assert summary["compile_ms"] > 0 and summary["warm_build_ms"] > 0
+    # the main job: an episode on the default scene
+    episode = summary["episode"]
+    assert episode["initial_mass"] == pytest.approx(float(scene.total_mass))
+    assert episode["pushes"] >= 1 and episode["stop_reason"] in ("done", "budget")
+    assert episode["delivered"] + episode["remaining"] == pytest.approx(episode["initial_remaining"], rel=1e-5)
+    for name in ("episode.png", "episode.gif", "metrics.json", "metrics.csv"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 100, name
+    assert (out / "episode.gif").read_bytes()[:6] in (b"GIF89a", b"GIF87a")
 
 
 def test_demo_prints_summary(tmp_path, capsys):
     out = tmp_path / "d"
-    assert main(["demo", "--scene", "default", "--theta-tol", "45", "--out", str(out)]) == 0
+    assert main(["demo", "--scene", "default", "--theta-tol", "45", "--out", str(out), "--max-pushes", "3",
+                 "--no-animation"]) == 0
     text = capsys.readouterr().out
     assert "max J" in text and str(out / "fabric.png") in text and str(out / "summary.json") in text
-    assert json.loads((out / "summary.json").read_text())["params"]["theta_tol_deg"] == 45.0
+    assert "episode: 3 pushes" in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["params"]["theta_tol_deg"] == 45.0
+    assert summary["episode"]["pushes"] == 3 and summary["episode"]["stop_reason"] == "budget"
+    assert not (out / "episode.gif").exists()
 
 
 # --------------------------------------------------------------------------------------------------
@@ -133,7 +146,9 @@ def test_scenes_lists_builtins(capsys):
 
 
 @pytest.mark.parametrize("argv, expected", [
-    ([], ["fabric", "demo", "scenes", "example"]),
+    ([], ["fabric", "demo", "episode", "scenes", "example"]),
+    (["episode"], ["--scene", "--out", "--lam", "--max-pushes", "--rearrange-margin", "--stop-fraction",
+                   "--source-rule", "--no-animation", "summary.json", "metrics.csv", "episode.gif", "example"]),
     (["fabric"], ["--scene", "--theta-tol", "--tau-h", "--k", "--no-monotone", "--out", "example"]),
     (["demo"], ["--scene", "--out", "--theta-tol", "example", "summary.json", "fabric.png"]),
     (["scenes"], ["example"]),
@@ -161,6 +176,11 @@ def test_help(argv, expected, capsys):
     (["fabric", "--scene", "default", "--out", "x.txt"], "--out"),
     (["demo", "--theta-tol", "200"], "theta_tol_deg"),
     (["demo", "--scene", "nope"], "--scene"),
+    (["demo", "--lam", "-1"], "SpillParams.lam"),
+    (["episode", "--scene", "default", "--out", "o", "--max-pushes", "-1"], "max_pushes"),
+    (["episode", "--scene", "default", "--out", "o", "--stop-fraction", "1.5"], "stop_fraction"),
+    (["episode", "--scene", "default", "--out", "o", "--rearrange-margin", "-2"], "rearrange_margin"),
+    (["episode", "--scene", "nope", "--out", "o"], "--scene"),
 ])
 def test_bad_input(argv, field, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
@@ -182,3 +202,36 @@ def test_unparsable_angle_is_a_usage_error(capsys):
         main(["fabric", "--scene", "default", "--theta-tol", "abc", "--out", "x.npz"])
     assert info.value.code == 2
     assert "--theta-tol" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------------
+# episode
+# --------------------------------------------------------------------------------------------------
+
+def test_episode_writes_summary_metrics_figure_and_animation(tmp_path, capsys):
+    out = tmp_path / "ep"
+    assert main(["episode", "--scene", "corridor", "--out", str(out), "--max-pushes", "4"]) == 0
+    text = capsys.readouterr().out
+    assert "episode: " in text and str(out / "summary.json") in text
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("initial_mass", "delivered", "spilled", "remaining", "pushes", "stop_reason", "message"):
+        assert key in summary, key
+    assert summary["pushes"] <= 4
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert len(metrics["per_tick"]["delivered"]) == summary["pushes"]
+    assert metrics["totals"]["delivered"] == pytest.approx(summary["delivered"])
+    header = (out / "metrics.csv").read_text().splitlines()[0].split(",")
+    for column in ("pushes", "delivered", "spilled", "remaining", "plan_ms", "driven"):
+        assert column in header
+    assert (out / "episode.png").read_bytes()[:8] == PNG_MAGIC
+    assert (out / "episode.gif").read_bytes()[:3] == b"GIF"
+    assert not list(out.glob(".*"))   # no temp files left
+
+
+def test_episode_with_zero_budget_is_empty_but_valid(tmp_path, capsys):
+    out = tmp_path / "ep0"
+    assert main(["episode", "--scene", "default", "--out", str(out), "--max-pushes", "0"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["pushes"] == 0 and summary["stop_reason"] == "budget"
+    assert summary["remaining"] == pytest.approx(summary["initial_mass"])
+    assert "budget" in capsys.readouterr().out
