@@ -384,8 +384,10 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None) -> np.ndarray
     arcs along an inflated cluster's ring around each cluster it meets. Every point is then at least
     ``W/2 + delta`` from its own cluster and at least ``gap - rho >= W/2`` from the others when the
     non-bottleneck gaps exceed ``W + (rho - W/2)`` (~1e-4 W): the exactness limit of this construction.
-    ``delta`` defaults to ``1e-4 W``, shrunk so that the endpoint disks stay outside the inflation.
-    None when Eq. 7 fails.
+    ``delta`` defaults to ``1e-4 W`` (shrunk so that the endpoint disks stay outside the inflation),
+    then ``1e-2 W/2`` if the first path fails the exact clearance check (GEOS may simplify a buffer).
+    The returned path always passes that check (shapely distance >= W/2 to every component, walls
+    included). None when Eq. 7 fails or no margin gives a clear path (near-ties only).
     """
     conn = connectivity(g, start, goal)
     if not conn.connected:
@@ -394,9 +396,19 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None) -> np.ndarray
     s, gl = np.asarray(start, np.float64), np.asarray(goal, np.float64)
     cos = math.cos(math.pi / (4 * _QUAD_SEGS))
     clr = float(clearance(g, np.stack([s, gl])).min())
-    if delta is None:
-        delta = max(0.0, min(1e-4 * g.width, 0.5 * (clr * cos - r)))
-    rho = (r + delta) / cos
+    # GEOS may simplify a buffer's input by ~1% of the distance, so a path along it can dip a little:
+    # every candidate is checked exactly and the next, wider margin is tried when it dips.
+    deltas = [delta] if delta is not None else [min(1e-4 * g.width, 0.5 * (clr * cos - r)), 1e-2 * r]
+    pieces = np.asarray(g.pieces, dtype=object)
+    for d in deltas:
+        path = _inflated_walk(g, s, gl, (r + max(d, 0.0)) / cos)
+        if path is not None and float(shapely.distance(pieces, LineString(path)).min()) >= r:
+            return path
+    return None
+
+
+def _inflated_walk(g: WCCG, s: np.ndarray, gl: np.ndarray, rho: float) -> np.ndarray | None:
+    """The frontier walk over the clusters inflated by ``rho``: the polyline f64[P, 2] or None."""
     sk = _skeleton(g)
     seg = LineString([s, gl])
     # The inflated clusters the segment meets: those with a component within rho of it.
@@ -418,4 +430,3 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None) -> np.ndarray
     path = np.asarray(pts)
     keep = np.concatenate([[True], np.linalg.norm(np.diff(path, axis=0), axis=1) > 1e-12])
     return path[keep]
-
