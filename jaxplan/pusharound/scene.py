@@ -1,0 +1,340 @@
+"""The PushAround scene (Section II): workspace, fixed and movable obstacles, robots, vehicle, endpoints.
+
+A :class:`PushScene` is immutable; :meth:`PushScene.with_poses` returns a copy with new movable poses
+(what a physics rollout produces). ``PushScene.from_dict`` / ``load`` validate everything and raise
+``ValueError`` naming the offending field and the fix; the JSON format is in ``docs/pusharound.md``.
+
+Frames and units: metres, kilograms, radians. A movable's pieces are stored in its body frame (area
+centroid at the origin); its pose ``(x, y, psi)`` places the centroid at ``(x, y)`` rotated by ``psi``
+(counter-clockwise). Fixed obstacles are stored in world coordinates.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import shapely
+from shapely import affinity
+from shapely.geometry import Point, Polygon
+from shapely.geometry import box as _box
+
+from jaxplan.pusharound.shapes import convex_decomposition, is_convex, polygon_inertia
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "Fixed", "Movable", "PushScene"]
+
+FORMAT = "jaxplan.pusharound.scene"
+FORMAT_VERSION = 1
+
+# Two obstacles overlap when their intersection has more area than this [m^2]; touching is allowed.
+_OVERLAP_AREA = 1e-9
+
+
+@dataclasses.dataclass(frozen=True)
+class Fixed:
+    """An immovable obstacle: ``pieces`` are convex Polygons in world coordinates."""
+
+    name: str
+    pieces: tuple
+
+    @property
+    def polygon(self) -> Polygon:
+        return shapely.union_all(self.pieces)
+
+    def world_pieces(self) -> tuple:
+        return self.pieces
+
+
+@dataclasses.dataclass(frozen=True)
+class Movable:
+    """A movable rigid polygon (Section II-A).
+
+    pieces: convex Polygons in the body frame (centroid at the origin); pose: (x, y, psi) [m, m, rad];
+    mass [kg] > 0; inertia [kg m^2] about the centroid (uniform lamina when built from a scene file
+    without one); friction: Coulomb coefficient with the floor, >= 0; shape: how it was made
+    (``{"kind": "cylinder", "radius": 0.3}``) or None.
+    """
+
+    name: str
+    pieces: tuple
+    pose: tuple
+    mass: float
+    inertia: float
+    friction: float = 0.5
+    shape: dict | None = None
+
+    def world_pieces(self, pose=None) -> tuple:
+        x, y, psi = self.pose if pose is None else pose
+        return tuple(affinity.translate(affinity.rotate(p, psi, origin=(0, 0), use_radians=True), x, y)
+                     for p in self.pieces)
+
+    @property
+    def polygon(self) -> Polygon:
+        """The outline in world coordinates (the body-frame union, moved: pieces share edges exactly
+        there, whereas rotated pieces may not, and their union could split)."""
+        x, y, psi = self.pose
+        body = shapely.union_all(self.pieces)
+        return affinity.translate(affinity.rotate(body, psi, origin=(0, 0), use_radians=True), x, y)
+
+
+@dataclasses.dataclass(frozen=True)
+class PushScene:
+    """workspace: (x0, y0, x1, y1) [m]; width: vehicle width W [m] (the vehicle is a disk of radius
+    W/2); start, goal: (x, y) of the vehicle; fixed, movables: tuples of :class:`Fixed` / :class:`Movable`;
+    robots: f64[N, 2] robot positions; robot_radius [m]."""
+
+    workspace: tuple
+    width: float
+    start: tuple
+    goal: tuple
+    fixed: tuple = ()
+    movables: tuple = ()
+    robots: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
+    robot_radius: float = 0.15
+
+    # ---------------------------------------------------------------- derived geometry
+    @property
+    def workspace_polygon(self) -> Polygon:
+        return _box(*self.workspace)
+
+    @property
+    def poses(self) -> np.ndarray:
+        """f64[M, 3] movable poses (x, y, psi)."""
+        return np.asarray([m.pose for m in self.movables], np.float64).reshape(-1, 3)
+
+    @property
+    def masses(self) -> np.ndarray:
+        return np.asarray([m.mass for m in self.movables], np.float64)
+
+    def obstacle_polygons(self) -> list:
+        """World outlines of all obstacles: movables first (index m), then fixed (index M + f)."""
+        return [m.polygon for m in self.movables] + [f.polygon for f in self.fixed]
+
+    def with_poses(self, poses) -> "PushScene":
+        """A copy with movable poses ``poses: f[M, 3]`` (no validation: a rollout may touch walls)."""
+        poses = np.asarray(poses, np.float64).reshape(len(self.movables), 3)
+        movables = tuple(dataclasses.replace(m, pose=tuple(float(v) for v in p))
+                         for m, p in zip(self.movables, poses))
+        return dataclasses.replace(self, movables=movables)
+
+    def replace(self, **changes) -> "PushScene":
+        return dataclasses.replace(self, **changes)
+
+    # ---------------------------------------------------------------- serialisation
+    def to_dict(self) -> dict:
+        def pieces(ps):
+            return [[[float(x), float(y)] for x, y in np.asarray(p.exterior.coords)[:-1, :2]] for p in ps]
+
+        return {
+            "format": FORMAT, "version": FORMAT_VERSION,
+            "workspace": [float(v) for v in self.workspace],
+            "vehicle_width": float(self.width),
+            "start": [float(v) for v in self.start], "goal": [float(v) for v in self.goal],
+            "fixed": [{"name": f.name, "pieces": pieces(f.pieces)} for f in self.fixed],
+            "movables": [{"name": m.name, "pieces": pieces(m.pieces), "pose": [float(v) for v in m.pose],
+                          "mass": float(m.mass), "inertia": float(m.inertia),
+                          "friction": float(m.friction),
+                          **({"shape": m.shape} if m.shape else {})} for m in self.movables],
+            "robots": {"positions": np.asarray(self.robots, float).tolist(),
+                       "radius": float(self.robot_radius)},
+        }
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=1))
+        return path
+
+    @classmethod
+    def load(cls, path) -> "PushScene":
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: not valid JSON ({e}).") from None
+        return cls.from_dict(data)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "PushScene":
+        """Parse and validate a scene dictionary (the JSON format of ``docs/pusharound.md``)."""
+        if not isinstance(data, dict):
+            raise ValueError("scene: expected a JSON object.")
+        if data.get("format", FORMAT) != FORMAT or data.get("version", FORMAT_VERSION) != FORMAT_VERSION:
+            raise ValueError(f"format/version: expected {FORMAT!r} version {FORMAT_VERSION}; got "
+                             f"{data.get('format')!r} version {data.get('version')!r}.")
+        for key in ("workspace", "vehicle_width", "start", "goal"):
+            if key not in data:
+                raise ValueError(f"{key}: missing; see docs/pusharound.md for the scene format.")
+        ws = _floats(data["workspace"], 4, "workspace", "[x0, y0, x1, y1] in metres")
+        fixed = tuple(_parse_fixed(f, i) for i, f in enumerate(data.get("fixed", [])))
+        movables = tuple(_parse_movable(m, i) for i, m in enumerate(data.get("movables", [])))
+        rob = data.get("robots", {}) or {}
+        positions = np.asarray(rob.get("positions", []), np.float64).reshape(-1, 2) \
+            if len(rob.get("positions", [])) else np.zeros((0, 2))
+        scene = cls(workspace=tuple(ws), width=_scalar(data["vehicle_width"], "vehicle_width"),
+                    start=tuple(_floats(data["start"], 2, "start", "[x, y]")),
+                    goal=tuple(_floats(data["goal"], 2, "goal", "[x, y]")),
+                    fixed=fixed, movables=movables, robots=positions,
+                    robot_radius=_scalar(rob.get("radius", 0.15), "robots.radius"))
+        validate_scene(scene)
+        return scene
+
+
+# ---------------------------------------------------------------------------------------------------
+# Parsing helpers
+# ---------------------------------------------------------------------------------------------------
+
+def _scalar(v, field: str) -> float:
+    try:
+        out = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{field}: expected a number; got {v!r}.") from None
+    if not math.isfinite(out):
+        raise ValueError(f"{field}: must be finite; got {v!r}.")
+    return out
+
+
+def _floats(v, n: int, field: str, what: str) -> list:
+    try:
+        out = [float(x) for x in v]
+    except (TypeError, ValueError):
+        raise ValueError(f"{field}: expected {what}; got {v!r}.") from None
+    if len(out) != n or not all(math.isfinite(x) for x in out):
+        raise ValueError(f"{field}: expected {what} ({n} finite numbers); got {v!r}.")
+    return out
+
+
+def _polygon(verts, field: str) -> Polygon:
+    try:
+        xy = np.asarray(verts, np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{field}: expected a list of [x, y] vertices.") from None
+    if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] < 3:
+        raise ValueError(f"{field}: expected at least 3 [x, y] vertices; got shape {xy.shape}.")
+    if not np.all(np.isfinite(xy)):
+        raise ValueError(f"{field}: vertices must be finite numbers.")
+    poly = Polygon(xy)
+    if not poly.is_valid:
+        reason = shapely.is_valid_reason(poly)
+        kind = "self-intersecting" if "intersection" in reason.lower() else "invalid"
+        raise ValueError(f"{field}: {kind} polygon ({reason}); list the vertices in order around the "
+                         "boundary, without crossings or repeated points.")
+    if poly.area <= 0:
+        raise ValueError(f"{field}: polygon has zero area; give at least 3 non-collinear vertices.")
+    return shapely.orient_polygons(poly, exterior_cw=False)
+
+
+def _pieces(entry: dict, field: str) -> tuple:
+    """Convex pieces from ``pieces`` (each must be convex) or ``polygon`` (decomposed if not convex)."""
+    if "pieces" in entry:
+        pieces = tuple(_polygon(p, f"{field}.pieces[{k}]") for k, p in enumerate(entry["pieces"]))
+        if not pieces:
+            raise ValueError(f"{field}.pieces: empty; give at least one convex piece.")
+        for k, p in enumerate(pieces):
+            if not is_convex(p):
+                raise ValueError(f"{field}.pieces[{k}]: not convex; split it into convex pieces or "
+                                 "give the outline as 'polygon' to have it decomposed.")
+    elif "polygon" in entry:
+        pieces = tuple(convex_decomposition(_polygon(entry["polygon"], f"{field}.polygon")))
+    else:
+        raise ValueError(f"{field}: needs 'pieces' (convex vertex lists) or 'polygon' (an outline).")
+    union = shapely.union_all(pieces)
+    if not isinstance(union, Polygon):
+        raise ValueError(f"{field}.pieces: they do not form one connected body; pieces must touch "
+                         "along edges (or split the body into two obstacles).")
+    return pieces
+
+
+def _parse_fixed(entry, i: int) -> Fixed:
+    field = f"fixed[{i}]"
+    if not isinstance(entry, dict):
+        raise ValueError(f"{field}: expected an object with 'pieces' or 'polygon'.")
+    return Fixed(name=str(entry.get("name", f"fixed{i}")), pieces=_pieces(entry, field))
+
+
+def _parse_movable(entry, i: int) -> Movable:
+    field = f"movables[{i}]"
+    if not isinstance(entry, dict):
+        raise ValueError(f"{field}: expected an object with 'pieces' or 'polygon', 'mass', ...")
+    pieces = _pieces(entry, field)
+    if "pose" in entry:  # pieces given in the body frame
+        x, y, psi = _floats(entry["pose"], 3, f"{field}.pose", "[x, y, psi] (m, m, rad)")
+    else:  # pieces given in world coordinates: the body frame is the centroid, psi = 0
+        x, y, psi = 0.0, 0.0, 0.0
+    # Recentre on the area centroid (the paper's x_m is the centroid), moving the pose to match.
+    # A centroid off by float rounding only is left alone, so that save -> load is exact.
+    c = shapely.union_all(pieces).centroid
+    if math.hypot(c.x, c.y) > 1e-12 * (1.0 + math.sqrt(shapely.union_all(pieces).area)):
+        pieces = tuple(affinity.translate(p, -c.x, -c.y) for p in pieces)
+        cos, sin = math.cos(psi), math.sin(psi)
+        x, y = x + cos * c.x - sin * c.y, y + sin * c.x + cos * c.y
+    if "mass" not in entry:
+        raise ValueError(f"{field}.mass: missing; give the mass in kg (> 0).")
+    mass = _scalar(entry["mass"], f"{field}.mass")
+    if mass <= 0:
+        raise ValueError(f"{field}.mass: must be > 0 kg; got {mass!r}.")
+    inertia = entry.get("inertia")
+    if inertia is None:
+        inertia = polygon_inertia(shapely.union_all(pieces), mass)
+    inertia = _scalar(inertia, f"{field}.inertia")
+    if inertia <= 0:
+        raise ValueError(f"{field}.inertia: must be > 0 kg m^2 (or omit it to compute it from the "
+                         f"polygon and mass); got {inertia!r}.")
+    friction = _scalar(entry.get("friction", 0.5), f"{field}.friction")
+    if friction < 0:
+        raise ValueError(f"{field}.friction: must be >= 0; got {friction!r}.")
+    shape = entry.get("shape")
+    return Movable(name=str(entry.get("name", f"m{i}")), pieces=pieces, pose=(x, y, psi), mass=mass,
+                   inertia=inertia, friction=friction, shape=dict(shape) if shape else None)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Validation
+# ---------------------------------------------------------------------------------------------------
+
+def _labels(scene: PushScene) -> list:
+    return [f"movables[{i}]" for i in range(len(scene.movables))] + \
+           [f"fixed[{i}]" for i in range(len(scene.fixed))]
+
+
+def validate_scene(scene: PushScene) -> None:
+    """Raise ``ValueError`` naming the object for an inconsistent scene (see the module docstring)."""
+    x0, y0, x1, y1 = scene.workspace
+    if not (x0 < x1 and y0 < y1):
+        raise ValueError(f"workspace: need x0 < x1 and y0 < y1; got {scene.workspace!r}.")
+    if not scene.width > 0:
+        raise ValueError(f"vehicle_width: must be > 0 m; got {scene.width!r}.")
+    if not scene.robot_radius > 0:
+        raise ValueError(f"robots.radius: must be > 0 m; got {scene.robot_radius!r}.")
+    ws = scene.workspace_polygon
+    polys = scene.obstacle_polygons()
+    labels = _labels(scene)
+    for lab, poly in zip(labels, polys):
+        if not ws.buffer(1e-9).covers(poly):
+            raise ValueError(f"{lab}: lies (partly) outside the workspace {scene.workspace}; move it "
+                             "inside or enlarge the workspace.")
+    # Pairwise overlap, with a bounding-box pre-filter (STRtree) so large scenes stay fast.
+    tree = shapely.STRtree(polys)
+    for i, j in zip(*tree.query(polys, predicate="intersects")):
+        if i < j:
+            area = polys[i].intersection(polys[j]).area
+            if area > _OVERLAP_AREA:
+                raise ValueError(f"{labels[i]} and {labels[j]}: overlap (area {area:.3g} m^2); move one "
+                                 "of them so that they at most touch.")
+    for name, pt in (("start", scene.start), ("goal", scene.goal)):
+        p = Point(pt)
+        if not ws.contains(p):
+            raise ValueError(f"{name}: {tuple(pt)} is outside the workspace {scene.workspace}; give a "
+                             "point strictly inside it.")
+        for lab, poly in zip(labels, polys):
+            if poly.covers(p):
+                raise ValueError(f"{name}: {tuple(pt)} is inside {lab}; move the {name} or the obstacle.")
+    robots = np.asarray(scene.robots, np.float64).reshape(-1, 2)
+    for k, pt in enumerate(robots):
+        p = Point(pt)
+        if not np.all(np.isfinite(pt)) or not ws.contains(p):
+            raise ValueError(f"robots.positions[{k}]: {tuple(pt)} is outside the workspace.")
+        for lab, poly in zip(labels, polys):
+            if poly.distance(p) < scene.robot_radius - 1e-9:
+                raise ValueError(f"robots.positions[{k}]: the robot disk overlaps {lab}; move the robot.")

@@ -1,0 +1,432 @@
+"""The W-Clearance Connectivity Graph (Section III-A): construction, Eq. 7, frontier tracing, paths.
+
+Definitions (exact forms in ``docs/pusharound.md``):
+
+- **Components**: the convex pieces of every movable and fixed obstacle, plus four wall boxes just
+  outside the workspace (the RA-L version of the paper includes the workspace boundary; without it a
+  gap between an obstacle and a wall would never count). Each has a centroid node.
+- **Bridges**: for every pair of components at distance ``w < W`` (or ``< bridge_range * W``, to
+  draw near-misses too), bridge nodes at the closest points ``p_u, p_v`` and a bridge-bridge edge of
+  width ``w = |p_u - p_v|``; ``bottleneck = w < W``. Pieces of one body touch, so they are always
+  bridged (``internal``).
+- **Skeleton**: the union of the components and the bottleneck bridge segments. Every bridge segment
+  lies in the union of the two inflated components (each of its points is within ``w/2 < W/2`` of an
+  end), so no W-clear path crosses the skeleton.
+- **Clusters**: connected components of the skeleton (union-find over bottleneck bridges). A
+  cluster's region ``K_c`` has rings: one exterior and its holes; **faces** are the components of
+  the plane minus all clusters. Two points lie in the same face iff no ring encloses exactly one of
+  them (Janiszewski's theorem: disjoint clusters separate independently).
+- **Eq. 7**: connected iff start and goal are in the same face and both disks ``B(s, W/2)`` are
+  free (clearance >= W/2 from every component, walls included).
+- **Frontier tracing** (BugPlanner): walk the segment start -> goal; at the first ring hit, either
+  that ring separates (return it: the frontier loop) or go around it along the ring to the last
+  crossing and continue. The walk stays on the start's face, so the first separating ring it meets
+  bounds that face.
+- **Skeleton to path**: the same walk over the clusters inflated by ``W/2 + delta`` gives an explicit
+  polyline whose ``W/2``-disk sweep stays free.
+
+Bridges can be removed (``removed``: a set of body pairs) to ask "what if this gap were widened":
+the ranking's presearch does that.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Point, Polygon
+from shapely.geometry import box as _box
+
+from jaxplan.pusharound.kernels import aabb_gaps, pack_polygons, pair_distances, point_distances
+from jaxplan.pusharound.scene import PushScene
+
+__all__ = ["MOVABLE", "FIXED", "WALL", "WCCG", "Connectivity", "Frontier", "build_wccg",
+           "clearance", "connectivity", "frontier_bridges", "w_clear_path"]
+
+MOVABLE, FIXED, WALL = 0, 1, 2
+
+# Half-width of a bridge segment when it is made a polygon for the union [m, relative to W]: the
+# skeleton's bridges have zero width; a thin strip keeps the cluster one connected polygon.
+_BRIDGE_EPS = 1e-7
+# Buffer resolution of the inflated clusters used for paths (segments per quarter circle).
+_QUAD_SEGS = 32
+
+
+class WCCG(NamedTuple):
+    """The graph of Eq. 6 plus what queries need. N components, E bridges, B bodies.
+
+    width: W [m]. workspace: (x0, y0, x1, y1).
+    pieces: tuple of N convex Polygons (world); verts f64[N, V, 2] / nverts i32[N]: packed pieces.
+    comp_body: i32[N] body of each component; centroids: f64[N, 2] (centroid nodes).
+    body_kind: i32[B] MOVABLE / FIXED / WALL; body_index: i32[B] index in scene.movables / .fixed
+      (-1 for the wall body); body_mass: f64[B] (0 for fixed bodies and walls).
+    bridge_uv: i32[E, 2] components; bridge_pts: f64[E, 2, 2] bridge nodes p_u, p_v;
+      bridge_width: f64[E] w_uv; bottleneck: bool[E] w < W; internal: bool[E] same body.
+    Bodies: movables 0..M-1, then fixed M..M+F-1, then the wall body M+F.
+    """
+
+    width: float
+    workspace: tuple
+    pieces: tuple
+    verts: np.ndarray
+    nverts: np.ndarray
+    comp_body: np.ndarray
+    centroids: np.ndarray
+    body_kind: np.ndarray
+    body_index: np.ndarray
+    body_mass: np.ndarray
+    bridge_uv: np.ndarray
+    bridge_pts: np.ndarray
+    bridge_width: np.ndarray
+    bottleneck: np.ndarray
+    internal: np.ndarray
+
+    @property
+    def bridge_bodies(self) -> np.ndarray:
+        """i32[E, 2] the bodies of each bridge's two components, sorted (a <= b)."""
+        return np.sort(self.comp_body[self.bridge_uv], axis=1)
+
+
+def _wall_pieces(workspace, thickness: float) -> list:
+    x0, y0, x1, y1 = workspace
+    t = thickness
+    return [_box(x0 - t, y0 - t, x0, y1 + t), _box(x1, y0 - t, x1 + t, y1 + t),
+            _box(x0, y0 - t, x1, y0), _box(x0, y1, x1, y1 + t)]
+
+
+def _bucket(n: int) -> int:
+    # Pad batch sizes to powers of two so that jit compiles a handful of shapes, not one per scene.
+    return max(8, 1 << (max(n, 1) - 1).bit_length())
+
+
+def build_wccg(scene: PushScene, poses=None, bridge_range: float = 1.0) -> WCCG:
+    """Build the WCCG of ``scene`` (with movable ``poses: f[M, 3]`` if given).
+
+    bridge_range: bridges are kept for pairs closer than ``bridge_range * W`` (>= 1; 1 = the paper's
+    graph, where every bridge is a bottleneck).
+    Cost: one quick pass (bounding boxes) over all pairs, then one batched exact distance call over
+    the surviving pairs, both in float64.
+    """
+    if poses is not None:
+        scene = scene.with_poses(poses)
+    w = float(scene.width)
+    if not bridge_range >= 1.0:
+        raise ValueError(f"bridge_range: must be >= 1 (a multiple of W); got {bridge_range!r}.")
+    pieces, comp_body, kinds, index, mass = [], [], [], [], []
+    for i, m in enumerate(scene.movables):
+        pieces += m.world_pieces()
+        comp_body += [len(kinds)] * len(m.pieces)
+        kinds.append(MOVABLE), index.append(i), mass.append(m.mass)
+    for i, f in enumerate(scene.fixed):
+        pieces += f.pieces
+        comp_body += [len(kinds)] * len(f.pieces)
+        kinds.append(FIXED), index.append(i), mass.append(0.0)
+    walls = _wall_pieces(scene.workspace, max(w, 1.0))
+    pieces += walls
+    comp_body += [len(kinds)] * len(walls)
+    kinds.append(WALL), index.append(-1), mass.append(0.0)
+    comp_body = np.asarray(comp_body, np.int32)
+    verts, nverts = pack_polygons(pieces)
+    lo, hi = verts.min(axis=1), verts.max(axis=1)
+    reach = bridge_range * w
+    with jax.enable_x64(True):
+        gaps = np.asarray(aabb_gaps(lo, hi))
+        iu, iv = np.nonzero(np.triu(gaps < reach, k=1))
+        n_pairs = len(iu)
+        pad = _bucket(n_pairs) - n_pairs
+        a = np.concatenate([verts[iu], np.repeat(verts[:1], pad, 0)])
+        b = np.concatenate([verts[iv], np.repeat(verts[:1], pad, 0)])
+        d, pa, pb = (np.asarray(x)[:n_pairs] for x in pair_distances(a, b))
+    keep = d < reach
+    uv = np.stack([iu[keep], iv[keep]], axis=1).astype(np.int32).reshape(-1, 2)
+    pts = np.stack([pa[keep], pb[keep]], axis=1).reshape(-1, 2, 2)
+    width = d[keep]
+    return WCCG(width=w, workspace=tuple(scene.workspace), pieces=tuple(pieces), verts=verts,
+                nverts=nverts, comp_body=comp_body,
+                centroids=np.array([[p.centroid.x, p.centroid.y] for p in pieces]).reshape(-1, 2),
+                body_kind=np.asarray(kinds, np.int32), body_index=np.asarray(index, np.int32),
+                body_mass=np.asarray(mass, np.float64), bridge_uv=uv, bridge_pts=pts,
+                bridge_width=width, bottleneck=width < w,
+                internal=comp_body[uv[:, 0]] == comp_body[uv[:, 1]])
+
+
+def clearance(g: WCCG, points) -> np.ndarray:
+    """Distance ``f64[P]`` from ``points: f[P, 2]`` to the nearest component (walls included)."""
+    pts = np.asarray(points, np.float64).reshape(-1, 2)
+    with jax.enable_x64(True):
+        return np.asarray(point_distances(pts, g.verts)).min(axis=1)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Skeleton: clusters and their rings
+# ---------------------------------------------------------------------------------------------------
+
+def _active(g: WCCG, removed) -> np.ndarray:
+    """bool[E]: bottleneck bridges not removed. removed: iterable of (body_a, body_b) pairs."""
+    act = g.bottleneck.copy()
+    if removed:
+        bb = g.bridge_bodies
+        for a, b in removed:
+            lo_, hi_ = min(a, b), max(a, b)
+            act &= ~((bb[:, 0] == lo_) & (bb[:, 1] == hi_))
+    return act
+
+
+def _clusters(n: int, uv: np.ndarray) -> np.ndarray:
+    """Connected-component labels i32[n] of the graph with edges ``uv`` (union-find)."""
+    parent = np.arange(n)
+
+    def find(x):
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for u, v in uv:
+        ru, rv = find(u), find(v)
+        if ru != rv:
+            parent[max(ru, rv)] = min(ru, rv)
+    return np.array([find(i) for i in range(n)], np.int32)
+
+
+class _Ring(NamedTuple):
+    cluster: int
+    ring: shapely.LinearRing
+    region: Polygon  # the ring's interior (holes ignored): containment = "enclosed by the ring"
+    is_hole: bool
+
+
+class _Skeleton(NamedTuple):
+    labels: np.ndarray      # i32[N] cluster of each component
+    active: np.ndarray      # bool[E]
+    regions: dict           # cluster -> Polygon K_c (lazily filled)
+
+
+def _skeleton(g: WCCG, removed=()) -> _Skeleton:
+    act = _active(g, removed)
+    return _Skeleton(_clusters(len(g.pieces), g.bridge_uv[act]), act, {})
+
+
+def _cluster_region(g: WCCG, sk: _Skeleton, c: int, inflate: float = 0.0):
+    """K_c (inflate = 0) or K_c inflated by ``inflate`` (the bridges are inside it then)."""
+    key = (c, inflate)
+    if key not in sk.regions:
+        comps = np.nonzero(sk.labels == c)[0]
+        if inflate > 0:
+            geoms = [shapely.buffer(g.pieces[i], inflate, quad_segs=_QUAD_SEGS) for i in comps]
+        else:
+            eps = _BRIDGE_EPS * g.width
+            bridges = np.nonzero(sk.active & np.isin(g.bridge_uv[:, 0], comps))[0]
+            geoms = [g.pieces[i] for i in comps] + \
+                    [shapely.buffer(LineString(g.bridge_pts[e]) if g.bridge_width[e] > 0
+                                    else Point(g.bridge_pts[e, 0]), eps, quad_segs=1) for e in bridges]
+        region = shapely.union_all(geoms)
+        if not isinstance(region, Polygon):  # numerically split: keep the pieces' hull of parts
+            region = max(getattr(region, "geoms", [region]), key=lambda p: p.area)
+        sk.regions[key] = region
+    return sk.regions[key]
+
+
+def _rings(region: Polygon, c: int) -> list:
+    out = [_Ring(c, region.exterior, Polygon(region.exterior), False)]
+    out += [_Ring(c, h, Polygon(h), True) for h in region.interiors]
+    return out
+
+
+def _segment_hits(seg: LineString, rings: list, s: np.ndarray, d: np.ndarray) -> list:
+    """For each ring, the sorted crossing parameters ``t in [0, 1]`` along ``s + t d``."""
+    out = []
+    dd = float(d @ d)
+    for r in rings:
+        inter = seg.intersection(r.ring)
+        xy = shapely.get_coordinates(inter)
+        out.append(np.sort((xy - s) @ d / dd) if len(xy) else np.zeros(0))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# Connectivity (Eq. 7) by frontier tracing
+# ---------------------------------------------------------------------------------------------------
+
+class Frontier(NamedTuple):
+    """The blocking loop L: ``ring`` f64[K, 2] (closed, counter-clockwise), the ``cluster`` it bounds,
+    and ``encloses_start`` (True: the start is trapped inside L; False: L encloses the goal)."""
+
+    ring: np.ndarray
+    cluster: int
+    encloses_start: bool
+
+
+class Connectivity(NamedTuple):
+    """Result of :func:`connectivity`.
+
+    connected: Eq. 7 holds. same_face: start and goal in one face. start_clear / goal_clear: the
+    endpoint disks ``B(., W/2)`` are free. frontier: the blocking loop when not ``same_face``, else None.
+    skeleton: when ``same_face``, the ordered pieces of the traced route: ``("line", p, q)`` and
+    ``("arc", ring f64[K, 2], p, q)`` (along a cluster ring from p to q).
+    """
+
+    connected: bool
+    same_face: bool
+    start_clear: bool
+    goal_clear: bool
+    frontier: Frontier | None
+    skeleton: tuple
+
+
+def _trace(seg_start, seg_goal, rings, separates):
+    """The BugPlanner walk along the segment. Returns (skeleton pieces, blocking ring index or None)."""
+    s, gl = np.asarray(seg_start, np.float64), np.asarray(seg_goal, np.float64)
+    d = gl - s
+    hits = _segment_hits(LineString([s, gl]), rings, s, d)
+    pieces, t, pos = [], 0.0, s
+    while True:
+        # The next ring the walk meets: the smallest crossing beyond the current position.
+        nxt = [(h[h > t + 1e-12][0], k) for k, h in enumerate(hits) if np.any(h > t + 1e-12)]
+        if not nxt:
+            pieces.append(("line", pos, gl))
+            return pieces, None
+        t_hit, k = min(nxt)
+        if separates[k]:
+            return pieces, k
+        t_leave = float(hits[k][-1])
+        p_hit, p_leave = s + t_hit * d, s + t_leave * d
+        pieces.append(("line", pos, p_hit))
+        pieces.append(("arc", np.asarray(rings[k].ring.coords), p_hit, p_leave))
+        t, pos = t_leave, p_leave
+
+
+def _relevant_clusters(g: WCCG, sk: _Skeleton, seg: LineString) -> np.ndarray:
+    """Clusters whose skeleton touches the segment (the others cannot be crossed by the walk)."""
+    hit_comp = np.nonzero(shapely.intersects(np.asarray(g.pieces, dtype=object), seg))[0]
+    act = np.nonzero(sk.active)[0]
+    lines = [LineString(g.bridge_pts[e]) if g.bridge_width[e] > 0 else Point(g.bridge_pts[e, 0])
+             for e in act]
+    hit_br = act[shapely.intersects(np.asarray(lines, dtype=object), seg)] if len(act) else act
+    return np.unique(np.concatenate([sk.labels[hit_comp], sk.labels[g.bridge_uv[hit_br, 0]]]))
+
+
+def connectivity(g: WCCG, start, goal, removed=(), _sk: _Skeleton | None = None) -> Connectivity:
+    """Eq. 7 for the vehicle from ``start`` to ``goal`` (both (x, y) in the workspace).
+
+    removed: body pairs ``(a, b)`` whose bridges are ignored (a virtually widened gap).
+    """
+    sk = _sk if _sk is not None else _skeleton(g, removed)
+    s, gl = np.asarray(start, np.float64), np.asarray(goal, np.float64)
+    clr = clearance(g, np.stack([s, gl]))
+    r = 0.5 * g.width
+    seg = LineString([s, gl])
+    rings = []
+    for c in _relevant_clusters(g, sk, seg):
+        rings += _rings(_cluster_region(g, sk, int(c)), int(c))
+    enc_s = [bool(shapely.contains_xy(rg.region, *s)) for rg in rings]
+    enc_g = [bool(shapely.contains_xy(rg.region, *gl)) for rg in rings]
+    separates = [a != b for a, b in zip(enc_s, enc_g)]
+    pieces, blocking = _trace(s, gl, rings, separates)
+    start_clear, goal_clear = bool(clr[0] >= r), bool(clr[1] >= r)
+    if blocking is None:
+        return Connectivity(start_clear and goal_clear, True, start_clear, goal_clear, None, tuple(pieces))
+    rg = rings[blocking]
+    ring = np.asarray(shapely.orient_polygons(rg.region, exterior_cw=False).exterior.coords)
+    return Connectivity(False, False, start_clear, goal_clear,
+                        Frontier(ring, rg.cluster, enc_s[blocking]), ())
+
+
+def frontier_bridges(g: WCCG, frontier: Frontier, removed=()) -> np.ndarray:
+    """Indices of the active bottleneck bridges that lie on the frontier loop (i32[K]).
+
+    A bridge lies on L when L passes within 3 strip half-widths of its midpoint (the thin strip that
+    stands for the bridge in K_c is then part of L).
+    """
+    act = np.nonzero(_active(g, removed))[0]
+    if not len(act):
+        return act
+    mid = g.bridge_pts[act].mean(axis=1)
+    ring = shapely.LinearRing(frontier.ring)
+    near = shapely.distance(ring, shapely.points(mid)) <= 3.0 * _BRIDGE_EPS * g.width
+    return act[near]
+
+
+# ---------------------------------------------------------------------------------------------------
+# Skeleton to path
+# ---------------------------------------------------------------------------------------------------
+
+def _ring_arc(coords: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The shorter of the two arcs of the closed ring ``coords: f[K+1, 2]`` from p to q (both on it)."""
+    ring = LineString(coords)
+    length = ring.length
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(coords, axis=0), axis=1))])[:-1]
+    verts = coords[:-1]
+    # Vertex positions over two laps, so that an arc that wraps past the seam is one window.
+    pos2, verts2 = np.concatenate([cum, cum + length]), np.concatenate([verts, verts])
+
+    def forward(a, b):
+        if b < a:
+            b += length
+        inner = verts2[(pos2 > a) & (pos2 < b)]
+        return np.vstack([np.asarray(ring.interpolate(a % length).coords), inner,
+                          np.asarray(ring.interpolate(b % length).coords)])
+
+    dp, dq = ring.project(Point(p)), ring.project(Point(q))
+    fwd, bwd = forward(dp, dq), forward(dq, dp)[::-1]
+    arc_len = lambda xy: float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=1)))  # noqa: E731
+    return fwd if arc_len(fwd) <= arc_len(bwd) else bwd
+
+
+def w_clear_path(g: WCCG, start, goal, delta: float | None = None) -> np.ndarray | None:
+    """An explicit W-clear path (Section III-A.3): ``f64[P, 2]`` from start to goal, or None.
+
+    The frontier walk of :func:`connectivity`, run over the clusters inflated by
+    ``rho = (W/2 + delta) / cos(pi / (4 * quad_segs))`` (the division makes the polygonal buffer, whose
+    vertices lie on the circle, contain the true disk): straight pieces where the segment is free,
+    arcs along an inflated cluster's ring around each cluster it meets. Every point is then at least
+    ``W/2 + delta`` from its own cluster and at least ``gap - rho >= W/2`` from the others when the
+    non-bottleneck gaps exceed ``W + (rho - W/2)`` (~1e-4 W): the exactness limit of this construction.
+    ``delta`` defaults to ``1e-4 W`` (shrunk so that the endpoint disks stay outside the inflation),
+    then ``1e-2 W/2`` if the first path fails the exact clearance check (GEOS may simplify a buffer).
+    The returned path always passes that check (shapely distance >= W/2 to every component, walls
+    included). None when Eq. 7 fails or no margin gives a clear path (near-ties only).
+    """
+    conn = connectivity(g, start, goal)
+    if not conn.connected:
+        return None
+    r = 0.5 * g.width
+    s, gl = np.asarray(start, np.float64), np.asarray(goal, np.float64)
+    cos = math.cos(math.pi / (4 * _QUAD_SEGS))
+    clr = float(clearance(g, np.stack([s, gl])).min())
+    # GEOS may simplify a buffer's input by ~1% of the distance, so a path along it can dip a little:
+    # every candidate is checked exactly and the next, wider margin is tried when it dips.
+    deltas = [delta] if delta is not None else [min(1e-4 * g.width, 0.5 * (clr * cos - r)), 1e-2 * r]
+    pieces = np.asarray(g.pieces, dtype=object)
+    for d in deltas:
+        path = _inflated_walk(g, s, gl, (r + max(d, 0.0)) / cos)
+        if path is not None and float(shapely.distance(pieces, LineString(path)).min()) >= r:
+            return path
+    return None
+
+
+def _inflated_walk(g: WCCG, s: np.ndarray, gl: np.ndarray, rho: float) -> np.ndarray | None:
+    """The frontier walk over the clusters inflated by ``rho``: the polyline f64[P, 2] or None."""
+    sk = _skeleton(g)
+    seg = LineString([s, gl])
+    # The inflated clusters the segment meets: those with a component within rho of it.
+    near = np.nonzero(shapely.distance(np.asarray(g.pieces, dtype=object), seg) < rho)[0]
+    rings = []
+    for c in np.unique(sk.labels[near]):
+        rings += _rings(_cluster_region(g, sk, int(c), inflate=rho), int(c))
+    separates = [bool(shapely.contains_xy(rg.region, *s)) != bool(shapely.contains_xy(rg.region, *gl))
+                 for rg in rings]
+    pieces, blocking = _trace(s, gl, rings, separates)
+    if blocking is not None:  # only within the tolerance above (a gap within ~1e-4 W of W)
+        return None
+    pts = [s]
+    for piece in pieces:
+        if piece[0] == "line":
+            pts.append(piece[2])
+        else:
+            pts.extend(_ring_arc(piece[1], piece[2], piece[3])[1:])
+    path = np.asarray(pts)
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(path, axis=0), axis=1) > 1e-12])
+    return path[keep]

@@ -1,0 +1,120 @@
+"""The exact cross-checks of ``jaxplan.pusharound``: plain shapely, no graph.
+
+- :func:`reference_connected`: free space ``F_W`` = workspace shrunk by W/2 minus the obstacles
+  inflated by W/2 (Minkowski sum with the disk, as a shapely buffer); start and goal are connected iff
+  both lie in the same connected component of ``F_W`` (Eq. 2 / Eq. 7 without the graph).
+- :func:`path_clearance`: the smallest distance from a polyline to any obstacle or to the workspace
+  boundary; a path is W-clear iff it lies in the workspace and this is >= W/2.
+- :func:`reference_pair_distances`: component distances with one shapely call per pair.
+
+Tolerance: shapely buffers approximate the disk by a polygon whose vertices lie on the circle (here 64
+per quarter), so ``F_W`` is too large by at most ``W/2 (1 - cos(pi/256)) ~ 4e-5 W``; scenes with a gap
+within that of ``W`` are ambiguous to this check.
+"""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Point
+from shapely.geometry import box as _box
+
+__all__ = ["free_space", "path_clearance", "reference_connected", "reference_gap_costs",
+           "reference_pair_distances"]
+
+_QUAD_SEGS = 64
+
+
+def free_space(scene):
+    """``F_W``: the vehicle centre's free region (a shapely (Multi)Polygon)."""
+    r = 0.5 * scene.width
+    x0, y0, x1, y1 = scene.workspace
+    inner = _box(x0 + r, y0 + r, x1 - r, y1 - r) if (x1 - x0 > 2 * r and y1 - y0 > 2 * r) else None
+    if inner is None:
+        return shapely.Polygon()
+    polys = scene.obstacle_polygons()
+    if not polys:
+        return inner
+    blocked = shapely.union_all([shapely.buffer(p, r, quad_segs=_QUAD_SEGS) for p in polys])
+    return inner.difference(blocked)
+
+
+def reference_connected(scene) -> bool:
+    """True iff start and goal lie in one connected component of ``free_space(scene)``."""
+    free = free_space(scene)
+    s, g = Point(scene.start), Point(scene.goal)
+    for part in getattr(free, "geoms", [free]):
+        if part.covers(s):
+            return bool(part.covers(g))
+    return False
+
+
+def path_clearance(scene, path) -> float:
+    """Minimum distance [m] from the polyline ``path: f[P, 2]`` to the obstacles and the workspace
+    boundary; ``-inf`` if the path leaves the workspace."""
+    path = np.asarray(path, np.float64)
+    line = LineString(path) if len(path) > 1 else Point(path[0])
+    ws = _box(*scene.workspace)
+    if not ws.covers(line):
+        return -np.inf
+    d = ws.exterior.distance(line)
+    for p in scene.obstacle_polygons():
+        d = min(d, p.distance(line))
+    return float(d)
+
+
+def reference_pair_distances(pieces) -> np.ndarray:
+    """``f64[N, N]`` distance between every pair of shapely polygons (0 when they touch or overlap)."""
+    n = len(pieces)
+    out = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1, n):
+            out[i, j] = out[j, i] = pieces[i].distance(pieces[j])
+    return out
+
+
+def reference_gap_costs(scene, params, g=None) -> dict:
+    """Eq. 9 by exhaustive recursion (no beam): ``{gap.bodies: Cost(g)}`` for the first-hop gaps.
+
+    Every sequence of at most ``params.depth`` further gaps is enumerated; the minimum runs over the
+    sequences that reach the goal's face if any, else over those stopped at the depth limit, else
+    (every branch dead-ends) over the dead ends plus the penalty. Equal to
+    :func:`jaxplan.pusharound.ranking.rank_gaps` whenever its beam keeps every state.
+    Shares the geometric primitives (connectivity, candidate gaps, one-hop terms) with it.
+    """
+    from jaxplan.pusharound.ranking import DEAD_END_PENALTY, candidate_gaps, one_hop_terms  # noqa: PLC0415
+    from jaxplan.pusharound.wccg import build_wccg, connectivity  # noqa: PLC0415
+
+    g = build_wccg(scene) if g is None else g
+    lt, lp, eta = float(params.lambda_t), float(params.lambda_p), float(params.eta)
+
+    def frontier_gaps(removed):
+        conn = connectivity(g, scene.start, scene.goal, removed=removed)
+        return conn.same_face, ([] if conn.same_face else candidate_gaps(g, conn.frontier, removed))
+
+    def tails(removed, team, level):
+        """List of (status, cost) of every continuation from this state."""
+        same_face, gaps = frontier_gaps(removed)
+        if same_face:
+            return [(2, 0.0)]
+        if level == params.depth:
+            return [(1, 0.0)]
+        if not gaps:
+            return [(0, 0.0)]
+        out = []
+        for gap in gaps:
+            c_t, c_p = one_hop_terms(gap, team, g.width, params.mass_ref)
+            step = lt * c_t + lp * c_p + eta * float(np.linalg.norm(gap.insertion - np.asarray(scene.goal)))
+            out += [(s, step + c) for s, c in tails(removed | {gap.bodies}, gap.insertion, level + 1)]
+        return out
+
+    same_face, first = frontier_gaps(frozenset())
+    costs = {}
+    for gap in first:
+        c_t, c_p = one_hop_terms(gap, scene.robots, g.width, params.mass_ref)
+        leaves = tails(frozenset([gap.bodies]), gap.insertion, 0)
+        for status, penalty in ((2, 0.0), (1, 0.0), (0, DEAD_END_PENALTY)):
+            pool = [c for s, c in leaves if s == status]
+            if pool:
+                costs[gap.bodies] = lt * c_t + lp * c_p + min(pool) + penalty
+                break
+    return costs

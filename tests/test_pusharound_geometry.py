@@ -1,0 +1,283 @@
+"""jaxplan.pusharound geometry: scene validation and JSON, shapes, the batched distance kernel, the
+WCCG's Eq. 7 against the exact free-space cross-check, and W-clear paths."""
+from __future__ import annotations
+
+import copy
+import math
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import shapely  # noqa: E402
+from hypothesis import HealthCheck, assume, given, settings  # noqa: E402
+from hypothesis import strategies as hs  # noqa: E402
+
+from jaxplan.pusharound import (PushScene, build_wccg, connectivity, nominal_scene, plot_wccg,  # noqa: E402
+                                w_clear_path)
+from jaxplan.pusharound import shapes  # noqa: E402
+from jaxplan.pusharound.kernels import pack_polygons, pair_distances  # noqa: E402
+from jaxplan.pusharound.wccg import frontier_bridges  # noqa: E402
+from jaxplan.reference.pusharound import (path_clearance, reference_connected,  # noqa: E402
+                                          reference_pair_distances)
+
+
+def _box(x0, y0, x1, y1):
+    return [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
+
+
+def _bar_scene(gap: float, width: float = 1.0) -> dict:
+    """A 6 x 4 workspace split by a wall at x = 3: a fixed lower bar and a movable upper bar with an
+    opening of ``gap`` between them at y = 2."""
+    return {"workspace": [0, 0, 6, 4], "vehicle_width": width, "start": [1, 2], "goal": [5, 2],
+            "fixed": [{"name": "low", "pieces": [_box(2.8, 0, 3.2, 2 - gap / 2)]}],
+            "movables": [{"name": "high", "pieces": [_box(2.8, 2 + gap / 2, 3.2, 4)], "mass": 8.0}],
+            "robots": {"positions": [[0.5, 0.5], [1.0, 0.5]], "radius": 0.15}}
+
+
+# --------------------------------------------------------------------------------------------------
+# Scene validation and JSON
+# --------------------------------------------------------------------------------------------------
+
+def _broken(mutate):
+    d = _bar_scene(0.8)
+    mutate(d)
+    return d
+
+
+@pytest.mark.parametrize("mutate, field, words", [
+    (lambda d: d["movables"][0].update(pieces=[[[0, 0], [1, 1], [1, 0], [0, 1]]]),
+     "movables[0].pieces[0]", "self-intersecting"),
+    (lambda d: d["movables"][0].update(mass=0.0), "movables[0].mass", "> 0"),
+    (lambda d: d["movables"][0].update(mass=-3), "movables[0].mass", "> 0"),
+    (lambda d: d.update(vehicle_width=0.0), "vehicle_width", "> 0"),
+    (lambda d: d.update(start=[7, 2]), "start", "outside the workspace"),
+    (lambda d: d.update(goal=[3.0, 0.5]), "goal", "inside fixed[0]"),
+    (lambda d: d["movables"][0].update(pieces=[_box(2.9, 1.0, 3.1, 4)]), "movables[0] and fixed[0]",
+     "overlap"),
+    (lambda d: d["movables"][0].update(pieces=[[[0, 0], [2, 0], [2, 2], [1, 0.5], [0, 2]]]),
+     "movables[0].pieces[0]", "not convex"),
+    (lambda d: d["fixed"][0].update(pieces=[_box(5.5, 0, 6.5, 1)]), "fixed[0]", "outside the workspace"),
+    (lambda d: d["robots"].update(radius=-1), "robots.radius", "> 0"),
+    (lambda d: d["movables"][0].update(pieces=[_box(0.1, 0.1, 0.3, 0.3), _box(1, 1, 1.2, 1.2)]),
+     "movables[0].pieces", "connected"),
+])
+def test_validation_errors_name_the_field(mutate, field, words):
+    with pytest.raises(ValueError) as err:
+        PushScene.from_dict(_broken(mutate))
+    assert str(err.value).startswith(field) and words in str(err.value)
+
+
+def test_non_convex_outline_is_decomposed_and_inertia_computed():
+    d = _bar_scene(0.8)
+    d["movables"].append({"polygon": [[4, 0.5], [5, 0.5], [5, 0.7], [4.2, 0.7], [4.2, 1.5], [4, 1.5]],
+                          "mass": 6.0})
+    scene = PushScene.from_dict(d)
+    m = scene.movables[1]
+    assert all(shapes.is_convex(p) for p in m.pieces) and len(m.pieces) >= 2
+    assert shapely.union_all(m.pieces).area == pytest.approx(0.2 * 1.0 + 0.8 * 0.2)
+    assert m.polygon.centroid.distance(shapely.Point(m.pose[:2])) < 1e-9
+    assert m.inertia == pytest.approx(shapes.polygon_inertia(m.polygon, 6.0))
+
+
+def test_json_round_trip(tmp_path):
+    scene = nominal_scene(3)
+    loaded = PushScene.load(scene.save(tmp_path / "scene.json"))
+    assert loaded.to_dict() == scene.to_dict()
+    a, b = build_wccg(scene), build_wccg(loaded)
+    np.testing.assert_allclose(a.bridge_width, b.bridge_width, atol=1e-9)
+
+
+def test_load_rejects_bad_json(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text("{not json")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        PushScene.load(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# Shapes
+# --------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("shape", [shapes.rectangle(0.8, 0.4), shapes.cylinder(0.3), shapes.ellipse(0.5, 0.3),
+                                   shapes.ring(0.45, 0.27), shapes.l_shape(0.9, 0.7, 0.2),
+                                   shapes.t_shape(0.9, 0.8, 0.2), shapes.x_shape(0.8, 0.8, 0.2),
+                                   shapes.diamond(0.8, 0.6), shapes.arrow(1.0, 0.2, 0.3, 0.45)])
+def test_shapes_are_tiled_by_convex_pieces(shape):
+    assert all(shapes.is_convex(p) for p in shape.pieces)
+    assert sum(p.area for p in shape.pieces) == pytest.approx(shape.outline.area, rel=1e-9)  # no overlap
+    assert shapely.union_all(shape.pieces).symmetric_difference(shape.outline).area < 1e-9
+    assert abs(shape.outline.centroid.x) < 1e-9 and abs(shape.outline.centroid.y) < 1e-9
+
+
+def test_inertia_of_a_rectangle_and_an_annulus():
+    assert shapes.polygon_inertia(shapes.rectangle(0.6, 0.2).outline, 3.0) == pytest.approx(3.0 * (0.36 + 0.04) / 12)
+    ring = shapes.ring(0.5, 0.3, n=256).outline  # close to the true annulus: m (R^2 + r^2) / 2
+    assert shapes.polygon_inertia(ring, 2.0) == pytest.approx(2.0 * (0.25 + 0.09) / 2, rel=1e-3)
+
+
+def test_shape_arguments_are_checked():
+    with pytest.raises(ValueError, match="r_in"):
+        shapes.ring(0.3, 0.4)
+    with pytest.raises(ValueError, match="thickness"):
+        shapes.l_shape(0.5, 0.5, 0.6)
+
+
+# --------------------------------------------------------------------------------------------------
+# Batched distances vs shapely
+# --------------------------------------------------------------------------------------------------
+
+def _random_convex(rng, n_max=7, spread=2.0):
+    c = rng.uniform(0, spread, 2)
+    k = rng.integers(3, n_max + 1)
+    ang = rng.uniform(0, 2 * np.pi, k)
+    rad = rng.uniform(0.1, 0.6, k)
+    return shapely.Polygon(np.c_[c[0] + rad * np.cos(ang), c[1] + rad * np.sin(ang)]).convex_hull
+
+
+def test_pair_distances_match_shapely_including_overlaps():
+    rng = np.random.default_rng(7)
+    polys = [p for p in (_random_convex(rng) for _ in range(30)) if p.area > 1e-4]
+    verts, _ = pack_polygons(polys)
+    iu, iv = np.triu_indices(len(polys), k=1)
+    import jax  # noqa: PLC0415
+    with jax.enable_x64(True):
+        d, pa, pb = (np.asarray(x) for x in pair_distances(verts[iu], verts[iv]))
+    ref = reference_pair_distances(polys)[iu, iv]
+    np.testing.assert_allclose(d, ref, atol=1e-9)
+    assert np.sum(ref == 0) > 5  # the draw has overlapping pairs
+    for k in range(len(iu)):
+        a, b = polys[iu[k]], polys[iv[k]]
+        assert a.distance(shapely.Point(pa[k])) < 1e-9 and b.distance(shapely.Point(pb[k])) < 1e-9
+        assert np.linalg.norm(pa[k] - pb[k]) == pytest.approx(d[k], abs=1e-9)
+
+
+# --------------------------------------------------------------------------------------------------
+# WCCG on hand-built cases
+# --------------------------------------------------------------------------------------------------
+
+def test_narrow_opening_disconnects_and_widening_connects():
+    narrow = PushScene.from_dict(_bar_scene(0.8))
+    g = build_wccg(narrow)
+    conn = connectivity(g, narrow.start, narrow.goal)
+    assert not conn.connected and not conn.same_face and conn.frontier is not None
+    assert conn.frontier.encloses_start  # the start's face is the left room
+    on_loop = frontier_bridges(g, conn.frontier)
+    widths = g.bridge_width[on_loop][~g.internal[on_loop]]
+    assert np.any(np.isclose(widths, 0.8))  # the opening is a bottleneck on the loop
+    assert w_clear_path(g, narrow.start, narrow.goal) is None
+    assert not reference_connected(narrow)
+
+    wide = PushScene.from_dict(_bar_scene(1.2))
+    g = build_wccg(wide)
+    assert connectivity(g, wide.start, wide.goal).connected and reference_connected(wide)
+    path = w_clear_path(g, wide.start, wide.goal)
+    assert path_clearance(wide, path) >= 0.5 - 1e-9
+    # Removing the bottleneck (a virtually widened gap) reconnects the narrow scene.
+    g = build_wccg(narrow)
+    assert connectivity(g, narrow.start, narrow.goal, removed=[(0, 1)]).same_face
+
+
+def test_endpoint_disk_condition_of_eq7():
+    d = _bar_scene(1.2)
+    d["start"] = [0.3, 2.0]  # closer than W/2 to the left wall: same face, but the disk is not free
+    scene = PushScene.from_dict(d)
+    conn = connectivity(build_wccg(scene), scene.start, scene.goal)
+    assert conn.same_face and not conn.start_clear and not conn.connected
+    assert not reference_connected(scene)
+
+
+def test_path_goes_around_an_island():
+    d = _bar_scene(1.2)
+    d["fixed"] = [{"name": "island", "pieces": [_box(2.5, 1.2, 3.5, 2.8)]}]  # 1.2 m free above and below
+    d["movables"] = []
+    scene = PushScene.from_dict(d)
+    g = build_wccg(scene)
+    path = w_clear_path(g, scene.start, scene.goal)
+    assert path is not None and len(path) > 2  # not the straight segment
+    assert path_clearance(scene, path) >= 0.5 - 1e-9
+    assert np.allclose(path[0], scene.start) and np.allclose(path[-1], scene.goal)
+
+
+# --------------------------------------------------------------------------------------------------
+# Property test: WCCG (Eq. 7) vs the exact free-space components; paths are W-clear
+# --------------------------------------------------------------------------------------------------
+
+def _random_scene(seed: int, n: int) -> PushScene:
+    rng = np.random.default_rng(seed)
+    polys = []
+    for _ in range(300):
+        if len(polys) == n:
+            break
+        p = _random_convex(rng, spread=1.0)
+        p = shapely.affinity.translate(p, *rng.uniform([0, 0], [5.0, 3.0]))
+        if shapely.box(0, 0, 6, 4).contains(p) and not any(p.intersects(q) for q in polys):
+            polys.append(p)
+    while True:
+        s, gl = rng.uniform([0.1, 0.1], [5.9, 3.9], (2, 2))
+        if not any(q.covers(shapely.Point(x)) for q in polys for x in (s, gl)):
+            break
+    half = len(polys) // 2
+    verts = lambda p: np.asarray(p.exterior.coords)[:-1].tolist()  # noqa: E731
+    return PushScene.from_dict({"workspace": [0, 0, 6, 4], "vehicle_width": 0.8, "start": list(s),
+                                "goal": list(gl), "fixed": [{"pieces": [verts(p)]} for p in polys[:half]],
+                                "movables": [{"pieces": [verts(p)], "mass": 5} for p in polys[half:]]})
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=hs.integers(0, 2**31 - 1), n=hs.integers(3, 10))
+def test_wccg_agrees_with_exact_free_space(seed, n):
+    scene = _random_scene(seed, n)
+    g = build_wccg(scene, bridge_range=1.01)
+    # Near-ties (a gap within 1e-3 m of W, or an endpoint within 1e-3 of W/2) are ambiguous to the
+    # polygonal buffers of the cross-check: skip them.
+    assume(not np.any(np.abs(g.bridge_width - g.width) < 1e-3))
+    from jaxplan.pusharound.wccg import clearance  # noqa: PLC0415
+    assume(np.all(np.abs(clearance(g, [scene.start, scene.goal]) - 0.4) > 1e-3))
+    g = build_wccg(scene)
+    conn = connectivity(g, scene.start, scene.goal)
+    assert conn.connected == reference_connected(scene)
+    if conn.connected:
+        path = w_clear_path(g, scene.start, scene.goal)
+        assert path is not None
+        assert path_clearance(scene, path) >= 0.4 - 1e-9
+
+
+# --------------------------------------------------------------------------------------------------
+# Nominal scenario and plot
+# --------------------------------------------------------------------------------------------------
+
+def test_nominal_scene_is_seeded_and_blocked():
+    a, b = nominal_scene(5), nominal_scene(5)
+    assert a.to_dict() == b.to_dict()
+    assert 10 <= len(a.movables) <= 15
+    assert all(5.0 <= m.mass <= 15.0 for m in a.movables)
+    assert a.workspace == (0.0, 0.0, 8.0, 5.0) and len(a.fixed) == 2 and len(a.robots) == 2
+    assert not connectivity(build_wccg(a), a.start, a.goal).connected
+    assert not reference_connected(a)
+    # Minimum separation between movables.
+    polys = [m.polygon for m in a.movables]
+    assert min(p.distance(q) for i, p in enumerate(polys) for q in polys[i + 1:]) >= 0.15 - 1e-9
+    assert nominal_scene(6).to_dict() != a.to_dict()
+
+
+def test_plot_writes_png(tmp_path):
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    scene = PushScene.from_dict(_bar_scene(1.2))
+    g = build_wccg(scene)
+    ax = plot_wccg(scene, g, path=w_clear_path(g, scene.start, scene.goal))
+    out = tmp_path / "wccg.png"
+    ax.figure.savefig(out)
+    plt.close(ax.figure)
+    assert out.stat().st_size > 1000
+
+
+def test_deepcopy_free_geometry_is_immutable():
+    scene = PushScene.from_dict(_bar_scene(0.8))
+    moved = scene.with_poses(scene.poses + np.array([[0.0, 0.3, 0.0]]))
+    assert scene.movables[0].pose != moved.movables[0].pose
+    assert copy.deepcopy(scene).to_dict() == scene.to_dict()
+    assert math.isclose(moved.movables[0].pose[1] - scene.movables[0].pose[1], 0.3)
