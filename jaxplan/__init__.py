@@ -1,21 +1,31 @@
-"""jaxplan: environment-first planning for aggregate transport, as jit-compiled JAX kernels.
+"""jaxplan: planning how robots move bulk material and clear paths, as jit-compiled JAX kernels.
 
 Public API::
 
-    from jaxplan import Scene, FabricParams, build_fabric
+    import jaxplan
     scene = jaxplan.builtin_scene()
-    fabric = build_fabric(scene, FabricParams(theta_tol_deg=60.0))
+    fabric = jaxplan.build_fabric(scene, jaxplan.FabricParams(theta_tol_deg=60.0))
+    episode = jaxplan.run_episode(scene)      # plan, push, spill, rebuild until delivered
 """
 from jaxplan.connectors import Connectors, plan_connectors
+from jaxplan.episode import Episode, EpisodeParams, run_episode
+from jaxplan.execute import Push, Route
 from jaxplan.fabric import Fabric, Paths, Table, build_fabric, extract_paths
 from jaxplan.params import FabricParams
+from jaxplan.pusharound import PushScene, RankingParams, build_wccg, connectivity, nominal_scene, rank_gaps
+from jaxplan.rebuild import Affected, selective_rebuild
 from jaxplan.scene import BUILTIN_SCENES, DEFAULT_SCENE, Scene, box, builtin_scene, circle
+from jaxplan.selection import Selection, select_routes
+from jaxplan.spillage import SpillParams
 from jaxplan.teams import (SiteParams, TeamsConfig, paper_scenario, random_sites, run_sites,
                            simulate_site)
 
 __all__ = [
-    "BUILTIN_SCENES", "DEFAULT_SCENE", "Connectors", "Fabric", "FabricParams", "Paths", "Scene",
-    "Table", "box", "build_fabric", "builtin_scene", "circle", "extract_paths", "plan_connectors",
-    "SiteParams", "TeamsConfig", "paper_scenario", "random_sites", "run_sites", "simulate_site",
+    "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "Fabric",
+    "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "Route", "Scene", "Selection",
+    "SiteParams", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
+    "circle", "connectivity", "extract_paths", "nominal_scene", "paper_scenario", "plan_connectors",
+    "random_sites", "rank_gaps", "run_episode", "run_sites", "select_routes", "selective_rebuild",
+    "simulate_site",
 ]
 __version__ = "0.1.0"

@@ -46,16 +46,18 @@ def heat(psi, occupied, heading, hop_len, target, cell_size):
     contribute, so each X looks back along the 8 directions at the source C = X - step.
     """
     eps = _grid.GATE_EPS * cell_size
-    offsets = jnp.asarray(_grid.STEP_UNIT * _grid.STEP_CELLS[:, None]) * cell_size   # [8, 2] x - c
-    dist = jnp.asarray(_grid.STEP_CELLS) * cell_size                                  # [8] |x - c|
-    src_heading = _grid.sources_of(heading, 0.0)                                      # [8, H, W, 2]
-    src_psi = _grid.sources_of(psi, 0.0)
-    src_ok = _grid.sources_of(occupied & (hop_len > 0), False)
-    src_hop = _grid.sources_of(hop_len, 0.0)
-    forward = jnp.einsum("dhwx,dx->dhw", src_heading, offsets)                        # v . (x - c)
-    gate = src_ok & (dist[:, None, None] <= src_hop + eps) & (forward > eps)
-    contribution = jnp.where(gate, forward / dist[:, None, None] * src_psi, 0.0)
-    return jnp.where(target, 0.0, jnp.max(contribution, axis=0))
+    hx, hy = heading[..., 0], heading[..., 1]
+    source_ok = occupied & (hop_len > 0)
+    best = jnp.zeros_like(psi)
+    # per direction: score every source C for the neighbour X = C + step, then shift the plane onto X
+    # (one scalar plane per direction instead of gathering [8, H, W, 2] headings)
+    for (dr, dc), (ux, uy), cells in zip(_grid.DIRS, _grid.STEP_UNIT, _grid.STEP_CELLS):
+        step = float(cells) * cell_size                                     # |x - c|
+        align = hx * float(ux) + hy * float(uy)                             # v(C) . unit(x - c)
+        gate = source_ok & (step <= hop_len + eps) & (align * step > eps)   # forward-facing
+        score = jnp.where(gate, align * psi, 0.0)
+        best = jnp.maximum(best, _grid.shift(score, -dr, -dc, 0.0))
+    return jnp.where(target, 0.0, best)
 
 
 def _smooth(h):

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan import _grid, _kbest, visibility
-from jaxplan.fabric import Fabric, Table, _build, derive
+from jaxplan.fabric import Fabric, Table, _build, continuation_dp, derive
 from jaxplan.params import FabricParams
 
 
@@ -158,26 +158,32 @@ def _selective(scene, params: FabricParams, fabric: Fabric, changed, capacity: i
     def partial_with(cap):
         def run(_):
             table, rounds = _compact_dp(graph, fabric.table, dirty, cap, scene.cell_size, max_hops)
-            return derive(scene, params, table, graph.feasible, rounds, rounds < max_hops)
+            return table, rounds
         return run
 
     def full(_):
-        return _build(scene, params)
+        table, _, rounds, _ = continuation_dp(
+            obj, occupied, target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
+            monotone=params.monotone, k=params.k, max_hops=max_hops, solver=params.solver)
+        return table, rounds
 
-    # the smallest buffer that holds the dirty set: the recursion's cost scales with the buffer
+    # the smallest buffer that holds the dirty set: the recursion's cost scales with the buffer.
+    # Only the table goes through the switch; the global refresh runs once, after it.
     fits = jnp.asarray(buckets) >= n_dirty
     branch = jnp.where(jnp.any(fits), jnp.argmax(fits), len(buckets))
-    rebuilt = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [full], None)
-    return rebuilt, Affected(changed, dirty, n_dirty, rebuilt.rounds, branch == len(buckets))
+    table, rounds = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [full], None)
+    rebuilt = derive(scene, params, table, graph.feasible, rounds, rounds < max_hops)
+    return rebuilt, Affected(changed, dirty, n_dirty, rounds, branch == len(buckets))
 
 
 def capacity_buckets(capacity: int) -> tuple[int, ...]:
-    """Dirty-buffer sizes compiled for one grid: 64, 256, 1024, ... up to ``capacity``."""
+    """Dirty-buffer sizes compiled for one grid: 64, 128, 256, ... up to ``capacity``. A round's cost
+    grows faster than linearly with the buffer (cache), so the buckets are close together."""
     sizes = []
     size = 64
     while size < capacity:
         sizes.append(size)
-        size *= 4
+        size *= 2
     return tuple(sizes) + (capacity,)
 
 
@@ -207,7 +213,7 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
     scene: the scene after the push; fabric: the fabric before it; changed: bool[H, W], A_exec
     (``changed_cells`` or ``Push.changed``). Returns ``(fabric, Affected)``; the fabric equals
     ``build_fabric(scene, params)`` (``rounds`` aside). capacity: static dirty-buffer size
-    (default ``default_capacity``); a larger dirty set triggers a full build. Buffers of 64, 256, ...
+    (default ``default_capacity``); a larger dirty set triggers a full build. Buffers of 64, 128, 256, ...
     cells up to ``capacity`` are compiled and the smallest that holds the dirty set runs. Jitted.
     """
     capacity = default_capacity(scene.shape) if capacity is None else int(capacity)
