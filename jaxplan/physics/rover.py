@@ -297,7 +297,7 @@ def contact_usage(world: World, qpos) -> dict:
         active = d.contact.dist[: d.ncon] < 0
         types = np.sort(m.geom_type[geoms], axis=1) if d.ncon else np.zeros((0, 2), int)
         for key, pair in _GROUPS.items():
-            want = np.sort(np.array(pair))
+            want = np.sort(np.array([int(p) for p in pair]))
             n = int(np.sum(active & np.all(types == want, axis=1))) if d.ncon else 0
             worst[key] = max(worst[key], n)
         worst["total"] = max(worst["total"], int(np.sum(active)))
