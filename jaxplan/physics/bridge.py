@@ -1,0 +1,355 @@
+"""The 3D <-> 2D bridge of Section 4.2: check planned routes by driving the rover through gravel.
+
+The paper's four steps, as functions of this module:
+
+(i)   :func:`rasterise` turns particle centroids (and the rover pose) into a grid ``obj``;
+(ii)  the planner (``build_fabric`` + ``extract_paths``; :func:`plan_routes`) gives routes;
+(iii) each route's waypoints become a smooth spline (``spillage.sample_route``, the same
+      Catmull-Rom spline the 2D spill model uses), tracked by a pure-pursuit controller
+      (:func:`pursuit_policy`) that steers the *blade* (its front-face midpoint) along it;
+      :func:`check_routes` rolls out a batch of routes at once on either engine;
+(iv)  :func:`project` puts the final particles back on the grid so that
+      ``rebuild.selective_rebuild`` can update the fabric.
+
+Only the route's own non-target cells get particles (the 2D model's collected mass); every other
+cell keeps its count untouched. Per route, the collected particle mass ends up in exactly one of:
+delivered (in a target cell), left behind (still on a route cell), spilled (another in-grid cell),
+lost (off the grid, or the rollout failed). Lateral error is the distance from the blade point to
+the spline polyline at every control tick until the rover stops, in cells.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan import execute, spillage
+from jaxplan.physics import rover as rover_mod
+from jaxplan.physics.rollout import Simulator, Trajectory
+
+__all__ = ["PursuitParams", "RouteOutcome", "Check", "pursuit_policy", "route_path", "check_routes",
+           "rasterise", "project", "plan_routes"]
+
+_SAMPLES = 8            # spline samples per waypoint segment (as spillage's default)
+_START_GAP = 0.9        # blade starts this many cells behind the source cell's centre (its wings
+                        # clear a diagonal source cell's corner particles)
+_STOP_TOL = 0.05        # cells: the rover stops once the blade is this close to the path's end
+
+
+class PursuitParams(NamedTuple):
+    """Per-route parameters of :func:`pursuit_policy` (world units, seconds, radians).
+
+    path: f[M, 2] polyline of the spline (padded by repeating the end); arc: f[M] arc length at each
+    vertex; total: f[], path length; end_dir: f[2], unit tangent at the end.
+    speed: f[], blade speed; lookahead: f[], pursuit distance; offset: f[], axle-to-blade distance;
+    half_track: f[], wheel_r: f[], omega_max: f[] yaw-rate limit; stop_tol: f[].
+    """
+
+    path: jax.Array
+    arc: jax.Array
+    total: jax.Array
+    end_dir: jax.Array
+    speed: jax.Array
+    lookahead: jax.Array
+    offset: jax.Array
+    half_track: jax.Array
+    wheel_r: jax.Array
+    omega_max: jax.Array
+    stop_tol: jax.Array
+
+
+def _yaw(qpos):
+    w, x, y, z = qpos[3], qpos[4], qpos[5], qpos[6]
+    return jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def pursuit_policy(p: PursuitParams, pstate, qpos, qvel, time):
+    """Pure pursuit on the blade point. pstate = (progress f[] arc length, done bool[]).
+
+    The goal is the path point ``lookahead`` ahead of the blade's progress (past the end: straight
+    on along the end tangent, so the load is pushed home). The blade point is driven toward it at
+    ``speed`` (slower over the last lookahead); a point ahead of the axle of a differential drive is
+    fully controllable, ``[v, offset * omega] = R(-yaw) u``. ``done`` latches once the blade is
+    within ``stop_tol`` of the end, and the wheels then get 0.
+    """
+    del qvel, time
+    progress, done = pstate
+    yaw = _yaw(qpos)
+    head = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
+    normal = jnp.stack([-head[1], head[0]])
+    blade = qpos[:2] + p.offset * head
+    # closest vertex in a window around the last progress (paths may pass near themselves)
+    d2 = jnp.sum((p.path - blade) ** 2, -1)
+    window = (p.arc >= progress - p.lookahead) & (p.arc <= progress + p.lookahead)
+    near = jnp.argmin(jnp.where(window, d2, jnp.inf))
+    progress = jnp.maximum(progress, p.arc[near])
+    remaining = p.total - progress
+    done = done | (remaining < p.stop_tol)
+    s_goal = progress + p.lookahead
+    on_path = jnp.stack([jnp.interp(s_goal, p.arc, p.path[:, 0]), jnp.interp(s_goal, p.arc, p.path[:, 1])])
+    goal = on_path + p.end_dir * jnp.maximum(s_goal - p.total, 0.0)
+    to_goal = goal - blade
+    u = to_goal / jnp.maximum(jnp.linalg.norm(to_goal), 1e-9)
+    speed = p.speed * jnp.clip(remaining / p.lookahead, 0.3, 1.0)
+    v = jnp.clip(speed * jnp.dot(u, head), -0.25 * p.speed, p.speed)
+    omega = jnp.clip(speed * jnp.dot(u, normal) / p.offset, -p.omega_max, p.omega_max)
+    wheels = jnp.stack([v - omega * p.half_track, v + omega * p.half_track]) / p.wheel_r
+    return jnp.where(done, 0.0, wheels), (progress, done)
+
+
+def route_path(scene, route: execute.Route, world_geom: rover_mod.Geometry):
+    """The tracked path of one route: ``(path f[M, 2], arc f[M], total, end_dir f[2], start_xy, yaw)``.
+
+    Waypoints are the start point (``_START_GAP`` cells behind the source, on the line to the next
+    waypoint), then the route's waypoints (``execute.waypoints``). The spline is sampled like the
+    2D spill model's and closed with the end point. Numpy; M = (S + 1) * _SAMPLES + 1.
+    """
+    s = float(np.asarray(scene.cell_size))
+    pts, n = execute.waypoints(scene, route)
+    pts, n = np.asarray(pts, np.float64), int(n)
+    first = pts[1] - pts[0] if n > 1 else np.asarray(route.end, np.float64) - pts[0]
+    norm = np.linalg.norm(first)
+    dir0 = first / norm if norm > 0 else np.array([1.0, 0.0])
+    start = pts[0] - dir0 * _START_GAP * s
+    way = np.concatenate([start[None], pts], 0)
+    samples = spillage.sample_route(jnp.asarray(way, jnp.float32), n + 1, _SAMPLES)
+    pos = np.asarray(samples.pos, np.float64)
+    valid = np.asarray(samples.valid)
+    end = way[n]
+    poly = np.concatenate([start[None], pos[valid], end[None]], 0)
+    m = way.shape[0] * _SAMPLES + 1
+    poly = np.concatenate([poly, np.repeat(end[None], m - poly.shape[0], 0)], 0)
+    seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    tail = poly[valid.sum()] - poly[max(valid.sum() - 1, 0)]
+    end_dir = tail / max(np.linalg.norm(tail), 1e-12)
+    axle = start - dir0 * world_geom.blade_front
+    return poly, arc, float(arc[-1]), end_dir, axle, math.atan2(dir0[1], dir0[0])
+
+
+class RouteOutcome(NamedTuple):
+    """Per-route physics verdicts (arrays [B]); masses in objects, lengths in cells, time in s.
+
+    collected: particle mass generated on the route's cells.  delivered / left_behind / spilled /
+    lost: where it ended (module docstring).  predicted_delivered / predicted_spilled: the 2D model
+    (``execute.execute``) on the same route.  mean_lateral / max_lateral: blade-to-path distance.
+    time: seconds until the rover stopped (the horizon if it never did).  reached: it stopped at
+    the end.  finite: the physics stayed finite and in bounds.  max_contacts: largest number of
+    penetrating contacts at a tick.
+    """
+
+    collected: np.ndarray
+    delivered: np.ndarray
+    left_behind: np.ndarray
+    spilled: np.ndarray
+    lost: np.ndarray
+    predicted_delivered: np.ndarray
+    predicted_spilled: np.ndarray
+    mean_lateral: np.ndarray
+    max_lateral: np.ndarray
+    time: np.ndarray
+    reached: np.ndarray
+    finite: np.ndarray
+    max_contacts: np.ndarray
+
+    def rows(self) -> list[dict]:
+        """One dict per route (python floats / bools), e.g. for JSON."""
+        out = []
+        for i in range(self.collected.shape[0]):
+            row = {}
+            for key, value in self._asdict().items():
+                v = value[i]
+                row[key] = bool(v) if isinstance(v, (bool, np.bool_)) else (int(v) if key == "max_contacts" else float(v))
+            out.append(row)
+        return out
+
+
+class Check(NamedTuple):
+    """Everything :func:`check_routes` computed: outcomes, the rollout, the world and the inputs."""
+
+    outcome: RouteOutcome
+    trajectory: Trajectory
+    world: rover_mod.World
+    params: PursuitParams
+    particle_cells: list          # per route: i32[P_i, 2] cell each particle started in
+    represented: list             # per route: f[H, W] count the particles stand for
+    route_masks: np.ndarray       # bool[B, H, W] the route's non-target cells
+    n_ticks: int
+
+
+def _route_mask(scene, route) -> np.ndarray:
+    cells = np.asarray(route.cells)[: int(route.n_cells)]
+    mask = np.zeros(scene.shape, bool)
+    mask[cells[:, 0], cells[:, 1]] = True
+    return mask & ~np.asarray(scene.target_mask)
+
+
+def _index(routes, i):
+    return jax.tree_util.tree_map(lambda a: a[i], routes)
+
+
+def _point_polyline_distance(points, poly):
+    """``f[T]`` distance of ``points f[T, 2]`` to the polyline ``poly f[M, 2]``."""
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    ll = np.maximum(np.sum(ab * ab, -1), 1e-18)
+    t = np.clip(np.einsum("tmk,mk->tm", points[:, None] - a[None], ab) / ll, 0.0, 1.0)
+    closest = a[None] + t[..., None] * ab[None]
+    return np.sqrt(np.min(np.sum((points[:, None] - closest) ** 2, -1), -1))
+
+
+def _cells_of(scene, xy):
+    """``(row, col, inside)`` of world points ``xy f[..., 2]`` (numpy twin of execute._cell_of)."""
+    h, w = scene.shape
+    s = float(np.asarray(scene.cell_size))
+    rc = np.floor((xy - np.asarray(scene.origin, np.float64)) / s).astype(np.int64)
+    col, row = rc[..., 0], rc[..., 1]
+    inside = (row >= 0) & (row < h) & (col >= 0) & (col < w)
+    return np.clip(row, 0, h - 1), np.clip(col, 0, w - 1), inside
+
+
+def rasterise(scene, xy, mass):
+    """Step (i): ``(obj f[H, W], off_grid f[])`` from particle centroids ``xy f[P, 2]`` carrying
+    ``mass f[P]`` objects each; mass off the grid is returned separately."""
+    row, col, inside = _cells_of(scene, np.asarray(xy, np.float64))
+    obj = np.zeros(scene.shape)
+    np.add.at(obj, (row[inside], col[inside]), np.asarray(mass, np.float64)[inside])
+    return obj, float(np.sum(np.asarray(mass, np.float64)[~inside]))
+
+
+def project(scene, represented, final_xy, mass):
+    """Step (iv): the grid after a push. ``represented f[H, W]`` = the counts that became particles
+    (removed), ``final_xy f[P, 2]`` their end positions (added back where they lie).
+
+    Returns ``(obj f[H, W], lost f[])`` with ``sum(obj) + lost == sum(scene.obj)`` (float64).
+    """
+    placed, lost = rasterise(scene, final_xy, mass)
+    return np.asarray(scene.obj, np.float64) - np.asarray(represented, np.float64) + placed, lost
+
+
+def plan_routes(scene, params=None, n_routes: int = 4):
+    """Step (ii): the selected routes ``P*(C)`` of the ``n_routes`` sources with the largest J.
+
+    Returns ``(fabric, routes: execute.Route with leading axis B, sources i32[B, 2])``.
+    """
+    from jaxplan.fabric import build_fabric, extract_paths
+    from jaxplan.params import FabricParams
+
+    params = FabricParams() if params is None else params
+    fabric = build_fabric(scene, params)
+    value = np.where(np.asarray(fabric.occupied), np.asarray(fabric.value), -np.inf)
+    order = np.argsort(-value, axis=None, kind="stable")[: int(n_routes)]
+    order = order[np.isfinite(value.reshape(-1)[order])]
+    if order.size == 0:
+        raise ValueError("scene: no occupied cell outside the target, so there is no route to check.")
+    w = scene.shape[1]
+    sources = np.stack([order // w, order % w], -1).astype(np.int32)
+    paths = extract_paths(fabric, sources)
+    return fabric, execute.routes_from_paths(scene, paths), sources
+
+
+def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig | None = None,
+                 spill: spillage.SpillParams | None = None, speed=0.8, lookahead: float = 0.8,
+                 backend: str = "auto", horizon_factor: float = 1.5, n_ticks: int | None = None,
+                 simulator: Simulator | None = None, world: rover_mod.World | None = None) -> Check:
+    """Roll out every route of ``routes`` (leading axis B) in one batch and score it.
+
+    speed: blade speed in cells/s (scalar or f[B], a per-route parameter); lookahead: cells.
+    n_ticks: control ticks (default: the longest path at ``speed`` times ``horizon_factor``).
+    world / simulator: reuse a built world (its particle count must suffice) and its compiled
+    rollout; by default one world with as many particle bodies as the largest route needs.
+    """
+    cfg = rover_mod.RoverConfig() if config is None else config
+    spill = spillage.SpillParams() if spill is None else spill
+    s = float(np.asarray(scene.cell_size))
+    b = int(np.asarray(routes.n_cells).shape[0])
+    masks, layouts = [], []
+    for i in range(b):
+        mask = _route_mask(scene, _index(routes, i))
+        masks.append(mask)
+        layouts.append(rover_mod.particle_layout(scene, mask, cfg, seed=i))
+    need = max(len(lay[0]) for lay in layouts)
+    if world is None:
+        world = rover_mod.build_world(scene, need, cfg)
+    elif world.n_particles < need:
+        raise ValueError(f"world: has {world.n_particles} particle bodies, the routes need {need}.")
+    g = world.geometry
+    speeds = np.broadcast_to(np.asarray(speed, np.float64), (b,)) * s
+    paths = [route_path(scene, _index(routes, i), g) for i in range(b)]
+    q0 = np.stack([rover_mod.initial_qpos(world, p[4], p[5], lay[0]) for p, lay in zip(paths, layouts)])
+    qv0 = np.zeros((b, world.model.nv))
+    f32 = lambda x: jnp.asarray(np.asarray(x), jnp.float32)  # noqa: E731
+    params = PursuitParams(
+        path=f32([p[0] for p in paths]), arc=f32([p[1] for p in paths]), total=f32([p[2] for p in paths]),
+        end_dir=f32([p[3] for p in paths]), speed=f32(speeds), lookahead=f32(np.full(b, lookahead * s)),
+        offset=f32(np.full(b, g.blade_front)), half_track=f32(np.full(b, g.half_track)),
+        wheel_r=f32(np.full(b, g.wheel_r)), omega_max=f32(np.full(b, 2.0)),
+        stop_tol=f32(np.full(b, _STOP_TOL * s)))
+    pstate0 = (jnp.zeros(b, jnp.float32), jnp.zeros(b, bool))
+    if simulator is None:
+        simulator = Simulator(world.model, pursuit_policy, substeps=cfg.substeps, bounds=world.bounds,
+                              backend=backend)
+    if n_ticks is None:
+        longest = max(p[2] for p in paths) / max(float(speeds.min()), 1e-9)
+        n_ticks = int(math.ceil(horizon_factor * longest / simulator.tick_seconds)) + 20
+    traj = simulator.run(q0, qv0, params, pstate0, n_ticks)
+    outcome = _score(scene, routes, world, traj, paths, layouts, masks, spill)
+    return Check(outcome, traj, world, params, [lay[1] for lay in layouts], [lay[2] for lay in layouts],
+                 np.stack(masks), n_ticks)
+
+
+def _score(scene, routes, world, traj: Trajectory, paths, layouts, masks, spill) -> RouteOutcome:
+    s = float(np.asarray(scene.cell_size))
+    ppo = world.config.particles_per_object
+    target = np.asarray(scene.target_mask)
+    cols = {k: [] for k in RouteOutcome._fields}
+    for i, (path, (xyz, cells, _), mask) in enumerate(zip(paths, layouts, masks)):
+        n_p = len(xyz)
+        mass = np.full(n_p, 1.0 / ppo)
+        final = world.particle_xyz(traj.qpos[i, -1])[:n_p, :2]
+        row, col, inside = _cells_of(scene, final)
+        ok = bool(traj.finite[i]) & np.all(np.isfinite(final), -1)
+        delivered = ok & inside & target[row, col]
+        left = ok & inside & ~target[row, col] & mask[row, col]
+        spilled = ok & inside & ~target[row, col] & ~mask[row, col]
+        lost = ~(delivered | left | spilled)
+        # blade point per tick, until the rover stopped (ctrl latched to exactly 0)
+        qp = traj.qpos[i]
+        yaw = np.arctan2(2 * (qp[:, 3] * qp[:, 6] + qp[:, 4] * qp[:, 5]), 1 - 2 * (qp[:, 5] ** 2 + qp[:, 6] ** 2))
+        blade = qp[:, :2] + world.geometry.blade_front * np.stack([np.cos(yaw), np.sin(yaw)], -1)
+        stopped = np.nonzero(np.all(traj.ctrl[i] == 0.0, -1))[0]
+        reached = stopped.size > 0
+        last = int(stopped[0]) if reached else traj.ctrl.shape[1]
+        track = blade[: last + 1]
+        good = np.all(np.isfinite(track), -1)
+        lateral = _point_polyline_distance(track[good], path[0]) / s if good.any() else np.array([np.nan])
+        pushed, push = execute.execute_jit(scene, _index(routes, i), spill, spillage.curvature_spill)
+        del pushed
+        cols["collected"].append(mass.sum())
+        cols["delivered"].append(mass[delivered].sum())
+        cols["left_behind"].append(mass[left].sum())
+        cols["spilled"].append(mass[spilled].sum())
+        cols["lost"].append(mass[lost].sum())
+        cols["predicted_delivered"].append(float(push.delivered))
+        cols["predicted_spilled"].append(float(push.spilled))
+        cols["mean_lateral"].append(float(np.mean(lateral)))
+        cols["max_lateral"].append(float(np.max(lateral)))
+        cols["time"].append(last * (traj.time[1] - traj.time[0]))
+        cols["reached"].append(reached)
+        cols["finite"].append(bool(traj.finite[i]))
+        cols["max_contacts"].append(int(traj.ncon[i].max()))
+    return RouteOutcome(**{k: np.asarray(v) for k, v in cols.items()})
+
+
+def projected_obj(scene, check: Check, i: int):
+    """Step (iv) for route ``i`` of a :class:`Check`: ``(obj f[H, W], lost f[])``."""
+    world = check.world
+    n_p = check.particle_cells[i].shape[0]
+    final = world.particle_xyz(check.trajectory.qpos[i, -1])[:n_p, :2]
+    if not bool(check.trajectory.finite[i]):   # a failed rollout changes nothing on the grid
+        final = world.particle_xyz(check.trajectory.qpos[i, 0])[:n_p, :2]
+    mass = np.full(n_p, 1.0 / world.config.particles_per_object)
+    return project(scene, check.represented[i], final, mass)

@@ -1,0 +1,258 @@
+"""One rollout interface, two engines: MJX (``jax.vmap`` under ``jax.jit``) and the MuJoCo C engine.
+
+A rollout is: an ``MjModel``, a batch of B initial states (``qpos f[B, nq]``, ``qvel f[B, nv]``), a
+closed-loop control policy with per-element parameters, and a horizon of T control ticks of
+``substeps`` physics steps each (the control is held constant over a tick). Both engines return the
+same :class:`Trajectory`: the state at every tick, the controls applied, and per element whether the
+physics stayed finite and inside the world box.
+
+The policy is one pure JAX function for both engines::
+
+    policy(params, pstate, qpos f[nq], qvel f[nv], time f[]) -> (ctrl f[nu], pstate)
+
+``params`` and ``pstate`` are pytrees (one element; the batch has a leading B axis). MJX traces it
+inside the scan; the C engine calls a jitted ``vmap`` of it once per tick on the host and steps every
+element with ``mj_step`` in a thread pool (``mj_step`` releases the GIL). An open-loop schedule is the
+policy :func:`schedule_policy`.
+
+Divergence: an element whose ``qpos``/``qvel`` stops being finite, or whose free bodies leave
+``bounds``, is marked ``finite = False`` from that tick on (``first_bad``); the batch carries on. The
+C engine stops stepping such an element (its later ticks repeat the last good state); MJX keeps
+stepping it (vmapped lanes are independent, so NaNs never leak to other elements) but the flag is the
+same. MuJoCo's auto-reset on bad accelerations is disabled in the C engine so that a blow-up shows up
+as NaN instead of a silent jump back to the initial pose.
+
+Engines agree within the tolerances of ``docs/physics.md`` (MJX runs in float32, the C engine in
+float64; contact-rich scenes are chaotic, so per-particle states differ while aggregate verdicts agree).
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import os
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+__all__ = ["Trajectory", "Simulator", "default_backend", "schedule_policy", "free_qpos_addresses"]
+
+Policy = Callable[[Any, Any, jax.Array, jax.Array, jax.Array], tuple]
+
+
+class Trajectory(NamedTuple):
+    """What a batched rollout returns (numpy arrays, float64 from C and float32 from MJX).
+
+    qpos: f[B, T+1, nq], state at tick 0 (initial) .. T.  qvel: f[B, T+1, nv].
+    ctrl: f[B, T, nu], control held during each tick.  time: f[T+1], seconds.
+    finite: bool[B], the element stayed finite and in bounds for the whole horizon.
+    first_bad: i32[B], first tick (1..T) whose state was bad, -1 if none.
+    ncon: i32[B, T+1], contacts with penetration (dist < 0) at each tick, for diagnostics.
+    pstate: the policy state after the last tick (pytree, leading axis B).
+    backend: "mjx" or "c".
+    """
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+    ctrl: np.ndarray
+    time: np.ndarray
+    finite: np.ndarray
+    first_bad: np.ndarray
+    ncon: np.ndarray
+    pstate: Any
+    backend: str
+
+
+def default_backend() -> str:
+    """``"mjx"`` when JAX sees a GPU, else ``"c"`` (the C engine is far faster on a CPU)."""
+    try:
+        return "mjx" if jax.devices("gpu") else "c"
+    except RuntimeError:
+        return "c"
+
+
+def schedule_policy(params, pstate, qpos, qvel, time):
+    """Open-loop policy: ``params = (ctrl f[T, nu], tick_seconds f[])``; ignores the state."""
+    table, tick = params
+    i = jnp.clip(jnp.floor(time / tick + 1e-6).astype(jnp.int32), 0, table.shape[0] - 1)
+    return table[i], pstate
+
+
+def free_qpos_addresses(model: mujoco.MjModel) -> np.ndarray:
+    """``i32[F]`` qpos address of every free joint (its body's x, y, z follow)."""
+    free = np.nonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE)[0]
+    return model.jnt_qposadr[free].astype(np.int32)
+
+
+def _state_ok(qpos, qvel, free_adr, lo, hi, xp):
+    """Element is finite and every free body's position lies in [lo, hi] (f[3] each)."""
+    finite = xp.all(xp.isfinite(qpos), -1) & xp.all(xp.isfinite(qvel), -1)
+    if free_adr.size == 0:
+        return finite
+    pos = xp.stack([qpos[..., free_adr + k] for k in range(3)], -1)    # [..., F, 3]
+    inside = xp.all((pos >= lo) & (pos <= hi), axis=(-1, -2))
+    return finite & inside
+
+
+class Simulator:
+    """Batched closed-loop rollouts of one model on a chosen engine.
+
+    model: MjModel (its ``opt`` holds timestep, integrator, solver iterations).
+    policy: the pure JAX policy above (must be hashable: a module-level function or a partial).
+    substeps: physics steps per control tick.  bounds: ``(lo f[3], hi f[3])`` world box for free
+      bodies (None: unbounded).  backend: "mjx", "c" or "auto" (:func:`default_backend`).
+    nthread: C-engine threads (default: all cores).
+
+    ``run`` compiles once per (horizon, batch size) on MJX; later calls with new states, policy
+    parameters or policy states reuse the compiled program.
+    """
+
+    def __init__(self, model: mujoco.MjModel, policy: Policy, *, substeps: int = 1, bounds=None,
+                 backend: str = "auto", nthread: int | None = None):
+        if backend == "auto":
+            backend = default_backend()
+        if backend not in ("mjx", "c"):
+            raise ValueError(f"backend: expected 'mjx', 'c' or 'auto'; got {backend!r}.")
+        if int(substeps) < 1:
+            raise ValueError(f"substeps: must be an int >= 1; got {substeps!r}.")
+        self.model = model
+        self.policy = policy
+        self.substeps = int(substeps)
+        self.backend = backend
+        self.free_adr = free_qpos_addresses(model)
+        big = np.full(3, np.inf)
+        self.lo, self.hi = (-big, big) if bounds is None else (np.asarray(bounds[0], float),
+                                                                np.asarray(bounds[1], float))
+        self.nthread = max(1, nthread or os.cpu_count() or 1)
+        self._mjx_cache: dict = {}
+        self._policy_batch = jax.jit(jax.vmap(policy))
+
+    # ------------------------------------------------------------------------------------ public
+    def run(self, qpos0, qvel0, params, pstate0, n_ticks: int) -> Trajectory:
+        """Roll out B elements for ``n_ticks`` control ticks. qpos0 f[B, nq], qvel0 f[B, nv];
+        params, pstate0: policy pytrees with leading axis B."""
+        qpos0 = np.asarray(qpos0, np.float64)
+        qvel0 = np.asarray(qvel0, np.float64)
+        if qpos0.ndim != 2 or qpos0.shape[1] != self.model.nq:
+            raise ValueError(f"qpos0: expected shape [B, {self.model.nq}]; got {qpos0.shape}.")
+        if qvel0.shape != (qpos0.shape[0], self.model.nv):
+            raise ValueError(f"qvel0: expected shape [{qpos0.shape[0]}, {self.model.nv}]; got {qvel0.shape}.")
+        if int(n_ticks) < 1:
+            raise ValueError(f"n_ticks: must be >= 1; got {n_ticks!r}.")
+        run = self._run_mjx if self.backend == "mjx" else self._run_c
+        return run(qpos0, qvel0, params, pstate0, int(n_ticks))
+
+    @property
+    def tick_seconds(self) -> float:
+        return float(self.model.opt.timestep) * self.substeps
+
+    # ------------------------------------------------------------------------------------ MJX
+    def _mjx_fn(self, n_ticks: int):
+        if n_ticks in self._mjx_cache:
+            return self._mjx_cache[n_ticks]
+        from mujoco import mjx
+
+        mx = mjx.put_model(self.model)
+        d0 = mjx.make_data(mx)
+        policy, substeps = self.policy, self.substeps
+        free_adr = jnp.asarray(self.free_adr)
+        lo, hi = jnp.asarray(self.lo, jnp.float32), jnp.asarray(self.hi, jnp.float32)
+
+        def ncon_of(d):
+            return jnp.sum(d._impl.contact.dist < 0).astype(jnp.int32) if d._impl.contact.dist.size else jnp.int32(0)
+
+        def single(qpos0, qvel0, params, pstate0):
+            d = d0.replace(qpos=qpos0.astype(d0.qpos.dtype), qvel=qvel0.astype(d0.qvel.dtype))
+            d = mjx.forward(mx, d)
+
+            def tick(carry, t):
+                d, ps, ok, first_bad = carry
+                ctrl, ps = policy(params, ps, d.qpos, d.qvel, d.time)
+                d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype))
+                d = jax.lax.fori_loop(0, substeps, lambda _, dd: mjx.step(mx, dd), d)
+                good = _state_ok(d.qpos, d.qvel, free_adr, lo, hi, jnp)
+                first_bad = jnp.where(ok & ~good, t + 1, first_bad)
+                return (d, ps, ok & good, first_bad), (d.qpos, d.qvel, ctrl, ncon_of(d))
+
+            init = (d, pstate0, jnp.bool_(True), jnp.int32(-1))
+            (d, ps, ok, first_bad), (qp, qv, ctrl, ncon) = jax.lax.scan(tick, init, jnp.arange(n_ticks))
+            qp = jnp.concatenate([qpos0[None].astype(qp.dtype), qp])
+            qv = jnp.concatenate([qvel0[None].astype(qv.dtype), qv])
+            ncon = jnp.concatenate([ncon_of(mjx.forward(mx, d0.replace(qpos=qpos0.astype(d0.qpos.dtype))))[None], ncon])
+            return qp, qv, ctrl, ok, first_bad, ncon, ps
+
+        fn = jax.jit(jax.vmap(single))
+        self._mjx_cache[n_ticks] = fn
+        return fn
+
+    def _run_mjx(self, qpos0, qvel0, params, pstate0, n_ticks):
+        fn = self._mjx_fn(n_ticks)
+        qp, qv, ctrl, ok, first_bad, ncon, ps = jax.block_until_ready(
+            fn(jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32), params, pstate0))
+        time = np.arange(n_ticks + 1) * self.tick_seconds
+        return Trajectory(np.asarray(qp), np.asarray(qv), np.asarray(ctrl), time, np.asarray(ok),
+                          np.asarray(first_bad), np.asarray(ncon), ps, "mjx")
+
+    # ------------------------------------------------------------------------------------ C engine
+    def _c_model(self) -> mujoco.MjModel:
+        model = _copy_model(self.model)   # a copy: the caller's model keeps its flags
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        return model
+
+    def _run_c(self, qpos0, qvel0, params, pstate0, n_ticks):
+        model = self._c_model()
+        b = qpos0.shape[0]
+        datas = [mujoco.MjData(model) for _ in range(b)]
+        for i, d in enumerate(datas):
+            d.qpos[:], d.qvel[:] = qpos0[i], qvel0[i]
+            mujoco.mj_forward(model, d)
+        qp = np.empty((b, n_ticks + 1, model.nq))
+        qv = np.empty((b, n_ticks + 1, model.nv))
+        ctrl_out = np.zeros((b, n_ticks, model.nu))
+        ncon = np.zeros((b, n_ticks + 1), np.int32)
+        qp[:, 0], qv[:, 0] = qpos0, qvel0
+        ncon[:, 0] = [_active_contacts(d) for d in datas]
+        ok = np.ones(b, bool)
+        first_bad = np.full(b, -1, np.int32)
+        pstate = pstate0
+        substeps = self.substeps
+
+        def advance(i, ctrl_i):
+            d = datas[i]
+            d.ctrl[:] = ctrl_i
+            with np.errstate(all="ignore"):
+                mujoco.mj_step(model, d, nstep=substeps)
+            return i
+
+        with concurrent.futures.ThreadPoolExecutor(self.nthread) as pool:
+            for t in range(n_ticks):
+                times = np.array([d.time for d in datas])
+                ctrl, pstate = self._policy_batch(params, pstate, jnp.asarray(qp[:, t], jnp.float32),
+                                                  jnp.asarray(qv[:, t], jnp.float32), jnp.asarray(times, jnp.float32))
+                ctrl = np.asarray(ctrl, np.float64)
+                live = np.nonzero(ok)[0]
+                list(pool.map(lambda i: advance(i, ctrl[i]), live))
+                for i in range(b):
+                    if ok[i]:
+                        qp[i, t + 1], qv[i, t + 1] = datas[i].qpos, datas[i].qvel
+                        ncon[i, t + 1] = _active_contacts(datas[i])
+                    else:  # frozen: repeat the last state
+                        qp[i, t + 1], qv[i, t + 1], ncon[i, t + 1] = qp[i, t], qv[i, t], ncon[i, t]
+                ctrl_out[:, t] = np.where(ok[:, None], ctrl, 0.0)
+                good = _state_ok(qp[:, t + 1], qv[:, t + 1], self.free_adr, self.lo, self.hi, np)
+                newly = ok & ~good
+                first_bad[newly] = t + 1
+                ok &= good
+        time = np.arange(n_ticks + 1) * self.tick_seconds
+        return Trajectory(qp, qv, ctrl_out, time, ok, first_bad, ncon, pstate, "c")
+
+
+def _active_contacts(d: mujoco.MjData) -> int:
+    return int(np.sum(d.contact.dist[: d.ncon] < 0)) if d.ncon else 0
+
+
+def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
+    import copy
+
+    return copy.copy(model)

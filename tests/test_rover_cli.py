@@ -1,0 +1,44 @@
+"""``jaxplan rover``: writes the table, figure and summary for a small scene; bad input exits 2."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxplan.cli import main
+from jaxplan.scene import Scene, box
+
+
+def _tiny_file(tmp_path):
+    obj = np.zeros((5, 8))
+    obj[2, 1:4] = [2, 1, 2]
+    path = tmp_path / "tiny.json"
+    Scene.from_arrays(obj, box(6.0, 0.0, 8.0, 5.0), name="tiny").save(path)
+    return path
+
+
+def test_rover_writes_summary_table_and_figure(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["rover", "--scene", str(_tiny_file(tmp_path)), "--routes", "1", "--backend", "c",
+                 "--no-render", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    (route,) = summary["routes"]
+    for key in ("predicted_delivered", "delivered", "mean_lateral", "max_lateral", "finite", "collected"):
+        assert key in route
+    assert route["finite"] is True and route["collected"] == 5.0
+    assert route["delivered"] + route["spilled"] + route["left_behind"] + route["lost"] == route["collected"]
+    assert summary["frames"] == "skipped (--no-render)"
+    assert (out / "rover.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "| route |" in (out / "routes.md").read_text()
+    assert "wrote" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, field", [(["--routes", "0"], "--routes"), (["--speed", "-1"], "--speed"),
+                                         (["--scene", "nope.json"], "--scene"), (["--lam", "-1"], "lam")])
+def test_rover_bad_input_exits_2(tmp_path, capsys, argv, field):
+    with pytest.raises(SystemExit) as info:
+        main(["rover", "--out", str(tmp_path / "o"), *argv])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and field in err[0]
