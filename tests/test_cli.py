@@ -210,7 +210,7 @@ def test_unparsable_angle_is_a_usage_error(capsys):
 
 def test_episode_writes_summary_metrics_figure_and_animation(tmp_path, capsys):
     out = tmp_path / "ep"
-    assert main(["episode", "--scene", "corridor", "--out", str(out), "--max-pushes", "4"]) == 0
+    assert main(["episode", "--scene", "default", "--out", str(out), "--max-pushes", "4"]) == 0
     text = capsys.readouterr().out
     assert "episode: " in text and str(out / "summary.json") in text
     summary = json.loads((out / "summary.json").read_text())

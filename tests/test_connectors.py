@@ -9,7 +9,7 @@ from jaxplan import FabricParams, build_fabric, builtin_scene, plan_connectors
 from tests._scenes import has_borderline_step, reference_of, scenes
 
 
-@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scene=scenes(max_side=16, integer_counts=False), theta=st.sampled_from((45.0, 60.0, 90.0)),
        lam=st.sampled_from((0.0, 0.5, 2.0)), tau_h=st.sampled_from((0.3, 0.6)))
 def test_anchors_and_connectors_equal_reference(scene, theta, lam, tau_h):

@@ -14,7 +14,7 @@ from jaxplan import spillage as sp
 from jaxplan.reference import execute as ref_ex
 from tests._scenes import scenes
 
-SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 def _route(scene, fabric, source, rank=0):

@@ -84,7 +84,7 @@ def test_without_monotone_rule_matches_reference_or_bounds_it(scene, theta):
         assert np.all(value[reachable] >= ref.value[reachable])
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=20, deadline=None)
 @given(scene=scenes(), theta=st.sampled_from(ANGLES), k=st.sampled_from((1, 2, 4)))
 def test_policy_solver_equals_wavefront_solver(scene, theta, k):
     fast = build_fabric(scene, FabricParams(theta_tol_deg=theta, k=k, solver="policy"))

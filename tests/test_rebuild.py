@@ -15,7 +15,7 @@ from jaxplan import spillage as sp
 from jaxplan.reference import rebuild as ref_rb
 from tests._scenes import ANGLES, scenes
 
-SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 # lengths are sums of s and s*sqrt(2) in a different order in each solver: equal up to rounding
 _FLOAT_FIELDS = {"length"}
