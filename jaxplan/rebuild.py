@@ -15,7 +15,9 @@ closure of ``A_exec`` (``Affected.dirty``). The rebuild
    as Algorithm 5 does.
 
 When the dirty set does not fit in ``capacity`` (or without the monotone rule, where the graph may
-have cycles) the rebuild falls back to the full build; ``Affected.full`` says so. The paper's
+have cycles) the rebuild falls back to the full build; ``Affected.full`` says so. The buffer size is
+chosen on the host (one small read of the dirty count), so only the sizes a run needs are compiled;
+under a caller's ``jit`` all sizes are compiled behind a ``lax.switch`` instead. The paper's
 ``A_vis`` (Eq. 13: sources whose forward cone sees a changed cell) is computed by ``paper_sets``
 for reporting; it is not needed for exactness (and not sufficient for it: a path may bend out of
 its source's cone).
@@ -143,42 +145,59 @@ def _compact_dp(graph: visibility.SuccessorGraph, table: Table, dirty, capacity:
                  scatter(table.next_rank, next_rank)), rounds
 
 
-def _selective(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
+def _graph_and_dirty(scene, params: FabricParams, fabric: Fabric, changed):
+    """The new successor graph, the dirty mask and its size (step 1 of the module docstring)."""
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
-    occupied = ~target & (obj > 0)
-    graph = visibility.successor_graph(obj, occupied, target, scene.dist, scene.tvec, params.theta_tol_deg,
-                                       scene.cell_size, params.monotone)
+    graph = visibility.successor_graph(obj, ~target & (obj > 0), target, scene.dist, scene.tvec,
+                                       params.theta_tol_deg, scene.cell_size, params.monotone)
     dirty = upstream_closure(changed, jnp.moveaxis(fabric.feasible, -1, 0), graph.feasible)
-    n_dirty = jnp.sum(dirty, dtype=jnp.int32)
+    return graph, dirty, jnp.sum(dirty, dtype=jnp.int32)
 
-    max_hops = params.resolved_max_hops(obj.shape)
+
+def _full_table(scene, params: FabricParams):
+    obj = jnp.asarray(scene.obj, jnp.float32)
+    target = jnp.asarray(scene.target_mask, bool)
+    table, _, rounds, _ = continuation_dp(
+        obj, ~target & (obj > 0), target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
+        monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape), solver=params.solver)
+    return table, rounds
+
+
+def _finish(scene, params, fabric, changed, graph, dirty, n_dirty, capacity: int | None):
+    """Steps 2-3: the compact recursion (or, with ``capacity=None``, the full table), then the
+    global refresh."""
+    max_hops = params.resolved_max_hops(scene.shape)
+    if capacity is None:
+        table, rounds = _full_table(scene, params)
+    else:
+        table, rounds = _compact_dp(graph, fabric.table, dirty, capacity, scene.cell_size, max_hops)
+    rebuilt = derive(scene, params, table, graph.feasible, rounds, rounds < max_hops)
+    return rebuilt, Affected(changed, dirty, n_dirty, rounds, jnp.bool_(capacity is None))
+
+
+def _selective_switch(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
+    """All of it in one traced program: every buffer size is compiled and ``lax.switch`` picks the
+    smallest that holds the dirty set (usable inside a caller's ``jit``)."""
+    graph, dirty, n_dirty = _graph_and_dirty(scene, params, fabric, changed)
+    max_hops = params.resolved_max_hops(scene.shape)
     buckets = capacity_buckets(capacity)
 
     def partial_with(cap):
-        def run(_):
-            table, rounds = _compact_dp(graph, fabric.table, dirty, cap, scene.cell_size, max_hops)
-            return table, rounds
-        return run
+        return lambda _: _compact_dp(graph, fabric.table, dirty, cap, scene.cell_size, max_hops)
 
-    def full(_):
-        table, _, rounds, _ = continuation_dp(
-            obj, occupied, target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
-            monotone=params.monotone, k=params.k, max_hops=max_hops, solver=params.solver)
-        return table, rounds
-
-    # the smallest buffer that holds the dirty set: the recursion's cost scales with the buffer.
-    # Only the table goes through the switch; the global refresh runs once, after it.
     fits = jnp.asarray(buckets) >= n_dirty
     branch = jnp.where(jnp.any(fits), jnp.argmax(fits), len(buckets))
-    table, rounds = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [full], None)
+    # only the table goes through the switch; the global refresh runs once, after it
+    table, rounds = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [lambda _: _full_table(scene, params)],
+                                   None)
     rebuilt = derive(scene, params, table, graph.feasible, rounds, rounds < max_hops)
     return rebuilt, Affected(changed, dirty, n_dirty, rounds, branch == len(buckets))
 
 
 def capacity_buckets(capacity: int) -> tuple[int, ...]:
-    """Dirty-buffer sizes compiled for one grid: 64, 128, 256, ... up to ``capacity``. A round's cost
-    grows faster than linearly with the buffer (cache), so the buckets are close together."""
+    """Dirty-buffer sizes for one grid: 64, 128, 256, ... up to ``capacity``. A round's cost grows
+    faster than linearly with the buffer (cache), so the buckets are close together."""
     sizes = []
     size = 64
     while size < capacity:
@@ -201,10 +220,17 @@ def default_capacity(shape) -> int:
 def _rebuild(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
     if not params.monotone:
         return _full_only(scene, params, changed)
-    return _selective(scene, params, fabric, changed, capacity)
+    return _selective_switch(scene, params, fabric, changed, capacity)
 
 
 _rebuild_jit = jax.jit(_rebuild, static_argnums=4)
+_dirty_jit = jax.jit(_graph_and_dirty)
+_finish_jit = jax.jit(_finish, static_argnums=7)
+_full_only_jit = jax.jit(_full_only)
+
+
+def _traced(*trees) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
 
 
 def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, capacity: int | None = None):
@@ -212,12 +238,23 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
 
     scene: the scene after the push; fabric: the fabric before it; changed: bool[H, W], A_exec
     (``changed_cells`` or ``Push.changed``). Returns ``(fabric, Affected)``; the fabric equals
-    ``build_fabric(scene, params)`` (``rounds`` aside). capacity: static dirty-buffer size
-    (default ``default_capacity``); a larger dirty set triggers a full build. Buffers of 64, 128, 256, ...
-    cells up to ``capacity`` are compiled and the smallest that holds the dirty set runs. Jitted.
+    ``build_fabric(scene, params)`` (``rounds`` aside). capacity: the largest dirty-buffer size
+    (default ``default_capacity``); a larger dirty set triggers a full build.
+
+    Called with concrete arrays, it computes the dirty set (jitted), reads its size on the host and
+    runs the jitted recursion for the smallest buffer of 64, 128, 256, ... cells that holds it; each
+    size is compiled the first time it is needed. Inside a caller's ``jit`` (traced arguments) it
+    runs one program with every size compiled behind a ``lax.switch``. Both give the same result.
     """
     capacity = default_capacity(scene.shape) if capacity is None else int(capacity)
-    return _rebuild_jit(scene, params, fabric, jnp.asarray(changed, bool), capacity)
+    changed = jnp.asarray(changed, bool)
+    if _traced(scene, params, fabric, changed):
+        return _rebuild(scene, params, fabric, changed, capacity)
+    if not params.monotone:
+        return _full_only_jit(scene, params, changed)
+    graph, dirty, n_dirty = _dirty_jit(scene, params, fabric, changed)
+    fitting = [c for c in capacity_buckets(capacity) if c >= int(n_dirty)]
+    return _finish_jit(scene, params, fabric, changed, graph, dirty, n_dirty, fitting[0] if fitting else None)
 
 
 def paper_sets(scene, changed, theta_tol_deg, *, block_rows: int = 8):
