@@ -55,12 +55,14 @@ class PushPhysicsConfig:
     wall_thickness [m]; kp: P gain of the contact reference [1/s]; vmax: robot speed limit [m/s];
     press: how far the reference sits inside the contact [m] (keeps the robot pressing);
     standoff: gap between robot and body at the start of a push [m]; horizon: control ticks per push
-    rollout (80 as the paper); settle: ticks after the push during which the robots hold still;
+    rollout (80 as the paper; a push shorter than the horizon is followed by the robots holding still);
     transit_speed: robot speed for the transition term of Eq. 11 [m/s]; alpha: weight of the effort
     in Eq. 11 [1/J]; contact_tol: distance that counts as touching a fixed obstacle [m];
     move_tol: displacement below which a movable counts as not moved [m]; tip_cos: a movable whose
     body z axis has ``z_z`` below this has tipped over; world_margin: a free body farther than this
-    outside the workspace [m] (or below z = -1 m / above 2 m) makes the rollout element not finite.
+    outside the workspace [m] (or below z = -1 m / above 2 m) makes the rollout element not finite;
+    sleep: MuJoCo's island sleeping (C engine: bodies at rest stop being integrated until something
+    touches them; 10-15x faster on the nominal scene, same results to ~1e-5 m; MJX ignores the flag).
     """
 
     timestep: float = 1.0 / 240.0
@@ -79,13 +81,13 @@ class PushPhysicsConfig:
     press: float = 0.01
     standoff: float = 0.01
     horizon: int = 80
-    settle: int = 8
     transit_speed: float = 0.5
     alpha: float = 0.01
     contact_tol: float = 0.01
     move_tol: float = 0.01
     tip_cos: float = 0.9
     world_margin: float = 1.0
+    sleep: bool = True
 
     def replace(self, **changes) -> "PushPhysicsConfig":
         return dataclasses.replace(self, **changes)
@@ -204,7 +206,7 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
                  "transit_speed"):
         if not getattr(cfg, name) > 0:
             raise ValueError(f"config.{name}: must be > 0; got {getattr(cfg, name)!r}.")
-    for name, lo in (("substeps", 1), ("iterations", 1), ("ls_iterations", 1), ("horizon", 1), ("settle", 0)):
+    for name, lo in (("substeps", 1), ("iterations", 1), ("ls_iterations", 1), ("horizon", 1)):
         if int(getattr(cfg, name)) < lo:
             raise ValueError(f"config.{name}: must be an int >= {lo}; got {getattr(cfg, name)!r}.")
 
@@ -282,6 +284,8 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
   <actuator>{''.join(actuators)}</actuator>
 </mujoco>"""
     model = mujoco.MjModel.from_xml_string(xml)
+    if cfg.sleep:
+        model.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 
     def jadr(name, field):
         return int(getattr(model, field)[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)])

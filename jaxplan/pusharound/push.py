@@ -236,22 +236,42 @@ def _start_positions(world: PushWorld, tasks: PushTask, poses) -> np.ndarray:
     return np.where(tasks.active[..., None], world_xy, home)
 
 
-@jax.jit
-def _min_fixed_distance(body_verts, poses, fixed_verts):
-    """Min distance f[..., P] from each posed body piece to any fixed piece.
-    body_verts f[P, V, 2] (body frame), poses f[..., P, 3] (its owner's pose), fixed_verts f[F, V, 2]."""
-    c, s = jnp.cos(poses[..., 2]), jnp.sin(poses[..., 2])
-    x = body_verts[..., 0] * c[..., None] - body_verts[..., 1] * s[..., None] + poses[..., 0:1]
-    y = body_verts[..., 0] * s[..., None] + body_verts[..., 1] * c[..., None] + poses[..., 1:2]
-    world = jnp.stack([x, y], -1)                                    # [..., P, V, 2]
-    lead = world.shape[:-2]
-    v = max(world.shape[-2], fixed_verts.shape[1])
-    world = jnp.concatenate([world, jnp.repeat(world[..., -1:, :], v - world.shape[-2], -2)], -2)
-    fixed = jnp.concatenate([fixed_verts, jnp.repeat(fixed_verts[:, -1:, :], v - fixed_verts.shape[1], 1)], 1)
-    a = jnp.broadcast_to(world[..., None, :, :], lead + (fixed.shape[0], v, 2)).reshape(-1, v, 2)
-    b = jnp.broadcast_to(fixed, lead + fixed.shape).reshape(-1, v, 2)
-    d, _, _ = pair_distances(a, b)
-    return jnp.min(d.reshape(lead + (fixed.shape[0],)), axis=-1)
+def _posed(body_verts, poses):
+    """World vertices f[..., V, 2] of body-frame vertices f[..., V, 2] at poses f[..., 3]."""
+    c, s = np.cos(poses[..., 2])[..., None], np.sin(poses[..., 2])[..., None]
+    x = body_verts[..., 0] * c - body_verts[..., 1] * s + poses[..., 0:1]
+    y = body_verts[..., 0] * s + body_verts[..., 1] * c + poses[..., 1:2]
+    return np.stack([x, y], -1)
+
+
+def _touching(verts, fixed_verts, tol: float) -> np.ndarray:
+    """bool[K]: polygon k of ``verts f[K, V, 2]`` is within ``tol`` of a fixed polygon ``f[F, V2, 2]``.
+
+    A bounding-box prefilter on the host, then the exact :func:`pair_distances` kernel on the pairs
+    left (padded to a power of two so that few shapes compile)."""
+    k, f = len(verts), len(fixed_verts)
+    if k == 0 or f == 0:
+        return np.zeros(k, bool)
+    lo, hi = verts.min(1), verts.max(1)
+    flo, fhi = fixed_verts.min(1), fixed_verts.max(1)
+    gap = np.maximum(0.0, np.maximum(lo[:, None] - fhi[None], flo[None] - hi[:, None])).max(-1)   # [K, F]
+    ki, fi = np.nonzero(gap < tol)
+    out = np.zeros(k, bool)
+    if len(ki) == 0:
+        return out
+    v = max(verts.shape[1], fixed_verts.shape[1])
+
+    def pad(a):
+        return np.concatenate([a, np.repeat(a[:, -1:], v - a.shape[1], 1)], 1)
+
+    a, b = pad(verts[ki]), pad(fixed_verts[fi])
+    n = 1 << int(np.ceil(np.log2(len(ki))))
+    a = np.concatenate([a, np.repeat(a[-1:], n - len(ki), 0)])
+    b = np.concatenate([b, np.repeat(b[-1:], n - len(ki), 0)])
+    with jax.enable_x64(True):
+        d = np.asarray(pair_distances(jnp.asarray(a), jnp.asarray(b))[0])[:len(ki)]
+    np.logical_or.at(out, ki, d < tol)
+    return out
 
 
 def simulate_pushes(world: PushWorld, tasks: PushTask, *, sim: Simulator | None = None, backend: str = "auto",
@@ -309,23 +329,23 @@ def _outcome(world: PushWorld, tasks: PushTask, traj, poses0, check_every: int) 
     tol = cfg.contact_tol
     left = np.any((vx < x0 - tol) | (vx > x1 + tol) | (vy < y0 - tol) | (vy > y1 + tol), axis=(1, 2))
 
-    # Touching fixed obstacles (scene.fixed): pieces of movables that moved, and robots.
+    # Touching fixed obstacles (scene.fixed): pieces of movables that moved, and robots, at every
+    # check_every-th tick; contacts already present at the start do not count.
     hit = np.zeros(b, bool)
     if len(world.fixed_verts):
         ticks = np.unique(np.r_[np.arange(0, qp.shape[1], max(1, int(check_every))), qp.shape[1] - 1])
-        sampled = np.nan_to_num(pose_t[:, ticks][:, :, owner])           # [B, S, P, 3]
-        with jax.enable_x64(True):
-            d = np.asarray(_min_fixed_distance(jnp.asarray(world.pieces_body), jnp.asarray(sampled),
-                                               jnp.asarray(world.fixed_verts)))
-            d0 = np.asarray(_min_fixed_distance(jnp.asarray(world.pieces_body), jnp.asarray(poses0[owner]),
-                                                jnp.asarray(world.fixed_verts)))
-        piece_moved = moved[:, owner] > cfg.move_tol                      # [B, P]
-        new_touch = (d.min(1) < tol) & (d0[None] >= tol) & piece_moved
+        pb, pp = np.nonzero(moved[:, owner] > cfg.move_tol)             # moved (candidate, piece) pairs
+        before = _touching(_posed(world.pieces_body, poses0[owner]), world.fixed_verts, tol)
+        keep = ~before[pp]
+        pb, pp = pb[keep], pp[keep]
+        sampled = np.nan_to_num(pose_t[pb[:, None], ticks[None, :], owner[pp][:, None]])   # [K, S, 3]
+        verts = _posed(np.repeat(world.pieces_body[pp][:, None], len(ticks), 1), sampled)  # [K, S, V, 2]
+        touch = _touching(verts.reshape(-1, *verts.shape[2:]), world.fixed_verts, tol)
+        np.logical_or.at(hit, pb, touch.reshape(len(pb), len(ticks)).any(-1))
         rob = np.nan_to_num(qp[:, ticks][:, :, world.robot_adr])         # [B, S, N, 2]
         with jax.enable_x64(True):
             rd = np.asarray(point_distances(jnp.asarray(rob.reshape(-1, 2)), jnp.asarray(world.fixed_verts)))
-        rd = rd.min(-1).reshape(rob.shape[:3])
-        hit = np.any(new_touch, -1) | np.any(rd < float(scene.robot_radius) + tol, axis=(1, 2))
+        hit |= np.any(rd.min(-1).reshape(rob.shape[:3]) < float(scene.robot_radius) + tol, axis=(1, 2))
 
     # Effort: actuator work, F = clip(kv (u - qdot)), summed |F qdot| over ticks.
     qv = np.asarray(traj.qvel, np.float64)[:, 1:][..., world.robot_dof.reshape(-1)]   # [B, T, 2N]
@@ -357,28 +377,32 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None) -> QuickPass:
     ws = scene.workspace_polygon
     fixed = shapely.union_all([f.polygon for f in scene.fixed]) if scene.fixed else None
     starts = _start_positions(world, tasks, poses)
+    placed_scene = scene.with_poses(poses)
+    obstacles = placed_scene.obstacle_polygons()
+    shapely.prepare(obstacles)
+    if fixed is not None:
+        shapely.prepare(fixed)
     ok, reasons = [], []
     for i in range(len(tasks.movable)):
         m = int(tasks.movable[i])
-        mov = scene.movables[m]
+        mov = placed_scene.movables[m]
         ts = np.linspace(0.0, float(tasks.duration[i]), _SWEEP_SAMPLES)
         pose_seq = poses[m][None] + tasks.velocity[i][None] * ts[:, None]
         placed = [mov.world_pieces(tuple(p)) for p in pose_seq]
         sweep = shapely.union_all([shapely.union_all([a, b]).convex_hull
                                    for k in range(len(placed) - 1) for a, b in zip(placed[k], placed[k + 1])])
         reason = ""
-        if fixed is not None and sweep.intersection(fixed).area > 1e-9:
+        if fixed is not None and fixed.intersects(sweep) and sweep.intersection(fixed).area > 1e-9:
             reason = "sweep hits a fixed obstacle"
         elif not ws.buffer(1e-9).contains(sweep):
             reason = "sweep leaves the workspace"
         else:
-            others = [o for j, o in enumerate(scene.obstacle_polygons()) if j != m] + [mov.polygon]
             act = np.nonzero(tasks.active[i])[0]
             disks = [Point(*starts[i, n]).buffer(r, 16) for n in act]
             for n, disk in zip(act, disks):
                 if not ws.contains(disk):
                     reason = f"robot {n} starts outside the workspace"
-                elif any(disk.intersection(o).area > 1e-9 for o in others):
+                elif any(o.intersects(disk) and disk.intersection(o).area > 1e-9 for o in obstacles):
                     reason = f"robot {n} start overlaps an obstacle"
                 if reason:
                     break
@@ -387,7 +411,8 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None) -> QuickPass:
             if not reason and fixed is not None:
                 for n in act:
                     path = [_robot_reference_np(poses[m], tasks, i, n, t, r - cfg.press) for t in (0.0, tasks.duration[i])]
-                    if LineString(path).buffer(r, 8).intersection(fixed).area > 1e-9:
+                    swept = LineString(path).buffer(r, 8)
+                    if fixed.intersects(swept) and swept.intersection(fixed).area > 1e-9:
                         reason = f"robot {n} sweep hits a fixed obstacle"
                         break
         ok.append(not reason)
@@ -396,9 +421,11 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None) -> QuickPass:
 
 
 def _robot_reference_np(pose0, tasks, i, n, t, offset):
-    return np.asarray(_robot_reference(jnp.asarray(pose0), jnp.asarray(tasks.velocity[i]),
-                                       jnp.asarray(tasks.contacts[i, n:n + 1]), jnp.asarray(tasks.directions[i, n:n + 1]),
-                                       jnp.asarray(tasks.duration[i]), offset, jnp.asarray(float(t))))[0]
+    """Numpy twin of :func:`_robot_reference` for candidate i, robot n at time t: f[2]."""
+    pose = pose0 + tasks.velocity[i] * min(max(float(t), 0.0), float(tasks.duration[i]))
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    local = tasks.contacts[i, n] - offset * tasks.directions[i, n]
+    return pose[:2] + np.array([c * local[0] - s * local[1], s * local[0] + c * local[1]])
 
 
 # ------------------------------------------------------------------------------------------- cost
