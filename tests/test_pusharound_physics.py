@@ -2,11 +2,11 @@
 import mujoco
 import numpy as np
 import pytest
-from shapely.geometry import box
+from shapely.geometry import Point, box
 
 from jaxplan.pusharound import shapes
 from jaxplan.pusharound.physics import PushPhysicsConfig, build_push_world, initial_state, movable_poses
-from jaxplan.pusharound.push import (PushTask, face_contacts, make_push_simulator, push_cost, quick_pass,
+from jaxplan.pusharound.push import (PushTask, direction_tasks, face_contacts, make_push_simulator, push_cost, quick_pass,
                                      simulate_pushes, stack_tasks)
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene
 
@@ -189,3 +189,24 @@ def test_sleeping_bodies_do_not_change_verdicts(batch, c_out):
     np.testing.assert_array_equal(awake.valid, c_out.valid)
     np.testing.assert_array_equal(awake.hit_fixed, c_out.hit_fixed)
     np.testing.assert_allclose(awake.poses[..., :2], c_out.poses[..., :2], atol=0.01)
+
+
+def test_direction_tasks_put_contacts_on_the_back_face(world):
+    """Four world directions x team sizes 1 and 2 on the 0.6 x 0.4 m box: eight modes; each contact is
+    on the boundary, the push direction points into the body, and two robots are a diameter apart."""
+    tasks = direction_tasks(world, 0, np.arange(4) * np.pi / 2, speed=0.2, duration=1.0)
+    assert len(tasks) == 8
+    body = world.scene.movables[0].polygon      # yaw 0: body frame = world frame shifted
+    x, y, _ = world.scene.movables[0].pose
+    for t in tasks:
+        act = np.nonzero(t.active)[0]
+        for n in act:
+            c = t.contacts[n] + (x, y)
+            assert body.exterior.distance(Point(*c)) < 1e-9
+            assert body.contains(Point(*(c + 0.02 * t.directions[n])))
+            assert not body.contains(Point(*(c - 0.02 * t.directions[n])))
+        np.testing.assert_allclose(t.velocity[:2] / 0.2, t.directions[act[0]], atol=1e-12)
+        if len(act) == 2:
+            assert np.linalg.norm(t.contacts[0] - t.contacts[1]) >= 2 * world.scene.robot_radius
+    with pytest.raises(ValueError, match="speed"):
+        direction_tasks(world, 0, [0.0], speed=0.0, duration=1.0)

@@ -16,7 +16,7 @@ MJX or the C engine), ``push_cost`` (Eq. 11); see ``jaxplan.pusharound.push``.
 See docs/pusharound.md for the definitions and the JSON scene format.
 """
 from jaxplan.pusharound.physics import PushPhysicsConfig, PushWorld, build_push_world
-from jaxplan.pusharound.push import (PushOutcome, PushTask, QuickPass, face_contacts, make_push_simulator,
+from jaxplan.pusharound.push import (PushOutcome, PushTask, QuickPass, direction_tasks, face_contacts, make_push_simulator,
                                      push_cost, quick_pass, simulate_pushes, stack_tasks)
 from jaxplan.pusharound.ranking import Gap, Ranking, RankingParams, gap_costs, rank_gaps
 from jaxplan.pusharound.scenarios import nominal_scene
@@ -26,5 +26,5 @@ from jaxplan.pusharound.wccg import WCCG, Connectivity, build_wccg, clearance, c
 
 __all__ = ["WCCG", "Connectivity", "Fixed", "Gap", "Movable", "PushOutcome", "PushPhysicsConfig", "PushScene",
            "PushTask", "PushWorld", "QuickPass", "Ranking", "RankingParams", "build_push_world", "build_wccg",
-           "clearance", "connectivity", "face_contacts", "gap_costs", "make_push_simulator", "nominal_scene",
+           "clearance", "connectivity", "direction_tasks", "face_contacts", "gap_costs", "make_push_simulator", "nominal_scene",
            "plot_wccg", "push_cost", "quick_pass", "rank_gaps", "simulate_pushes", "stack_tasks", "w_clear_path"]

@@ -36,7 +36,7 @@ from jaxplan.physics.rollout import Simulator
 from jaxplan.pusharound.kernels import pair_distances, point_distances
 from jaxplan.pusharound.physics import PushWorld, initial_state, movable_poses
 
-__all__ = ["MAX_BATCH", "PushTask", "PushOutcome", "QuickPass", "face_contacts", "make_push_simulator",
+__all__ = ["MAX_BATCH", "PushTask", "PushOutcome", "QuickPass", "direction_tasks", "face_contacts", "make_push_simulator",
            "push_cost", "push_policy", "quick_pass", "simulate_pushes", "stack_tasks"]
 
 MAX_BATCH = 64      # candidates per physics call (the paper's 64 per expansion)
@@ -144,6 +144,29 @@ def face_contacts(world: PushWorld, movable: int, direction, n_robots: int | Non
     contacts = np.concatenate([contacts, np.repeat(contacts[:1], n_all - n, 0)])
     active = np.arange(n_all) < n
     return contacts, np.repeat(d[None], n_all, 0), active
+
+
+def direction_tasks(world: PushWorld, movable: int, angles, speed: float, duration: float,
+                    n_robots=(1, 2), omega: float = 0.0, poses=None) -> list:
+    """Candidate pushes of ``movable`` along world directions ``angles`` (radians) at ``speed`` [m/s]
+    for ``duration`` [s], with each team size in ``n_robots`` (one :func:`face_contacts` mode per
+    direction and size) and yaw rate ``omega`` [rad/s]. Directions whose face has no room for the
+    team are skipped. Returns a list of :class:`PushTask` (stack with :func:`stack_tasks`)."""
+    if not speed > 0 or not duration > 0:
+        raise ValueError(f"speed, duration: must be > 0; got {speed!r}, {duration!r}.")
+    poses = world.scene.poses if poses is None else np.asarray(poses, np.float64)
+    psi = float(poses[int(movable), 2])
+    out = []
+    for a in np.atleast_1d(np.asarray(angles, np.float64)):
+        d_world = np.array([np.cos(a), np.sin(a)])
+        d_body = np.array([np.cos(a - psi), np.sin(a - psi)])
+        for n in n_robots:
+            try:
+                c, d, act = face_contacts(world, movable, d_body, n)
+            except ValueError:
+                continue
+            out.append(PushTask(int(movable), c, d, act, np.r_[speed * d_world, omega], float(duration)))
+    return out
 
 
 def _rot(psi):
