@@ -9,14 +9,22 @@ and the ranking of blocking gaps (Section III-B).
     conn = connectivity(g, scene.start, scene.goal)      # Eq. 7, frontier loop when blocked
     ranking = rank_gaps(scene, g=g)                      # Eqs. 8-9: ranked gaps + adjacent movables
 
+Physics (Section III-C/D): ``build_push_world`` (the scene in MuJoCo), ``PushTask`` / ``face_contacts``
+(candidate pushes), ``quick_pass`` (geometric rejection), ``simulate_pushes`` (one batched rollout on
+MJX or the C engine), ``push_cost`` (Eq. 11); see ``jaxplan.pusharound.push``.
+
 See docs/pusharound.md for the definitions and the JSON scene format.
 """
+from jaxplan.pusharound.physics import PushPhysicsConfig, PushWorld, build_push_world
+from jaxplan.pusharound.push import (PushOutcome, PushTask, QuickPass, direction_tasks, face_contacts, make_push_simulator,
+                                     push_cost, quick_pass, simulate_pushes, stack_tasks)
 from jaxplan.pusharound.ranking import Gap, Ranking, RankingParams, gap_costs, rank_gaps
 from jaxplan.pusharound.scenarios import nominal_scene
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene
 from jaxplan.pusharound.viz import plot_wccg
 from jaxplan.pusharound.wccg import WCCG, Connectivity, build_wccg, clearance, connectivity, w_clear_path
 
-__all__ = ["WCCG", "Connectivity", "Fixed", "Gap", "Movable", "PushScene", "Ranking", "RankingParams",
-           "build_wccg", "clearance", "connectivity", "gap_costs", "nominal_scene", "plot_wccg",
-           "rank_gaps", "w_clear_path"]
+__all__ = ["WCCG", "Connectivity", "Fixed", "Gap", "Movable", "PushOutcome", "PushPhysicsConfig", "PushScene",
+           "PushTask", "PushWorld", "QuickPass", "Ranking", "RankingParams", "build_push_world", "build_wccg",
+           "clearance", "connectivity", "direction_tasks", "face_contacts", "gap_costs", "make_push_simulator", "nominal_scene",
+           "plot_wccg", "push_cost", "quick_pass", "rank_gaps", "simulate_pushes", "stack_tasks", "w_clear_path"]

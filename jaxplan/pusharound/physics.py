@@ -1,0 +1,332 @@
+"""The PushAround world in MuJoCo: a :class:`PushScene` as an ``MjModel`` for MJX and the C engine.
+
+:func:`build_push_world` writes an MJCF string and compiles it:
+
+- floor: a plane (contact bit 1). Optional boundary walls: four thin boxes just outside the
+  workspace (``PushPhysicsConfig.walls``), so the workspace is bounded as in the paper.
+- fixed obstacles: static geoms of the world body (bit 4), one per convex piece.
+- movables: one free body each (bit 2), a prism of height ``height`` per convex piece. A piece that
+  is a rectangle becomes a ``box``; any other convex piece a convex ``mesh`` (a prism of 2n vertices,
+  n <= 16, so <= 32 mesh vertices as MJX needs; a piece with more vertices is simplified first).
+  Cylinders and curved shapes arrive as polygons (``shapes.cylinder`` is a 12-gon), so they become
+  meshes: MJX does not collide ``cylinder`` geoms with boxes or meshes (docs/pusharound.md).
+  The body's inertial is explicit: the scene's mass, the scene's yaw inertia ``I_zz`` and
+  ``I_xx = I_yy = I_zz / 2 + m h^2 / 12`` (thin lamina, perpendicular axis, plus the height), centre
+  of mass at half height above the area centroid. Friction with the floor: the movable's ``friction``.
+- robots: vertical capsules of the scene's ``robot_radius`` (bit 8) on two slide joints (world x, y)
+  at mid-height of the movables, driven by velocity actuators (``kv``, force limited). They do not
+  touch the floor (the slides carry their weight), they touch movables, fixed obstacles and each other.
+
+Collision bits (a pair collides when ``contype_a & conaffinity_b`` or the reverse is non-zero):
+floor (1, 0), movable (2, 15), fixed and walls (4, 0), robot (8, 12). Fixed pieces do not collide
+with the floor or each other.
+
+Units: metres, kilograms, seconds, radians. ``qpos`` layout: every movable's free joint (x, y, z,
+quaternion), then every robot's (x, y) slides; the addresses are in :class:`PushWorld`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+
+from jaxplan.pusharound.scene import PushScene
+
+__all__ = ["PushPhysicsConfig", "PushWorld", "build_push_world", "initial_state", "movable_poses",
+           "yaw_quat"]
+
+MAX_PRISM_SIDES = 16    # 2 x 16 = 32 mesh vertices (MJX convex-mesh limit)
+_RECT_TOL = 1e-6        # |cos| of a rectangle's corner angles [-]
+
+
+@dataclasses.dataclass(frozen=True)
+class PushPhysicsConfig:
+    """Model and controller constants (all static).
+
+    timestep [s] (1/240 as the paper); substeps per control tick (6: 40 Hz control, the paper's
+    1/40 s); iterations, ls_iterations: solver (>= 10 for MJX, ANCHORS); height: movable prism height
+    [m]; robot_mass [kg]; kv: robot velocity-actuator gain [N s/m]; force: actuator force limit [N];
+    robot_friction: robot-movable Coulomb coefficient; walls: bounding walls around the workspace;
+    wall_thickness [m]; kp: P gain of the contact reference [1/s]; vmax: robot speed limit [m/s];
+    press: how far the reference sits inside the contact [m] (keeps the robot pressing);
+    standoff: gap between robot and body at the start of a push [m]; horizon: control ticks per push
+    rollout (80 as the paper; a push shorter than the horizon is followed by the robots holding still);
+    transit_speed: robot speed for the transition term of Eq. 11 [m/s]; alpha: weight of the effort
+    in Eq. 11 [1/J]; contact_tol: distance that counts as touching a fixed obstacle [m];
+    move_tol: displacement below which a movable counts as not moved [m]; tip_cos: a movable whose
+    body z axis has ``z_z`` below this has tipped over; world_margin: a free body farther than this
+    outside the workspace [m] (or below z = -1 m / above 2 m) makes the rollout element not finite;
+    sleep: MuJoCo's island sleeping (C engine: bodies at rest stop being integrated until something
+    touches them; 10-15x faster on the nominal scene, same results to ~1e-5 m; MJX ignores the flag).
+    """
+
+    timestep: float = 1.0 / 240.0
+    substeps: int = 6
+    iterations: int = 10
+    ls_iterations: int = 10
+    height: float = 0.3
+    robot_mass: float = 20.0
+    kv: float = 800.0
+    force: float = 400.0
+    robot_friction: float = 0.3
+    walls: bool = True
+    wall_thickness: float = 0.1
+    kp: float = 4.0
+    vmax: float = 0.8
+    press: float = 0.01
+    standoff: float = 0.01
+    horizon: int = 80
+    transit_speed: float = 0.5
+    alpha: float = 0.01
+    contact_tol: float = 0.01
+    move_tol: float = 0.01
+    tip_cos: float = 0.9
+    world_margin: float = 1.0
+    sleep: bool = True
+
+    def replace(self, **changes) -> "PushPhysicsConfig":
+        return dataclasses.replace(self, **changes)
+
+
+class PushWorld(NamedTuple):
+    """A compiled world. model: MjModel; scene: the PushScene it was built from; config;
+    mov_adr: i32[M] qpos address of each movable's free joint; mov_dof: i32[M] its dof address;
+    robot_adr: i32[N, 2] qpos addresses of each robot's x, y slides; robot_dof: i32[N, 2] dof addresses;
+    bounds: (lo f[3], hi f[3]) world box given to the Simulator (workspace + world_margin, z in [-1, 2]);
+    pieces_body: f[P, V, 2] every movable piece in its body frame (CCW, padded); piece_owner: i32[P];
+    fixed_verts: f[F, V2, 2] every fixed piece (world); xml: the MJCF text."""
+
+    model: mujoco.MjModel
+    scene: PushScene
+    config: PushPhysicsConfig
+    mov_adr: np.ndarray
+    mov_dof: np.ndarray
+    robot_adr: np.ndarray
+    robot_dof: np.ndarray
+    bounds: tuple
+    pieces_body: np.ndarray
+    piece_owner: np.ndarray
+    fixed_verts: np.ndarray
+    xml: str
+
+
+def yaw_quat(psi) -> np.ndarray:
+    """Quaternion (w, x, y, z) f[..., 4] of a rotation by ``psi`` [rad] about world z."""
+    psi = np.asarray(psi, np.float64)
+    return np.stack([np.cos(psi / 2), np.zeros_like(psi), np.zeros_like(psi), np.sin(psi / 2)], -1)
+
+
+def _ring(poly: Polygon) -> np.ndarray:
+    xy = np.asarray(poly.exterior.coords, np.float64)[:-1, :2]
+    x, y = xy[:, 0], xy[:, 1]
+    if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) < 0:
+        xy = xy[::-1]
+    return xy
+
+
+def _limit_sides(poly: Polygon) -> np.ndarray:
+    """CCW vertices of ``poly`` with at most MAX_PRISM_SIDES (simplified by a growing tolerance)."""
+    xy = _ring(poly)
+    tol = 1e-4 * math.sqrt(poly.area)
+    while len(xy) > MAX_PRISM_SIDES:
+        xy = _ring(shapely.simplify(poly, tol).convex_hull)
+        tol *= 2.0
+    return xy
+
+
+def _as_rectangle(xy: np.ndarray):
+    """``(centre f[2], half f[2], angle)`` when the CCW quad ``xy`` is a rectangle, else None."""
+    if len(xy) != 4:
+        return None
+    e = np.roll(xy, -1, axis=0) - xy
+    lens = np.linalg.norm(e, axis=1)
+    if np.any(lens <= 0):
+        return None
+    u = e / lens[:, None]
+    if np.any(np.abs(np.sum(u * np.roll(u, -1, axis=0), axis=1)) > _RECT_TOL):
+        return None
+    return xy.mean(0), 0.5 * lens[:2], math.atan2(e[0, 1], e[0, 0])
+
+
+def _f(v) -> str:
+    return " ".join(f"{float(x):.9g}" for x in np.atleast_1d(v))
+
+
+def _piece_xml(xy: np.ndarray, name: str, z0: float, z1: float, attrs: str, assets: list) -> str:
+    """One prism geom (box or mesh) over ``z0..z1`` for the CCW piece ``xy`` (frame of its body)."""
+    rect = _as_rectangle(xy)
+    zc, hz = 0.5 * (z0 + z1), 0.5 * (z1 - z0)
+    if rect is not None:
+        c, half, ang = rect
+        return (f'<geom name="{name}" type="box" pos="{_f(c)} {zc:.9g}" size="{_f(half)} {hz:.9g}" '
+                f'quat="{_f(yaw_quat(ang))}" {attrs}/>')
+    # Mesh vertices relative to the piece's centre, placed with the geom's pos: MuJoCo recentres a
+    # mesh on its own centre of mass, so vertices given around the origin keep the geom where we put it.
+    c = xy.mean(0)
+    rel = xy - c
+    verts = np.concatenate([np.c_[rel, np.full(len(rel), -hz)], np.c_[rel, np.full(len(rel), hz)]])
+    assets.append(f'<mesh name="{name}_m" vertex="{_f(verts.reshape(-1))}"/>')
+    return f'<geom name="{name}" type="mesh" mesh="{name}_m" pos="{_f(c)} {zc:.9g}" {attrs}/>'
+
+
+def _pack(rings: list) -> np.ndarray:
+    v = max((len(r) for r in rings), default=3)
+    out = np.zeros((len(rings), v, 2))
+    for i, r in enumerate(rings):
+        out[i, :len(r)], out[i, len(r):] = r, r[-1]
+    return out
+
+
+def _caps(n_mov_geoms: int, n_fixed_geoms: int, n_robots: int) -> dict:
+    """MJX contact caps: every movable piece's floor pair and up to 8 neighbour pairs per movable piece
+    or robot (the scene's geometry is sparse); 4 contact points per pair."""
+    g, r = n_mov_geoms, n_robots
+    all_pairs = g + g * (g - 1) // 2 + g * n_fixed_geoms + r * (g + n_fixed_geoms) + r * (r - 1) // 2
+    pairs = max(1, min(all_pairs, g + 8 * (g + r)))
+    return {"max_geom_pairs": int(pairs), "max_contact_points": int(4 * pairs)}
+
+
+def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) -> PushWorld:
+    """Compile the MuJoCo model of ``scene`` (module docstring). Raises ``ValueError`` for a scene
+    without movables or robots, or a non-positive ``config`` field."""
+    cfg = PushPhysicsConfig() if config is None else config
+    if not isinstance(scene, PushScene):
+        raise ValueError(f"scene: expected a PushScene; got {type(scene).__name__}.")
+    if not scene.movables:
+        raise ValueError("scene.movables: a push world needs at least one movable.")
+    robots = np.asarray(scene.robots, np.float64).reshape(-1, 2)
+    if len(robots) == 0:
+        raise ValueError("scene.robots: a push world needs at least one robot.")
+    for name in ("timestep", "height", "world_margin", "robot_mass", "kv", "force", "kp", "vmax", "wall_thickness",
+                 "transit_speed"):
+        if not getattr(cfg, name) > 0:
+            raise ValueError(f"config.{name}: must be > 0; got {getattr(cfg, name)!r}.")
+    for name, lo in (("substeps", 1), ("iterations", 1), ("ls_iterations", 1), ("horizon", 1)):
+        if int(getattr(cfg, name)) < lo:
+            raise ValueError(f"config.{name}: must be an int >= {lo}; got {getattr(cfg, name)!r}.")
+
+    h, r = cfg.height, float(scene.robot_radius)
+    x0, y0, x1, y1 = (float(v) for v in scene.workspace)
+    assets, statics, bodies, actuators = [], [], [], []
+    fixed_rings, body_rings, owner = [], [], []
+    n_mov_geoms = n_fixed_geoms = 0
+
+    fixed_attr = 'contype="4" conaffinity="0" rgba="0.35 0.35 0.4 1"'
+    for fi, f in enumerate(scene.fixed):
+        for pi, piece in enumerate(f.world_pieces()):
+            xy = _limit_sides(piece)
+            fixed_rings.append(_ring(piece))
+            statics.append(_piece_xml(xy, f"fixed{fi}_{pi}", 0.0, h, fixed_attr, assets))
+            n_fixed_geoms += 1
+    if cfg.walls:
+        t = cfg.wall_thickness
+        for k, (cx, cy, hx, hy) in enumerate((
+                (0.5 * (x0 + x1), y0 - t / 2, 0.5 * (x1 - x0) + t, t / 2),
+                (0.5 * (x0 + x1), y1 + t / 2, 0.5 * (x1 - x0) + t, t / 2),
+                (x0 - t / 2, 0.5 * (y0 + y1), t / 2, 0.5 * (y1 - y0)),
+                (x1 + t / 2, 0.5 * (y0 + y1), t / 2, 0.5 * (y1 - y0)))):
+            statics.append(f'<geom name="wall{k}" type="box" pos="{cx:.9g} {cy:.9g} {h / 2:.9g}" '
+                           f'size="{hx:.9g} {hy:.9g} {h / 2:.9g}" {fixed_attr}/>')
+            n_fixed_geoms += 1
+
+    for mi, m in enumerate(scene.movables):
+        geoms = []
+        attr = (f'contype="2" conaffinity="15" friction="{float(m.friction):.9g} 0.005 0.0001" '
+                f'rgba="0.85 0.55 0.2 1"')
+        for pi, piece in enumerate(m.pieces):
+            xy = _limit_sides(piece)
+            body_rings.append(_ring(piece))
+            owner.append(mi)
+            geoms.append(_piece_xml(xy, f"mov{mi}_{pi}", 0.0, h, attr, assets))
+            n_mov_geoms += 1
+        izz = float(m.inertia)
+        ixy = 0.5 * izz + float(m.mass) * h * h / 12.0
+        x, y, psi = (float(v) for v in m.pose)
+        bodies.append(
+            f'<body name="mov{mi}" pos="{x:.9g} {y:.9g} 0" quat="{_f(yaw_quat(psi))}">'
+            f'<freejoint name="mov{mi}"/>'
+            f'<inertial pos="0 0 {h / 2:.9g}" mass="{float(m.mass):.9g}" diaginertia="{ixy:.9g} {ixy:.9g} {izz:.9g}"/>'
+            + "".join(geoms) + "</body>")
+
+    for ri in range(len(robots)):
+        bodies.append(
+            f'<body name="robot{ri}" pos="0 0 {h / 2:.9g}">'
+            f'<joint name="robot{ri}_x" type="slide" axis="1 0 0"/>'
+            f'<joint name="robot{ri}_y" type="slide" axis="0 1 0"/>'
+            f'<geom name="robot{ri}" type="capsule" fromto="0 0 {-h / 4:.9g} 0 0 {h / 4:.9g}" size="{r:.9g}" '
+            f'mass="{cfg.robot_mass:.9g}" contype="8" conaffinity="12" '
+            f'friction="{cfg.robot_friction:.9g} 0.005 0.0001" rgba="0.2 0.45 0.85 1"/></body>')
+        for ax in "xy":
+            actuators.append(f'<velocity name="robot{ri}_{ax}" joint="robot{ri}_{ax}" kv="{cfg.kv:.9g}" '
+                             f'forcelimited="true" forcerange="{-cfg.force:.9g} {cfg.force:.9g}"/>')
+
+    caps = _caps(n_mov_geoms, n_fixed_geoms, len(robots))
+    span = max(x1 - x0, y1 - y0)
+    xml = f"""<mujoco model="pusharound">
+  <option timestep="{cfg.timestep:.9g}" integrator="implicitfast" iterations="{cfg.iterations}"
+          ls_iterations="{cfg.ls_iterations}" cone="pyramidal"/>
+  <custom>
+    <numeric name="max_contact_points" data="{caps['max_contact_points']}"/>
+    <numeric name="max_geom_pairs" data="{caps['max_geom_pairs']}"/>
+  </custom>
+  <asset>{''.join(assets)}</asset>
+  <worldbody>
+    <geom name="floor" type="plane" pos="{0.5 * (x0 + x1):.9g} {0.5 * (y0 + y1):.9g} 0"
+          size="{span:.9g} {span:.9g} 0.1" contype="1" conaffinity="0" friction="1 0.005 0.0001"/>
+    {''.join(statics)}
+    {''.join(bodies)}
+  </worldbody>
+  <actuator>{''.join(actuators)}</actuator>
+</mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    if cfg.sleep:
+        model.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+
+    def jadr(name, field):
+        return int(getattr(model, field)[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)])
+
+    n_mov, n_rob = len(scene.movables), len(robots)
+    mov_adr = np.array([jadr(f"mov{i}", "jnt_qposadr") for i in range(n_mov)], np.int32)
+    mov_dof = np.array([jadr(f"mov{i}", "jnt_dofadr") for i in range(n_mov)], np.int32)
+    robot_adr = np.array([[jadr(f"robot{i}_{a}", "jnt_qposadr") for a in "xy"] for i in range(n_rob)], np.int32)
+    robot_dof = np.array([[jadr(f"robot{i}_{a}", "jnt_dofadr") for a in "xy"] for i in range(n_rob)], np.int32)
+    e = cfg.world_margin
+    bounds = (np.array([x0 - e, y0 - e, -1.0]), np.array([x1 + e, y1 + e, 2.0]))
+    fixed_verts = _pack(fixed_rings) if fixed_rings else np.zeros((0, 3, 2))
+    return PushWorld(model, scene, cfg, mov_adr, mov_dof, robot_adr, robot_dof, bounds,
+                     _pack(body_rings), np.asarray(owner, np.int32), fixed_verts, xml)
+
+
+def initial_state(world: PushWorld, robot_xy=None, poses=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(qpos f[nq], qvel f[nv])`` with movables at ``poses f[M, 3]`` (default: the scene's) and robots
+    at ``robot_xy f[N, 2]`` (default: the scene's), everything at rest."""
+    m = world.model
+    qpos = np.zeros(m.nq)
+    poses = world.scene.poses if poses is None else np.asarray(poses, np.float64)
+    robot_xy = np.asarray(world.scene.robots if robot_xy is None else robot_xy, np.float64)
+    if poses.shape != (len(world.mov_adr), 3):
+        raise ValueError(f"poses: expected shape [{len(world.mov_adr)}, 3]; got {poses.shape}.")
+    if robot_xy.shape != world.robot_adr.shape:
+        raise ValueError(f"robot_xy: expected shape {list(world.robot_adr.shape)}; got {robot_xy.shape}.")
+    for a, (x, y, psi) in zip(world.mov_adr, poses):
+        qpos[a:a + 3] = x, y, 0.0
+        qpos[a + 3:a + 7] = yaw_quat(psi)
+    qpos[world.robot_adr.reshape(-1)] = robot_xy.reshape(-1)
+    return qpos, np.zeros(m.nv)
+
+
+def movable_poses(world: PushWorld, qpos) -> tuple[np.ndarray, np.ndarray]:
+    """From ``qpos f[..., nq]``: planar poses ``f[..., M, 3]`` (x, y, yaw) of the movables and the
+    z component of each body's z axis ``f[..., M]`` (1 upright, < tip_cos tipped)."""
+    qpos = np.asarray(qpos)
+    idx = world.mov_adr[:, None] + np.arange(7)[None, :]
+    q = qpos[..., idx]                                          # [..., M, 7]
+    w, x, y, z = q[..., 3], q[..., 4], q[..., 5], q[..., 6]
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    upright = 1 - 2 * (x * x + y * y)
+    return np.stack([q[..., 0], q[..., 1], yaw], -1), upright
