@@ -356,8 +356,12 @@ def to_markdown(r):
                      f"{'C engine' if be == 'c' else 'MJX'} | {e['cold_s']:.1f} | {e['warm_median_s']:.2f} "
                      f"| {e['compile_overhead_s']:.1f} | {e['route_steps_per_s']:,.0f} "
                      f"| {t['c_over_mjx']:.1f} |")
-    L += ["", "The throughput horizons are slices (routes not finished: delivered 0 on both engines; mean lateral "
-          "errors agree to < 0.001 cell, see `agreement` in the JSON). The C engine's cost per step follows "
+    agree = "; ".join(
+        f"{t['label']}: delivered C {t['agreement']['delivered']['c']} vs MJX {t['agreement']['delivered']['mjx']}, "
+        "largest mean-lateral-error difference "
+        f"{max(abs(a - b) for a, b in zip(t['agreement']['mean_lateral']['c'], t['agreement']['mean_lateral']['mjx'])):.4f} cell"
+        for t in r["throughput"])
+    L += ["", f"The throughput horizons are slices of the routes ({agree}). The C engine's cost per step follows "
           "the contacts actually active (C-engine route-steps/s: " + ", ".join(
               f"{t['label']} {t['engines']['c']['route_steps_per_s']:,.0f}" for t in r["throughput"]) +
           "; whole routes: " + ", ".join(f"{k} {v['route_steps_per_s']:,.0f}" for k, v in r["physics_runs"].items()) +
