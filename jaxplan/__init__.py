@@ -13,7 +13,7 @@ from jaxplan.execute import Push, Route
 from jaxplan.fabric import Fabric, Paths, Table, build_fabric, extract_paths
 from jaxplan.params import FabricParams
 from jaxplan.pusharound import PushScene, RankingParams, build_wccg, connectivity, nominal_scene, rank_gaps
-from jaxplan.rebuild import Affected, selective_rebuild
+from jaxplan.rebuild import Affected, refresh_connectors, selective_rebuild
 from jaxplan.scene import BUILTIN_SCENES, DEFAULT_SCENE, Scene, box, builtin_scene, circle
 from jaxplan.selection import Selection, select_routes
 from jaxplan.spillage import SpillParams
@@ -25,7 +25,7 @@ __all__ = [
     "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "Route", "Scene", "Selection",
     "SiteParams", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
     "circle", "connectivity", "extract_paths", "nominal_scene", "paper_scenario", "plan_connectors",
-    "random_sites", "rank_gaps", "run_episode", "run_sites", "select_routes", "selective_rebuild",
+    "random_sites", "rank_gaps", "refresh_connectors", "run_episode", "run_sites", "select_routes", "selective_rebuild",
     "simulate_site",
 ]
 __version__ = "0.1.0"

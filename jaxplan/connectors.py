@@ -95,28 +95,47 @@ def _toward(centers, anchor_flat):
     return _norm_and_unit(centers.reshape(-1, 2)[jnp.maximum(anchor_flat, 0)] - centers)
 
 
-def _connector_table(scene, fabric: Fabric, params: FabricParams, anchor_flat, centers):
-    h, w = fabric.occupied.shape
+def anchor_frame(centers, anchor_flat):
+    """The goal mask ``bool[H, W]``, distance ``f32[H, W]`` and unit direction ``f32[H, W, 2]`` of the
+    connector problem toward one anchor (flat index)."""
+    h, w = centers.shape[:2]
     goal = (jnp.arange(h * w) == anchor_flat).reshape(h, w)
     dist, unit = _toward(centers, anchor_flat)
+    return goal, dist, unit
+
+
+def _connector_table(scene, fabric: Fabric, params: FabricParams, anchor_flat, centers):
+    h, w = fabric.occupied.shape
+    goal, dist, unit = anchor_frame(centers, anchor_flat)
     table, _, _, _ = continuation_dp(
         scene.obj, fabric.occupied & ~goal, goal, dist, unit, params.theta_tol_deg, scene.cell_size,
         monotone=params.monotone, k=1, max_hops=params.resolved_max_hops((h, w)))
     return table
 
 
+def slot_anchors(anchor_flat, max_anchors: int):
+    """``i32[A]``: the distinct anchors of ``anchor_flat`` (sorted), -1 in unused slots."""
+    anchors = jnp.unique(anchor_flat, size=max_anchors + 1, fill_value=-1)
+    # unique() sorts, so a -1 (cells without anchor) comes first: drop it and keep max_anchors slots.
+    anchors = jnp.where(anchors[0] < 0, anchors[1:], anchors[:-1])
+    return jnp.where((anchors >= 0) & (jnp.arange(max_anchors) < jnp.sum(anchors >= 0)), anchors, -1)
+
+
 def _plan(scene, params: FabricParams, fabric: Fabric, max_anchors: int) -> Connectors:
     h, w = fabric.occupied.shape
     centers = _grid.cell_centers((h, w), scene.cell_size, scene.origin)
     anchor_flat = choose_anchors(fabric.heat, fabric.highways, fabric.occupied, centers, params.anchor_lambda)
-    anchors = jnp.unique(anchor_flat, size=max_anchors + 1, fill_value=-1)
-    # unique() sorts, so a -1 (cells without anchor) comes first: drop it and keep max_anchors slots.
-    anchors = jnp.where(anchors[0] < 0, anchors[1:], anchors[:-1])
-    anchors = jnp.where((anchors >= 0) & (jnp.arange(max_anchors) < jnp.sum(anchors >= 0)), anchors, -1)
+    anchors = slot_anchors(anchor_flat, max_anchors)
     # vmapped over distinct anchors, a few at a time so memory stays bounded on large grids
     tables = jax.lax.map(lambda a: _connector_table(scene, fabric, params, a, centers), anchors,
                          batch_size=min(_ANCHOR_BATCH, max_anchors))
+    return assemble(scene, fabric, anchor_flat, anchors, tables)
 
+
+def assemble(scene, fabric: Fabric, anchor_flat, anchors, tables: Table) -> Connectors:
+    """``Connectors`` from every root's anchor (flat, -1 none), the slot anchors and their tables."""
+    h, w = fabric.occupied.shape
+    centers = _grid.cell_centers((h, w), scene.cell_size, scene.origin)
     match = (anchor_flat[None] == anchors[:, None, None]) & (anchors[:, None, None] >= 0)
     slot = jnp.where(jnp.any(match, 0), jnp.argmax(match, 0), -1).astype(jnp.int32)
     has = slot >= 0

@@ -29,7 +29,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan import _grid, _kbest, visibility
+from jaxplan import _grid, _kbest, connectors, visibility
+from jaxplan.connectors import Connectors
 from jaxplan.fabric import Fabric, Table, _build, continuation_dp, derive
 from jaxplan.params import FabricParams
 
@@ -255,6 +256,65 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
     graph, dirty, n_dirty = _dirty_jit(scene, params, fabric, changed)
     fitting = [c for c in capacity_buckets(capacity) if c >= int(n_dirty)]
     return _finish_jit(scene, params, fabric, changed, graph, dirty, n_dirty, fitting[0] if fitting else None)
+
+
+# ----------------------------------------------------------------------------------- connectors
+
+def _refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_occupied, old: Connectors, changed,
+                        capacity: int):
+    h, w = scene.shape
+    max_hops = params.resolved_max_hops((h, w))
+    centers = _grid.cell_centers((h, w), scene.cell_size, scene.origin)
+    anchor_flat = connectors.choose_anchors(fabric.heat, fabric.highways, fabric.occupied, centers,
+                                            params.anchor_lambda)
+    anchors = connectors.slot_anchors(anchor_flat, old.anchors.shape[0])
+
+    def one(anchor):
+        # an anchor planned before keeps its table except where the push can reach it (the same
+        # upstream-closure argument as for the target fabric, in the anchor's own graph)
+        match = (old.anchors == anchor) & (anchor >= 0)
+        old_table = jax.tree.map(lambda t: t[jnp.argmax(match)], old.tables)
+        goal, dist, unit = connectors.anchor_frame(centers, jnp.maximum(anchor, 0))
+        graph = visibility.successor_graph(scene.obj, fabric.occupied & ~goal, goal, dist, unit,
+                                           params.theta_tol_deg, scene.cell_size, params.monotone)
+        old_feasible = visibility.feasible_successors(old_occupied & ~goal, goal, dist, unit, params.theta_tol_deg,
+                                                      params.monotone, scene.cell_size)
+        dirty = upstream_closure(changed, old_feasible, graph.feasible)
+        reuse = jnp.any(match) & (jnp.sum(dirty) <= capacity)
+
+        def selective(_):
+            return _compact_dp(graph, old_table, dirty, capacity, scene.cell_size, max_hops)[0]
+
+        def fresh(_):
+            return connectors.connector_table(scene, fabric, params, jnp.maximum(anchor, 0))
+
+        return jax.lax.cond(reuse, selective, fresh, None), reuse
+
+    # lax.map without batching, so that lax.cond runs one branch per anchor
+    tables, reused = jax.lax.map(one, anchors)
+    return connectors.assemble(scene, fabric, anchor_flat, anchors, tables), reused
+
+
+_refresh_connectors_jit = jax.jit(_refresh_connectors, static_argnums=6)
+
+
+def refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_fabric: Fabric, old: Connectors, changed,
+                       *, capacity: int = 256):
+    """Connectors after a push, replanning only what can change (Algorithm 5, step 14).
+
+    scene, fabric: after the push (``selective_rebuild``'s output); old_fabric, old: before it;
+    changed: bool[H, W], A_exec. Anchors (Eq. 12) are re-chosen over the new heatmap. An anchor that
+    was planned before keeps its connector table, updated on the cells that can reach a changed cell
+    in its graph (compact recursion, buffer ``capacity``); a new anchor, or one whose dirty set
+    overflows, is planned from scratch. Returns ``(Connectors, reused: bool[A])``; the connectors
+    equal ``plan_connectors(scene, params, fabric)`` with the same ``max_anchors`` (lengths up to
+    rounding). Monotone rule only (raises otherwise).
+    """
+    if not params.monotone:
+        raise ValueError("refresh_connectors: needs FabricParams.monotone=True (an acyclic connector graph); "
+                         "call plan_connectors instead.")
+    return _refresh_connectors_jit(scene, params, fabric, old_fabric.occupied, old, jnp.asarray(changed, bool),
+                                   int(capacity))
 
 
 def paper_sets(scene, changed, theta_tol_deg, *, block_rows: int = 8):

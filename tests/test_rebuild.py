@@ -134,3 +134,28 @@ def test_inside_jit_the_switch_program_gives_the_same_fabric(pushed):
     assert_same_fabric(traced, host)
     assert int(traced_affected.n_dirty) == int(host_affected.n_dirty)
     assert bool(traced_affected.full) == bool(host_affected.full)
+
+
+def test_refreshed_connectors_equal_planning_from_scratch(pushed):
+    from jaxplan import plan_connectors
+
+    _, params, _, _ = pushed
+    before = builtin_scene().with_obj(ex.quantize(builtin_scene().obj))
+    fabric = build_fabric(before, params)
+    # a small push (the source whose route collects least), so that most anchors survive it
+    value = np.where(np.asarray(fabric.occupied), np.asarray(fabric.value), np.inf)
+    source = tuple(int(v) for v in np.unravel_index(int(np.argmin(value)), value.shape))
+    new_obj, push = _push(before, fabric, source, 0, sp.SpillParams(lam=0.0))
+    scene = before.with_obj(new_obj)
+    rebuilt, _ = rb.selective_rebuild(scene, params, fabric, push.changed)
+    old = plan_connectors(before, params, fabric, max_anchors=16)
+    refreshed, reused = rb.refresh_connectors(scene, params, rebuilt, fabric, old, push.changed)
+    want = plan_connectors(scene, params, rebuilt, max_anchors=16)
+    for name in want._fields:
+        for a, b in zip(jax.tree.leaves(getattr(refreshed, name)), jax.tree.leaves(getattr(want, name))):
+            a, b = np.asarray(a), np.asarray(b)
+            if np.issubdtype(a.dtype, np.floating):
+                np.testing.assert_allclose(a, b, rtol=1e-6, err_msg=name)
+            else:
+                np.testing.assert_array_equal(a, b, err_msg=name)
+    assert bool(jnp.any(reused))   # some anchors survived the push and were updated, not replanned

@@ -29,7 +29,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import shapely
-from shapely import affinity
 from shapely.geometry import LineString, Point
 
 from jaxplan.physics.rollout import Simulator
