@@ -43,28 +43,49 @@ class Connectors(NamedTuple):
     tables: Table
 
 
-def choose_anchors(heat, highways, occupied, centers, anchor_lambda, *, block_rows: int = 8):
+def choose_anchors(heat, highways, occupied, centers, anchor_lambda, *, block_rows: int = 8,
+                   max_candidates: int | None = None):
     """``i32[H, W]`` flat index of ``h*(R)`` for every cell (-1 for non-roots or no candidate).
 
     heat: f32[H, W] objects; highways, occupied: bool[H, W]; centers: f32[H, W, 2] world units;
     anchor_lambda: f32[] heat per world unit. Every root is scored against every candidate (Eq. 12),
-    ``block_rows`` grid rows of roots at a time to bound memory at ``block_rows * W * H * W`` floats.
+    ``block_rows`` grid rows of roots at a time. max_candidates (static): the candidates are first
+    gathered into a list of this size (in row-major order, so ties still go to the lowest index);
+    it must be at least their number (``candidate_count``). None = H * W, always enough.
     """
     h, w = heat.shape
     candidate = (highways & occupied).reshape(-1)
-    flat_heat = heat.reshape(-1)
-    flat_centers = centers.reshape(-1, 2)
+    size = h * w if max_candidates is None else int(max_candidates)
+    index = jnp.nonzero(candidate, size=size, fill_value=h * w)[0]
+    valid = index < h * w
+    safe = jnp.minimum(index, h * w - 1)
+    cand_heat = jnp.where(valid, heat.reshape(-1)[safe], -jnp.inf)
+    cand_centers = centers.reshape(-1, 2)[safe]
     pad = (-h) % block_rows
     blocks = jnp.pad(centers, ((0, pad), (0, 0), (0, 0))).reshape(-1, block_rows * w, 2)
 
     def best(block):
-        d = jnp.linalg.norm(block[:, None, :] - flat_centers[None], axis=-1)
-        score = jnp.where(candidate[None], flat_heat[None] - anchor_lambda * d, -jnp.inf)
-        return jnp.argmax(score, axis=1).astype(jnp.int32)   # first max: lowest row-major index
+        d = jnp.linalg.norm(block[:, None, :] - cand_centers[None], axis=-1)
+        score = jnp.where(valid[None], cand_heat[None] - anchor_lambda * d, -jnp.inf)
+        return safe[jnp.argmax(score, axis=1)].astype(jnp.int32)   # first max: lowest row-major index
 
     anchor = jax.lax.map(best, blocks).reshape(-1)[: h * w].reshape(h, w)
     roots = occupied & ~highways
     return jnp.where(roots & jnp.any(candidate), anchor, -1)
+
+
+def candidate_count(fabric: Fabric) -> int:
+    """Number of anchor candidates (occupied highway cells), read on the host."""
+    return int(jnp.sum(fabric.highways & fabric.occupied))
+
+
+def candidate_buffer(fabric: Fabric) -> int | None:
+    """A static ``max_candidates`` for ``choose_anchors``: the next power of two (>= 64) above the
+    candidate count, so that a few sizes cover every call; None (all cells) under tracing."""
+    if isinstance(fabric.highways, jax.core.Tracer):
+        return None
+    h, w = fabric.highways.shape
+    return min(h * w, max(64, 1 << max(0, candidate_count(fabric) - 1).bit_length()))
 
 
 def anchor_for(heat, highways, occupied, centers, anchor_lambda, root):
@@ -121,10 +142,11 @@ def slot_anchors(anchor_flat, max_anchors: int):
     return jnp.where((anchors >= 0) & (jnp.arange(max_anchors) < jnp.sum(anchors >= 0)), anchors, -1)
 
 
-def _plan(scene, params: FabricParams, fabric: Fabric, max_anchors: int) -> Connectors:
+def _plan(scene, params: FabricParams, fabric: Fabric, max_anchors: int, max_candidates: int | None = None) -> Connectors:
     h, w = fabric.occupied.shape
     centers = _grid.cell_centers((h, w), scene.cell_size, scene.origin)
-    anchor_flat = choose_anchors(fabric.heat, fabric.highways, fabric.occupied, centers, params.anchor_lambda)
+    anchor_flat = choose_anchors(fabric.heat, fabric.highways, fabric.occupied, centers, params.anchor_lambda,
+                                 max_candidates=max_candidates)
     anchors = slot_anchors(anchor_flat, max_anchors)
     # vmapped over distinct anchors, a few at a time so memory stays bounded on large grids
     tables = jax.lax.map(lambda a: _connector_table(scene, fabric, params, a, centers), anchors,
@@ -161,7 +183,7 @@ def assemble(scene, fabric: Fabric, anchor_flat, anchors, tables: Table) -> Conn
                       via_raw, via_len, has, truncated, anchors, slot, tables)
 
 
-_plan_jit = jax.jit(_plan, static_argnums=3)
+_plan_jit = jax.jit(_plan, static_argnums=(3, 4))
 
 
 def plan_connectors(scene, params: FabricParams | None, fabric: Fabric, *, max_anchors: int = 32) -> Connectors:
@@ -175,4 +197,4 @@ def plan_connectors(scene, params: FabricParams | None, fabric: Fabric, *, max_a
         validate_params(params)
     if not isinstance(max_anchors, int) or max_anchors < 1:
         raise ValueError(f"max_anchors: must be an int >= 1; got {max_anchors!r}.")
-    return _plan_jit(scene, params, fabric, max_anchors)
+    return _plan_jit(scene, params, fabric, max_anchors, candidate_buffer(fabric))

@@ -261,12 +261,12 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
 # ----------------------------------------------------------------------------------- connectors
 
 def _refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_occupied, old: Connectors, changed,
-                        capacity: int):
+                        capacity: int, max_candidates: int | None = None):
     h, w = scene.shape
     max_hops = params.resolved_max_hops((h, w))
     centers = _grid.cell_centers((h, w), scene.cell_size, scene.origin)
     anchor_flat = connectors.choose_anchors(fabric.heat, fabric.highways, fabric.occupied, centers,
-                                            params.anchor_lambda)
+                                            params.anchor_lambda, max_candidates=max_candidates)
     anchors = connectors.slot_anchors(anchor_flat, old.anchors.shape[0])
 
     def one(anchor):
@@ -295,7 +295,7 @@ def _refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_occupie
     return connectors.assemble(scene, fabric, anchor_flat, anchors, tables), reused
 
 
-_refresh_connectors_jit = jax.jit(_refresh_connectors, static_argnums=6)
+_refresh_connectors_jit = jax.jit(_refresh_connectors, static_argnums=(6, 7))
 
 
 def refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_fabric: Fabric, old: Connectors, changed,
@@ -314,7 +314,7 @@ def refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_fabric: 
         raise ValueError("refresh_connectors: needs FabricParams.monotone=True (an acyclic connector graph); "
                          "call plan_connectors instead.")
     return _refresh_connectors_jit(scene, params, fabric, old_fabric.occupied, old, jnp.asarray(changed, bool),
-                                   int(capacity))
+                                   int(capacity), connectors.candidate_buffer(fabric))
 
 
 def paper_sets(scene, changed, theta_tol_deg, *, block_rows: int = 8):

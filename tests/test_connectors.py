@@ -52,3 +52,17 @@ def test_roots_are_occupied_non_highway_cells():
     assert np.all(np.asarray(fab.occupied)[has]) and not np.any(np.asarray(fab.highways)[has])
     anchors = np.asarray(conn.anchor)[has]
     assert np.all(np.asarray(fab.highways)[anchors[:, 0], anchors[:, 1]])
+
+
+def test_candidate_buffer_gives_the_same_anchors_as_scoring_every_cell():
+    from jaxplan import _grid
+    from jaxplan import connectors as conn
+
+    scene = builtin_scene("sparse65")
+    fabric = build_fabric(scene, FabricParams())
+    centers = _grid.cell_centers(scene.shape, scene.cell_size, scene.origin)
+    args = (fabric.heat, fabric.highways, fabric.occupied, centers, 1.0)
+    size = conn.candidate_buffer(fabric)
+    assert conn.candidate_count(fabric) <= size < scene.shape[0] * scene.shape[1]
+    np.testing.assert_array_equal(np.asarray(conn.choose_anchors(*args, max_candidates=size)),
+                                  np.asarray(conn.choose_anchors(*args)))
