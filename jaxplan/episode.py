@@ -284,6 +284,11 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
                 break
             plan, plan_ms = _timed(lambda: _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap,
                                                           evaluator=evaluator))
+            if not bool(plan.complete) and cap < scene.shape[0] * scene.shape[1] + 1:
+                # a route longer than the usual walk cap: walk again with room for any simple path
+                cap = scene.shape[0] * scene.shape[1] + 1
+                plan, plan_ms = _timed(lambda: _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap,
+                                                              evaluator=evaluator))
             if not bool(plan.has_source):
                 stop_reason, message = "done", "no occupied cell left outside the target"
                 break
