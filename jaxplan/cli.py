@@ -106,11 +106,9 @@ def _atomic_write(path: Path, write) -> None:
 
 def _timed(fn, *args):
     """``(result, milliseconds)`` of one call, waiting for every output array."""
-    import jax
+    from jaxplan._timing import timed
 
-    start = time.perf_counter()
-    out = jax.block_until_ready(fn(*args))
-    return out, (time.perf_counter() - start) * 1e3
+    return timed(fn, *args)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -523,12 +521,21 @@ def _wrap(text: str) -> str:
     return textwrap.fill(" ".join(text.split()), width=79)
 
 
-def _add_episode_options(p) -> None:
+def _add_theta_option(p) -> None:
+    p.add_argument("--theta-tol", type=_angle, default=60.0, metavar="DEG",
+                   help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); default 60")
+
+
+def _add_spill_options(p) -> None:
     p.add_argument("--lam", type=float, default=0.05, metavar="X",
                    help="spill model lambda: fraction of the load spilled per radian of turning, >= 0; "
                         "default 0.05 (0 = no spillage)")
     p.add_argument("--spill-threshold", type=float, default=1e-3, metavar="OBJ",
                    help="per-sample spills below this many objects are ignored, >= 0; default 0.001")
+
+
+def _add_episode_options(p) -> None:
+    _add_spill_options(p)
     p.add_argument("--max-pushes", type=int, default=200, metavar="N",
                    help="push budget, >= 0; default 200")
     p.add_argument("--rearrange-margin", type=float, default=0.1, metavar="X",
@@ -568,9 +575,7 @@ def _build_parser() -> argparse.ArgumentParser:
         epilog="example:\n  jaxplan fabric --scene default --theta-tol 45 --out out/fabric.npz\n"
                "  python -c \"import numpy as np; print(np.load('out/fabric.npz')['value'].max())\"")
     p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help)
-    p.add_argument("--theta-tol", type=_angle, default=60.0, metavar="DEG",
-                   help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); "
-                        "default 60")
+    _add_theta_option(p)
     p.add_argument("--tau-h", type=float, default=0.5, metavar="X",
                    help="highway threshold (Eq. 11), a fraction of max heat; default 0.5")
     p.add_argument("--k", type=int, default=4, metavar="K",
@@ -596,9 +601,7 @@ def _build_parser() -> argparse.ArgumentParser:
                    help=scene_help + f"; default {DEFAULT_SCENE!r}")
     p.add_argument("--out", default="out/demo", metavar="DIR",
                    help="output directory (created if missing); default out/demo")
-    p.add_argument("--theta-tol", type=_angle, default=60.0, metavar="DEG",
-                   help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); "
-                        "default 60")
+    _add_theta_option(p)
     _add_episode_options(p)
     p.set_defaults(func=_cmd_demo)
 
@@ -620,9 +623,7 @@ def _build_parser() -> argparse.ArgumentParser:
                "  jaxplan episode --scene my_site.json --lam 0.1 --max-pushes 50 --out out/site")
     p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help)
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
-    p.add_argument("--theta-tol", type=_angle, default=60.0, metavar="DEG",
-                   help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); "
-                        "default 60")
+    _add_theta_option(p)
     _add_episode_options(p)
     p.set_defaults(func=_cmd_episode)
 
@@ -677,12 +678,8 @@ def _build_parser() -> argparse.ArgumentParser:
                         "(mjx with a GPU, else c); default auto")
     p.add_argument("--speed", type=float, default=0.8, metavar="CELLS_PER_S",
                    help="blade speed along the route, cells/s > 0; default 0.8")
-    p.add_argument("--theta-tol", type=_angle, default=60.0, metavar="DEG",
-                   help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); default 60")
-    p.add_argument("--lam", type=float, default=0.05, metavar="X",
-                   help="2D spill model lambda for the prediction, >= 0; default 0.05")
-    p.add_argument("--spill-threshold", type=float, default=1e-3, metavar="OBJ",
-                   help="2D spill threshold, >= 0; default 0.001")
+    _add_theta_option(p)
+    _add_spill_options(p)
     p.add_argument("--no-render", action="store_true", help="skip the rendered frames")
     p.set_defaults(func=_cmd_rover)
 

@@ -20,7 +20,6 @@ when ``max_pushes`` pushes are spent, or when the chosen source has no complete 
 from __future__ import annotations
 
 import dataclasses
-import time
 from typing import Any, Callable, NamedTuple
 
 import jax
@@ -28,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan import _grid, connectors, execute, rebuild, selection, spillage
+from jaxplan._timing import timed
 from jaxplan.fabric import Fabric, _walk, build_fabric
 from jaxplan.params import FabricParams, validate_params
 
@@ -234,12 +234,6 @@ def _walk_cap(shape) -> int:
     return min(h * w + 1, 4 * (h + w))
 
 
-def _timed(fn):
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    return out, (time.perf_counter() - t0) * 1e3
-
-
 def run_episode(scene, params: FabricParams | None = None, spill: spillage.SpillParams | None = None,
                 episode: EpisodeParams | None = None, *, record: bool = False, progress: bool = False,
                 evaluator: spillage.Evaluator = spillage.curvature_spill,
@@ -262,15 +256,16 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     initial_remaining = _outside_mass(scene)
     stop_at = float(ep.stop_fraction) * initial_remaining
     fabric = build_fabric(scene, params)
-    rover = np.asarray(jnp.mean(scene.cell_centers()[scene.target_mask], axis=0), np.float64)
+    centres = np.asarray(scene.cell_centers(), np.float64)
+    rover = centres[np.asarray(scene.target_mask)].mean(axis=0)
     cap = _walk_cap(scene.shape)
     rows: list[dict] = []
     frames: list[dict] = []
     stop_reason, message = "budget", f"push budget of {ep.max_pushes} spent"
     bar = _progress(ep.max_pushes, progress)
     try:
+        remaining = initial_remaining
         for t in range(ep.max_pushes + 1):
-            remaining = _outside_mass(scene)
             if initial_remaining <= 0:
                 stop_reason, message = "no_material", "the scene has no material outside the target: nothing to push"
                 break
@@ -282,12 +277,12 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
                 if ep.max_pushes == 0:
                     message = "the push budget is 0 (EpisodeParams.max_pushes): nothing was pushed"
                 break
-            plan, plan_ms = _timed(lambda: _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap,
+            plan, plan_ms = timed(lambda: _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap,
                                                           evaluator=evaluator))
             if not bool(plan.complete) and cap < scene.shape[0] * scene.shape[1] + 1:
                 # a route longer than the usual walk cap: walk again with room for any simple path
                 cap = scene.shape[0] * scene.shape[1] + 1
-                plan, plan_ms = _timed(lambda: _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap,
+                plan, plan_ms = timed(lambda: _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap,
                                                               evaluator=evaluator))
             if not bool(plan.has_source):
                 stop_reason, message = "done", "no occupied cell left outside the target"
@@ -296,24 +291,24 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
                 stop_reason, message = "no_route", (f"no complete route from cell {tuple(np.asarray(plan.source))} "
                                                     "to the target (raise FabricParams.max_hops or use monotone=True)")
                 break
-            (new_obj, push), execute_ms = _timed(lambda: execute.execute_jit(scene, plan.route, spill, evaluator))
+            (new_obj, push), execute_ms = timed(lambda: execute.execute_jit(scene, plan.route, spill, evaluator))
             before = fabric
             scene = scene.with_obj(new_obj)
             if ep.rebuild == "selective":
-                (fabric, affected), rebuild_ms = _timed(lambda: rebuild.selective_rebuild(scene, params, fabric,
+                (fabric, affected), rebuild_ms = timed(lambda: rebuild.selective_rebuild(scene, params, fabric,
                                                                                             push.changed))
                 dirty, full = int(affected.n_dirty), bool(affected.full)
             else:
-                fabric, rebuild_ms = _timed(lambda: _rebuild_full_jit(scene, params))
+                fabric, rebuild_ms = timed(lambda: _rebuild_full_jit(scene, params))
                 dirty, full = scene.shape[0] * scene.shape[1], True
-            start = np.asarray(scene.cell_centers()[plan.route.cells[0, 0], plan.route.cells[0, 1]], np.float64)
-            approach = float(np.linalg.norm(start - rover))
+            remaining = _outside_mass(scene)
+            approach = float(np.linalg.norm(centres[tuple(np.asarray(plan.source))] - rover))   # routes start at the source
             rover = np.asarray(plan.route.end, np.float64)
             row = dict(collected=float(push.collected), push_delivered=float(push.delivered),
                        push_spilled=float(push.spilled), mode=int(plan.mode), source=np.asarray(plan.source),
                        route_length=float(push.length), approach=approach, plan_ms=plan_ms,
                        rebuild_ms=rebuild_ms, execute_ms=execute_ms, dirty=dirty, full_rebuild=full,
-                       remaining=_outside_mass(scene))
+                       remaining=remaining)
             rows.append(row)
             if record:
                 frames.append(_frame(before, plan, push))
@@ -350,17 +345,7 @@ def _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, messag
         message=message, final_obj=np.asarray(scene.obj), frames=frames)
 
 
-class _NoBar:
-    def update(self, n):
-        pass
-
-    def close(self):
-        pass
-
-
 def _progress(total: int, enabled: bool):
-    if not enabled:
-        return _NoBar()
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc="pushes", unit="push", leave=False)
+    return tqdm(total=total, desc="pushes", unit="push", leave=False, disable=not enabled)

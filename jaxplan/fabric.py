@@ -189,14 +189,18 @@ def derive(scene, params: FabricParams, table: Table, feasible, rounds, converge
                   jnp.moveaxis(feasible, 0, -1), table, psi, heat, highways, rounds, converged)
 
 
-def _build(scene, params: FabricParams) -> Fabric:
+def full_table(scene, params: FabricParams):
+    """The continuation table of ``scene`` toward its target: ``(table, feasible[8,H,W], rounds, converged)``."""
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
-    table, feasible, rounds, converged = continuation_dp(
+    return continuation_dp(
         obj, ~target & (obj > 0), target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
         monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape),
         solver=params.solver)
-    return derive(scene, params, table, feasible, rounds, converged)
+
+
+def _build(scene, params: FabricParams) -> Fabric:
+    return derive(scene, params, *full_table(scene, params))
 
 
 _build_jit = jax.jit(_build)

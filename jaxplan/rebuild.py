@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from jaxplan import _grid, _kbest, connectors, visibility
 from jaxplan.connectors import Connectors
-from jaxplan.fabric import Fabric, Table, _build, continuation_dp, derive
+from jaxplan.fabric import Fabric, Table, _build, derive, full_table
 from jaxplan.params import FabricParams
 
 
@@ -76,13 +76,9 @@ def upstream_closure(seed, feasible_old, feasible_new):
 
 def _flat_neighbours(h: int, w: int):
     """``i32[H*W, 8]`` flat index of each neighbour, ``H*W`` (the sink row) off the grid."""
-    rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
-    out = []
-    for dr, dc in _grid.DIRS:
-        r, c = rows + dr, cols + dc
-        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-        out.append(jnp.where(inside, r * w + c, h * w).reshape(-1))
-    return jnp.stack(out, -1).astype(jnp.int32)
+    rc = _grid.neighbour_index(jnp.broadcast_to(jnp.arange(_grid.N_DIRS), (h, w, _grid.N_DIRS)))
+    inside = jnp.moveaxis(jnp.asarray(_grid.in_grid((h, w))), 0, -1)
+    return jnp.where(inside, rc[..., 0] * w + rc[..., 1], h * w).reshape(h * w, _grid.N_DIRS).astype(jnp.int32)
 
 
 def _compact_dp(graph: visibility.SuccessorGraph, table: Table, dirty, capacity: int, cell_size,
@@ -156,24 +152,16 @@ def _graph_and_dirty(scene, params: FabricParams, fabric: Fabric, changed):
     return graph, dirty, jnp.sum(dirty, dtype=jnp.int32)
 
 
-def _full_table(scene, params: FabricParams):
-    obj = jnp.asarray(scene.obj, jnp.float32)
-    target = jnp.asarray(scene.target_mask, bool)
-    table, _, rounds, _ = continuation_dp(
-        obj, ~target & (obj > 0), target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
-        monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape), solver=params.solver)
-    return table, rounds
-
-
 def _finish(scene, params, fabric, changed, graph, dirty, n_dirty, capacity: int | None):
     """Steps 2-3: the compact recursion (or, with ``capacity=None``, the full table), then the
     global refresh."""
     max_hops = params.resolved_max_hops(scene.shape)
     if capacity is None:
-        table, rounds = _full_table(scene, params)
+        table, _, rounds, converged = full_table(scene, params)
     else:
         table, rounds = _compact_dp(graph, fabric.table, dirty, capacity, scene.cell_size, max_hops)
-    rebuilt = derive(scene, params, table, graph.feasible, rounds, rounds < max_hops)
+        converged = rounds < max_hops
+    rebuilt = derive(scene, params, table, graph.feasible, rounds, converged)
     return rebuilt, Affected(changed, dirty, n_dirty, rounds, jnp.bool_(capacity is None))
 
 
@@ -190,8 +178,11 @@ def _selective_switch(scene, params: FabricParams, fabric: Fabric, changed, capa
     fits = jnp.asarray(buckets) >= n_dirty
     branch = jnp.where(jnp.any(fits), jnp.argmax(fits), len(buckets))
     # only the table goes through the switch; the global refresh runs once, after it
-    table, rounds = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [lambda _: _full_table(scene, params)],
-                                   None)
+    def full(_):
+        table, _, rounds, _ = full_table(scene, params)
+        return table, rounds
+
+    table, rounds = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [full], None)
     rebuilt = derive(scene, params, table, graph.feasible, rounds, rounds < max_hops)
     return rebuilt, Affected(changed, dirty, n_dirty, rounds, branch == len(buckets))
 
