@@ -28,7 +28,7 @@ import numpy as np
 
 from jaxplan import _grid, connectors, execute, rebuild, selection, spillage
 from jaxplan._timing import timed
-from jaxplan.fabric import Fabric, _walk, build_fabric
+from jaxplan.fabric import Fabric, Table, _walk, build_fabric
 from jaxplan.params import FabricParams, validate_params
 
 MODES = ("deliver", "rearrange")
@@ -133,7 +133,13 @@ def plan_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.Sp
                                    params.anchor_lambda, source)
     safe_anchor = jnp.maximum(anchor, 0)
     anchor_rc = jnp.stack([safe_anchor // w, safe_anchor % w]).astype(jnp.int32)
-    ctable = connectors.connector_table(scene, fabric, params, safe_anchor)
+    def no_connector(_):   # a source without an anchor: skip the connector DP
+        shape = (h, w, 1)
+        return Table(jnp.full(shape, -jnp.inf), jnp.full(shape, jnp.inf), jnp.full(shape, -1, jnp.int32),
+                     jnp.full(shape, -1, jnp.int32))
+
+    ctable = jax.lax.cond(anchor >= 0, lambda _: connectors.connector_table(scene, fabric, params, safe_anchor),
+                          no_connector, None)
     conn = _walk(ctable, source, jnp.int32(0), max_steps)
     tail = _walk(fabric.table, anchor_rc, jnp.int32(0), max_steps)
     # a connector that enters h* lists it last; the tail starts at h*, so drop the duplicate
