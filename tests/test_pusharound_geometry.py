@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import shapely  # noqa: E402
-from hypothesis import HealthCheck, assume, given, settings  # noqa: E402
+from hypothesis import HealthCheck, assume, example, given, settings  # noqa: E402
 from hypothesis import strategies as hs  # noqa: E402
 
 from jaxplan.pusharound import (PushScene, build_wccg, connectivity, nominal_scene, plot_wccg,  # noqa: E402
@@ -228,6 +228,7 @@ def _random_scene(seed: int, n: int) -> PushScene:
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=hs.integers(0, 2**31 - 1), n=hs.integers(3, 10))
+@example(seed=459, n=9)   # goal 0.0035 m from W/2: the path's retry margin once swallowed it
 def test_wccg_agrees_with_exact_free_space(seed, n):
     scene = _random_scene(seed, n)
     g = build_wccg(scene, bridge_range=1.01)

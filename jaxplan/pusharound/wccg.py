@@ -398,7 +398,10 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None) -> np.ndarray
     clr = float(clearance(g, np.stack([s, gl])).min())
     # GEOS may simplify a buffer's input by ~1% of the distance, so a path along it can dip a little:
     # every candidate is checked exactly and the next, wider margin is tried when it dips.
-    deltas = [delta] if delta is not None else [min(1e-4 * g.width, 0.5 * (clr * cos - r)), 1e-2 * r]
+    # Every margin stays below half the endpoints' spare clearance, so start and goal stay outside
+    # the inflated obstacles whatever the margin.
+    room = 0.5 * (clr * cos - r)
+    deltas = [delta] if delta is not None else [min(1e-4 * g.width, room), min(1e-2 * r, room)]
     pieces = np.asarray(g.pieces, dtype=object)
     for d in deltas:
         path = _inflated_walk(g, s, gl, (r + max(d, 0.0)) / cos)
