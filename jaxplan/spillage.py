@@ -8,7 +8,9 @@ cell's objects at the first sample of the segment leaving that cell, and turning
 
     spill_i = lam * kappa_i * ds_i * load_i      (= lam * turning angle of the sample * load),
 
-clipped to the load and dropped when below ``threshold`` objects. ``kappa_i * ds_i`` rather than the
+clipped to the load and dropped when below ``threshold`` objects (with ``temperature > 0`` the drop is
+soft: the spill is scaled by ``sigmoid((spill - threshold) / temperature)``, differentiable in the
+threshold; ``temperature = 0``, the default, is the exact hard rule). ``kappa_i * ds_i`` rather than the
 paper's bare ``kappa_i`` makes the spill independent of how densely the spline is sampled: ``lam`` is
 the fraction of the load lost per radian of turning. Delivered = collected - sum(spill): the residual
 load at the end.
@@ -36,6 +38,8 @@ class SpillParams:
     Traced:
       lam: f32[], fraction of the load spilled per radian of turning (>= 0).
       threshold: f32[], objects; a sample's spill below it is ignored (>= 0).
+      temperature: f32[], objects; 0 (default) = the hard threshold; > 0 = a sigmoid of this width,
+        so the spill is differentiable in ``threshold`` (``jaxplan.tune.spill`` fits with it).
     Static:
       samples_per_step: spline samples per segment between two waypoints (>= 1).
       enabled: whether routes are selected by delivered mass (Eq. 6) rather than raw count (Eq. 5).
@@ -43,6 +47,7 @@ class SpillParams:
 
     lam: Any = 0.05
     threshold: Any = 1e-3
+    temperature: Any = 0.0
     samples_per_step: int = 8
     enabled: bool = True
 
@@ -50,7 +55,7 @@ class SpillParams:
         return dataclasses.replace(self, **changes)
 
 
-jax.tree_util.register_dataclass(SpillParams, data_fields=["lam", "threshold"],
+jax.tree_util.register_dataclass(SpillParams, data_fields=["lam", "threshold", "temperature"],
                                  meta_fields=["samples_per_step", "enabled"])
 
 
@@ -59,7 +64,7 @@ def validate_spill_params(params: SpillParams) -> None:
     if not isinstance(params, SpillParams):
         raise ValueError(f"spill: expected a SpillParams, got {type(params).__name__}. "
                          "Build one with jaxplan.SpillParams(lam=0.05).")
-    for name in ("lam", "threshold"):
+    for name in ("lam", "threshold", "temperature"):
         value = getattr(params, name)
         if isinstance(value, jax.core.Tracer):
             continue
@@ -147,6 +152,22 @@ def pickups_per_sample(samples: PathSamples, waypoint_pickup):
     return jnp.where(samples.first & samples.valid, waypoint_pickup[samples.segment], 0.0)
 
 
+def threshold_spill(spill, threshold, temperature):
+    """Apply the spill threshold: ``f32[...]`` objects kept of ``spill: f32[...]`` objects.
+
+    temperature: f32[] objects. At 0 the hard rule ``spill if spill >= threshold else 0`` (exact); above
+    0 ``spill * sigmoid((spill - threshold) / temperature)``, which tends to the hard rule as
+    ``temperature -> 0`` and has finite gradients in ``spill``, ``threshold`` and ``temperature``.
+    """
+    hard = jnp.where(spill >= threshold, spill, 0.0)
+    soft_on = temperature > 0
+    # double-where: the soft branch sees a safe temperature when it is not taken, so its gradient
+    # (0 * inf otherwise) stays finite at temperature 0
+    safe_t = jnp.where(soft_on, temperature, 1.0)
+    soft = spill * jax.nn.sigmoid((spill - threshold) / safe_t)
+    return jnp.where(soft_on, soft, hard)
+
+
 def curvature_spill(samples: PathSamples, pickup, params: SpillParams):
     """The default ``Spill(P; Theta)``: ``(delivered f32[], spill f32[N])`` in objects.
 
@@ -159,7 +180,7 @@ def curvature_spill(samples: PathSamples, pickup, params: SpillParams):
         pick, frac = x
         load = load + pick
         spill = frac * load
-        spill = jnp.where(spill >= params.threshold, spill, 0.0)
+        spill = threshold_spill(spill, params.threshold, params.temperature)
         return load - spill, spill
 
     delivered, spill = jax.lax.scan(step, jnp.float32(0.0), (pickup, fraction))

@@ -40,15 +40,19 @@ def catmull_rom_samples(points, samples_per_step: int):
     return out
 
 
-def spill_along(samples, waypoint_pickup, lam: float, threshold: float):
-    """``(delivered, [spill per sample])``: the load recurrence of ``spillage.curvature_spill``."""
+def spill_along(samples, waypoint_pickup, lam: float, threshold: float, temperature: float = 0.0):
+    """``(delivered, [spill per sample])``: the load recurrence of ``spillage.curvature_spill``
+    (``temperature > 0``: the soft threshold ``spill * sigmoid((spill - threshold) / temperature)``)."""
     load = 0.0
     spills = []
     for s in samples:
         if s["first"]:
             load += waypoint_pickup[s["segment"]]
         spill = min(1.0, lam * abs(s["turn"])) * load
-        if spill < threshold:
+        if temperature > 0:
+            z = (spill - threshold) / temperature
+            spill *= 1.0 / (1.0 + math.exp(-z)) if z > -700 else 0.0
+        elif spill < threshold:
             spill = 0.0
         load -= spill
         spills.append(spill)

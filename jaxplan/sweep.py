@@ -1,0 +1,521 @@
+"""Parameter sweeps: the cartesian product of a spec, evaluated in ``vmap``ped chunks, one CSV row per setting.
+
+A **spec** (a TOML file or the equivalent dict) names the scenes and, per traced parameter, a value or a
+list of values; static configuration is fixed for the whole sweep::
+
+    scenes = ["default", "site.npz"]            # built-in names or scene files (.npz / .json)
+    [random_scenes]                             # optional: random scenes of one shape, one per seed
+    seeds = [0, 1, 2]
+    shape = [25, 25]
+    density = 0.4                               # fraction of cells holding 1..6 objects
+    [fabric]                                    # traced FabricParams fields
+    theta_tol_deg = [30.0, 45.0, 60.0]
+    tau_h = [0.3, 0.5]
+    [spill]                                     # traced SpillParams fields
+    lam = [0.0, 0.05]
+    [static]                                    # static FabricParams / SpillParams fields
+    k = 4
+    [metrics]
+    top_sources = 4                             # Eq. 6 delivered mass of the best N sources (0 = off)
+
+Settings are ordered scene-major, then the ``[fabric]`` and ``[spill]`` keys in the order given, the last
+varying fastest; ``setting`` (0-based) is the row's position in that order. Each setting runs
+``build_fabric`` plus cheap metrics (``METRICS``); settings are evaluated in chunks of one grid shape,
+``jit(vmap(...))`` over the chunk, each chunk padded to the same size (one compile per grid shape, and a
+setting's numbers do not depend on which chunk it lands in). The chunk size comes from a memory budget
+(``chunk_size_for``). Rows are appended and flushed chunk by chunk, so an interrupted sweep resumes:
+rows already in the output file are kept (a torn last line is dropped) and only the missing chunks are
+evaluated. The resumed file is byte-identical to an uninterrupted run.
+
+Backends: ``"local"`` evaluates chunks in this process; ``"ray"`` (``jaxplan._sweep_ray``, the optional
+extra ``jaxplan[distributed]``) runs each chunk as a Ray task with retries. Both call ``evaluate_chunk``,
+so they give identical rows.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import itertools
+import math
+import os
+import tomllib
+from pathlib import Path
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan import fabric as _fabric
+from jaxplan import params as _params
+from jaxplan import selection as _selection
+from jaxplan.params import FabricParams, validate_params
+from jaxplan.scene import BUILTIN_SCENES, Scene, builtin_scene, circle
+from jaxplan.spillage import SpillParams, validate_spill_params
+
+__all__ = ["METRICS", "SweepSpec", "chunk_size_for", "evaluate_chunk", "load_spec", "run_sweep", "settings_of"]
+
+# Traced fields read from the parameter classes, so a field added there is sweepable at once.
+FABRIC_TRACED = tuple(_params._TRACED)
+FABRIC_STATIC = tuple(_params._STATIC)
+SPILL_TRACED = tuple(f.name for f in dataclasses.fields(SpillParams) if f.name not in ("samples_per_step", "enabled"))
+SPILL_STATIC = ("samples_per_step", "enabled")
+_TOP_KEYS = ("scenes", "random_scenes", "fabric", "spill", "static", "metrics")
+
+METRICS = {
+    "occupied_cells": "non-target cells with obj > 0",
+    "total_mass": "objects on the grid (target cells included)",
+    "mean_value": "mean J(C) over occupied cells, objects",
+    "mean_length": "mean L(C) over occupied cells, world units",
+    "highway_cells": "highway cells (Eq. 11)",
+    "max_heat": "largest heatmap value (Eq. 10), objects",
+    "solver_rounds": "solver iterations of the DP",
+    "converged": "the DP reached its fixed point",
+    "top_collected": "raw count (Eq. 5) of the selected routes of the top_sources cells with the largest J, objects",
+    "top_delivered": "delivered mass (Eq. 6, spill model) of those routes, objects; = top_collected "
+                     "when spill.enabled is false",
+    "routes_truncated": "a selected route of those sources is longer than max_steps (its numbers are partial)",
+}
+# Per-setting bytes = this factor x (the fabric's output bytes + the scene's bytes): the DP's working
+# set (tables of several candidates per direction) is a few times its output.
+_WORKSPACE_FACTOR = 4
+_PAD = "__pad__"
+
+
+# --------------------------------------------------------------------------------------------------
+# Spec
+# --------------------------------------------------------------------------------------------------
+
+class SweepSpec(NamedTuple):
+    """A validated sweep spec.
+
+    scenes: tuple of (label, Scene), the label written in the ``scene`` column.
+    fabric_grid / spill_grid: tuple of (field, tuple of float values), in spec order.
+    fabric_static / spill_static: dict of static fields. top_sources: int >= 0. max_steps: int or None
+    (default: H + W + 1 per grid shape).
+    """
+
+    scenes: tuple
+    fabric_grid: tuple
+    spill_grid: tuple
+    fabric_static: dict
+    spill_static: dict
+    top_sources: int
+    max_steps: int | None
+
+
+def _fail(key: str, message: str):
+    raise ValueError(f"sweep spec: {key}: {message}")
+
+
+def _values(key: str, raw) -> tuple:
+    vals = raw if isinstance(raw, (list, tuple)) else [raw]
+    if not vals:
+        _fail(key, "an empty list; give at least one value, e.g. [45.0, 60.0].")
+    out = []
+    for v in vals:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+            _fail(key, f"expected a finite number or a list of them; got {v!r}.")
+        out.append(float(v))
+    return tuple(out)
+
+
+def random_scene(seed: int, shape, density: float) -> Scene:
+    """A random scene: counts 1..6 on a fraction ``density`` of the cells, a circular target of radius
+    max(1, 0.1 min(H, W)) cells at the grid centre (the benchmarks' instances). Named ``random:SEED``."""
+    h, w = shape
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(1, 7, (h, w)).astype(np.float32)
+    obj = np.where(rng.random((h, w)) < density, counts, 0.0).astype(np.float32)
+    target = circle((w / 2, h / 2), max(1.0, 0.1 * min(h, w)), resolution=64)
+    scene = Scene.from_arrays(np.zeros_like(obj), target, name=f"random:{seed}")
+    return scene.with_obj(np.where(np.asarray(scene.target_mask), 0.0, obj))
+
+
+def _scenes(spec: dict, base: Path | None) -> tuple:
+    out = []
+    names = spec.get("scenes", [])
+    if isinstance(names, str):
+        names = [names]
+    if not isinstance(names, list):
+        _fail("scenes", f"expected a list of built-in names or scene files; got {names!r}.")
+    for name in names:
+        if not isinstance(name, str):
+            _fail("scenes", f"expected strings (built-in names or file paths); got {name!r}.")
+        if name in BUILTIN_SCENES:
+            out.append((name, builtin_scene(name)))
+            continue
+        path = Path(name)
+        if not path.is_absolute() and base is not None:
+            path = base / path
+        if not path.is_file():
+            _fail("scenes", f"{name!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) nor an existing "
+                  ".npz/.json scene file.")
+        out.append((name, Scene.load(path)))
+    rnd = spec.get("random_scenes")
+    if rnd is not None:
+        if not isinstance(rnd, dict):
+            _fail("random_scenes", "expected a table with seeds, shape and density.")
+        unknown = set(rnd) - {"seeds", "shape", "density"}
+        if unknown:
+            _fail(f"random_scenes.{sorted(unknown)[0]}", "unknown key; use seeds, shape and density.")
+        seeds = rnd.get("seeds")
+        if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
+            _fail("random_scenes.seeds", f"expected a non-empty list of ints >= 0; got {seeds!r}.")
+        shape = rnd.get("shape", [25, 25])
+        if (not isinstance(shape, list) or len(shape) != 2
+                or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 3 for s in shape)):
+            _fail("random_scenes.shape", f"expected [H, W] with ints >= 3; got {shape!r}.")
+        density = rnd.get("density", 0.4)
+        if isinstance(density, bool) or not isinstance(density, (int, float)) or not 0 < density <= 1:
+            _fail("random_scenes.density", f"expected a fraction in (0, 1]; got {density!r}.")
+        out += [(f"random:{s}", random_scene(s, tuple(shape), float(density))) for s in seeds]
+    if not out:
+        _fail("scenes", "no scenes; give scenes = [\"default\"] and/or a [random_scenes] table.")
+    return tuple(out)
+
+
+def _grid(spec: dict, section: str, traced: tuple, static: tuple) -> tuple:
+    table = spec.get(section, {})
+    if not isinstance(table, dict):
+        _fail(section, f"expected a table of field = value or [values]; got {table!r}.")
+    out = []
+    for key, raw in table.items():
+        if key in static:
+            _fail(f"{section}.{key}", "a static field (it changes the compiled program); put it under [static].")
+        if key not in traced:
+            _fail(f"{section}.{key}", f"unknown field; the traced fields are {', '.join(traced)}.")
+        out.append((key, _values(f"{section}.{key}", raw)))
+    return tuple(out)
+
+
+def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
+    """Validate a spec dict or read a TOML file; scene files are relative to the TOML file's folder.
+
+    Raises ``ValueError`` naming the bad key and the fix.
+    """
+    base = None
+    if not isinstance(spec, dict):
+        path = Path(spec)
+        if not path.is_file():
+            raise ValueError(f"sweep spec: no such file {str(path)!r}; give a TOML file or a dict.")
+        try:
+            spec = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"sweep spec: {path}: not valid TOML ({exc}).") from None
+        base = path.parent
+    unknown = [k for k in spec if k not in _TOP_KEYS]
+    if unknown:
+        _fail(unknown[0], f"unknown key; the spec's keys are {', '.join(_TOP_KEYS)}.")
+    fabric_grid = _grid(spec, "fabric", FABRIC_TRACED, FABRIC_STATIC)
+    spill_grid = _grid(spec, "spill", SPILL_TRACED, SPILL_STATIC)
+    static = spec.get("static", {})
+    if not isinstance(static, dict):
+        _fail("static", "expected a table of static fields, e.g. k = 4.")
+    for key in static:
+        if key in FABRIC_TRACED or key in SPILL_TRACED:
+            _fail(f"static.{key}", "a traced field; put it under [fabric] or [spill] (a value or a list).")
+        if key not in FABRIC_STATIC and key not in SPILL_STATIC:
+            _fail(f"static.{key}", f"unknown field; the static fields are {', '.join(FABRIC_STATIC + SPILL_STATIC)}.")
+    fabric_static = {k: v for k, v in static.items() if k in FABRIC_STATIC}
+    spill_static = {k: v for k, v in static.items() if k in SPILL_STATIC}
+    # every value through the parameter classes' own validation (their errors name the field)
+    for key, vals in fabric_grid:
+        for v in vals:
+            validate_params(FabricParams(**fabric_static, **{key: v}))
+    validate_params(FabricParams(**fabric_static))
+    for key, vals in spill_grid:
+        for v in vals:
+            validate_spill_params(SpillParams(**spill_static, **{key: v}))
+    validate_spill_params(SpillParams(**spill_static))
+    metrics = spec.get("metrics", {})
+    if not isinstance(metrics, dict) or set(metrics) - {"top_sources", "max_steps"}:
+        _fail("metrics", "expected a table with top_sources (int >= 0) and optionally max_steps (int >= 1).")
+    top = metrics.get("top_sources", 4)
+    if isinstance(top, bool) or not isinstance(top, int) or top < 0:
+        _fail("metrics.top_sources", f"expected an int >= 0 (0 turns the route metrics off); got {top!r}.")
+    max_steps = metrics.get("max_steps")
+    if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1):
+        _fail("metrics.max_steps", f"expected an int >= 1 (route walk length); got {max_steps!r}.")
+    return SweepSpec(_scenes(spec, base), fabric_grid, spill_grid, fabric_static, spill_static, top, max_steps)
+
+
+def settings_of(spec: SweepSpec) -> list[tuple]:
+    """Every setting as ``(scene_index, fabric_values, spill_values)`` in sweep order."""
+    fabric_lists = [vals for _, vals in spec.fabric_grid]
+    spill_lists = [vals for _, vals in spec.spill_grid]
+    return [(i, combo[:len(fabric_lists)], combo[len(fabric_lists):])
+            for i in range(len(spec.scenes))
+            for combo in itertools.product(*fabric_lists, *spill_lists)]
+
+
+def columns_of(spec: SweepSpec) -> list[str]:
+    """The CSV header: setting, scene, the swept fields, then ``METRICS``."""
+    return (["setting", "scene"] + [k for k, _ in spec.fabric_grid] + [f"spill_{k}" for k, _ in spec.spill_grid]
+            + list(METRICS))
+
+
+# --------------------------------------------------------------------------------------------------
+# The vmapped kernel
+# --------------------------------------------------------------------------------------------------
+
+def _metrics(scene, fp: FabricParams, sp: SpillParams, top: int, max_steps: int) -> dict:
+    """The per-setting metrics (``METRICS``) of one scene and parameter setting; vmappable."""
+    fab = _fabric._build(scene, fp)
+    occ = fab.occupied
+    n = jnp.sum(occ)
+    denom = jnp.maximum(n, 1).astype(jnp.float32)
+    out = dict(occupied_cells=n.astype(jnp.int32), total_mass=jnp.sum(scene.obj),
+               mean_value=jnp.sum(fab.value) / denom, mean_length=jnp.sum(fab.length) / denom,
+               highway_cells=jnp.sum(fab.highways).astype(jnp.int32), max_heat=jnp.max(fab.heat),
+               solver_rounds=fab.rounds.astype(jnp.int32), converged=fab.converged)
+    if top == 0:
+        zero = jnp.float32(0.0)
+        return dict(out, top_collected=zero, top_delivered=zero, routes_truncated=jnp.bool_(False))
+    h, w = scene.obj.shape
+    scores = jnp.where(occ, fab.value, -jnp.inf).reshape(-1)
+    best, idx = jax.lax.top_k(scores, top)
+    valid = best > -jnp.inf
+    sources = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
+    sel = _selection.select_routes(scene, fab, sources, fp.slack_tau, sp, max_steps=max_steps)
+    entry = sel.entry[:, None]
+    raw = jnp.take_along_axis(fab.table.raw[sources[:, 0], sources[:, 1]], entry, -1)[:, 0]
+    delivered = jnp.take_along_axis(sel.delivered, entry, -1)[:, 0]
+    hops = jnp.take_along_axis(_fabric._table_hops(fab.table)[sources[:, 0], sources[:, 1]], entry, -1)[:, 0]
+    # +1: a route ending in a boundary fallback takes one more walk step (conservative for the others)
+    truncated = valid & (hops + 1 > max_steps)
+    return dict(out, top_collected=jnp.sum(jnp.where(valid, raw, 0.0)),
+                top_delivered=jnp.sum(jnp.where(valid, delivered, 0.0)), routes_truncated=jnp.any(truncated))
+
+
+@functools.lru_cache(maxsize=32)
+def _chunk_kernel(fabric_static: tuple, spill_static: tuple, fabric_keys: tuple, spill_keys: tuple,
+                  top: int, max_steps: int):
+    """``jit(vmap)`` of ``_metrics`` over settings: (scenes stacked [S, ...], scene_index i32[B],
+    fabric values f32[B, F], spill values f32[B, P]) -> dict of [B] metrics."""
+    fstat, sstat = dict(fabric_static), dict(spill_static)
+
+    def one(scenes, i, fvals, svals):
+        scene = jax.tree_util.tree_map(lambda a: a[i], scenes)
+        fp = FabricParams(**fstat, **{k: fvals[j] for j, k in enumerate(fabric_keys)})
+        sp = SpillParams(**sstat, **{k: svals[j] for j, k in enumerate(spill_keys)})
+        return _metrics(scene, fp, sp, top, max_steps)
+
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0)))
+
+
+class Chunk(NamedTuple):
+    """One chunk's inputs, plain numpy (picklable for Ray).
+
+    scenes: tuple of the stacked scene leaves [S, ...] of one grid shape; scene_index: i32[B];
+    fabric_values: f32[B, F]; spill_values: f32[B, P]; static: hashable kernel config.
+    """
+
+    scenes: tuple
+    scene_index: np.ndarray
+    fabric_values: np.ndarray
+    spill_values: np.ndarray
+    static: tuple
+
+
+def evaluate_chunk(chunk: Chunk) -> dict:
+    """Run the vmapped kernel on one chunk: a dict of numpy metric arrays, [B] each."""
+    scenes = Scene(*(jnp.asarray(a) for a in chunk.scenes))
+    kernel = _chunk_kernel(*chunk.static)
+    out = kernel(scenes, jnp.asarray(chunk.scene_index), jnp.asarray(chunk.fabric_values, jnp.float32),
+                 jnp.asarray(chunk.spill_values, jnp.float32))
+    return {k: np.asarray(v) for k, v in jax.device_get(out).items()}
+
+
+def _bytes(tree) -> int:
+    return sum(int(np.prod(x.shape)) * np.dtype(x.dtype).itemsize for x in jax.tree_util.tree_leaves(tree))
+
+
+def bytes_per_setting(scene: Scene, fabric_static: dict | None = None) -> int:
+    """Estimated working memory of one setting, bytes: ``_WORKSPACE_FACTOR`` x (the fabric's output
+    arrays, from ``jax.eval_shape``, plus the scene's arrays)."""
+    fp = FabricParams(**(fabric_static or {}))
+    out = jax.eval_shape(_fabric._build, scene, fp)
+    return _WORKSPACE_FACTOR * (_bytes(out) + _bytes(scene))
+
+
+def chunk_size_for(scene: Scene, memory_budget_mb: float, fabric_static: dict | None = None,
+                   n_settings: int | None = None) -> int:
+    """Settings per chunk for ``scene``'s grid shape: ``budget // bytes_per_setting``, at least 1 and at
+    most ``n_settings``."""
+    size = max(1, int(memory_budget_mb * 2**20) // bytes_per_setting(scene, fabric_static))
+    return size if n_settings is None else max(1, min(size, n_settings))
+
+
+# --------------------------------------------------------------------------------------------------
+# Output file and resumption
+# --------------------------------------------------------------------------------------------------
+
+def _fmt(v) -> str:
+    if isinstance(v, str):
+        return v
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (np.floating, np.ndarray)):
+        return str(np.float32(v))   # shortest text that reads back as the same float32
+    return repr(float(v))
+
+
+def _setting_fields(spec: SweepSpec, setting) -> list[str]:
+    i, fvals, svals = setting
+    return [spec.scenes[i][0]] + [_fmt(float(v)) for v in (*fvals, *svals)]
+
+
+def _read_done(out: Path, header: list[str], spec: SweepSpec, settings: list) -> set[int]:
+    """Setting indices already written to ``out``; drops a torn last line; checks the rows belong to
+    this sweep (same header, same scene and values at each setting index)."""
+    data = out.read_bytes()
+    if not data:
+        return set()
+    keep = data if data.endswith(b"\n") else data[:data.rfind(b"\n") + 1]   # a torn last line is dropped
+    lines = keep.decode().splitlines()
+    if not lines:                 # not even the header made it: start over
+        out.write_bytes(b"")
+        return set()
+    if lines[0].split(",") != header:
+        raise ValueError(f"out: {out} holds rows of another sweep (its header is not {','.join(header)}); "
+                         "give a new --out file or delete this one to start over.")
+    done = set()
+    good = len(lines[0].encode()) + 1
+    for line in lines[1:]:
+        fields = line.split(",")
+        if len(fields) != len(header):
+            break                                                          # torn row: drop it and the rest
+        idx = int(fields[0])
+        if not 0 <= idx < len(settings) or fields[1:2 + len(spec.fabric_grid) + len(spec.spill_grid)] != \
+                _setting_fields(spec, settings[idx]):
+            raise ValueError(f"out: {out} row for setting {fields[0]} does not match this spec; give a new "
+                             "--out file or delete this one to start over.")
+        done.add(idx)
+        good += len(line.encode()) + 1
+    if good != len(data):
+        with open(out, "r+b") as fh:
+            fh.truncate(good)
+    return done
+
+
+class _Plan(NamedTuple):
+    rows: list          # setting indices of the chunk (real ones, in order)
+    chunk: Chunk
+
+
+def _plan_chunks(spec: SweepSpec, settings: list, memory_budget_mb: float) -> list[_Plan]:
+    """Chunks of one grid shape each, of a fixed size per shape; the last one padded by repeating its
+    last setting so every call has the same shape (one compile per grid shape)."""
+    groups: dict[tuple, list[int]] = {}
+    for n, (i, _, _) in enumerate(settings):
+        groups.setdefault(spec.scenes[i][1].shape, []).append(n)
+    plans = []
+    fkeys = tuple(k for k, _ in spec.fabric_grid)
+    skeys = tuple(k for k, _ in spec.spill_grid)
+    for shape, members in groups.items():
+        scene_ids = sorted({settings[n][0] for n in members})
+        local = {s: j for j, s in enumerate(scene_ids)}
+        stacked = tuple(np.stack([np.asarray(leaf) for leaf in leaves]) for leaves in
+                        zip(*(jax.tree_util.tree_leaves(spec.scenes[s][1]) for s in scene_ids)))
+        size = chunk_size_for(spec.scenes[scene_ids[0]][1], memory_budget_mb, spec.fabric_static, len(members))
+        max_steps = spec.max_steps if spec.max_steps is not None else shape[0] + shape[1] + 1
+        static = (tuple(sorted(spec.fabric_static.items())), tuple(sorted(spec.spill_static.items())),
+                  fkeys, skeys, min(spec.top_sources, shape[0] * shape[1]), max_steps)
+        for start in range(0, len(members), size):
+            rows = members[start:start + size]
+            padded = rows + [rows[-1]] * (size - len(rows))
+            plans.append(_Plan(rows, Chunk(
+                stacked, np.array([local[settings[n][0]] for n in padded], np.int32),
+                np.array([settings[n][1] for n in padded], np.float32).reshape(size, len(fkeys)),
+                np.array([settings[n][2] for n in padded], np.float32).reshape(size, len(skeys)), static)))
+    return plans
+
+
+def _rows_text(spec: SweepSpec, settings: list, plan: _Plan, result: dict) -> str:
+    lines = []
+    for j, n in enumerate(plan.rows):
+        fields = [str(n)] + _setting_fields(spec, settings[n]) + [_fmt(result[m][j][()]) for m in METRICS]
+        lines.append(",".join(fields))
+    return "\n".join(lines) + "\n"
+
+
+def run_sweep(spec, out, *, backend: str = "local", address: str | None = None, memory_budget_mb: float = 256.0,
+              progress: bool = True, on_chunk: Callable[[int, int], Any] | None = None, max_retries: int = 3,
+              _fault_marker: str | None = None) -> Path:
+    """Evaluate every setting of ``spec`` and write one CSV row per setting to ``out``; returns ``out``.
+
+    spec: a dict, a ``SweepSpec`` or a TOML file (see the module docstring). backend: ``"local"`` or
+    ``"ray"`` (Ray tasks, one per chunk; ``address`` of a running cluster, else the already initialised
+    Ray or a new local instance). memory_budget_mb: working memory for one chunk, MB (sets the chunk
+    size). progress: a tqdm bar. on_chunk(done_settings, total): called after each chunk is written.
+    max_retries: Ray task retries (failed workers and raised exceptions).
+
+    Resumes: rows already in ``out`` are kept and only missing chunks are evaluated.
+    """
+    if backend not in ("local", "ray"):
+        raise ValueError(f"backend: must be 'local' or 'ray'; got {backend!r}.")
+    if isinstance(memory_budget_mb, bool) or not isinstance(memory_budget_mb, (int, float)) \
+            or not memory_budget_mb > 0:
+        raise ValueError(f"memory_budget_mb: must be a number > 0 (MB per chunk); got {memory_budget_mb!r}.")
+    if address is not None and backend != "ray":
+        raise ValueError("address: only used with backend='ray'; drop it or add backend='ray'.")
+    spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
+    out = Path(out)
+    if out.parent and not out.parent.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    settings = settings_of(spec)
+    header = columns_of(spec)
+    done = _read_done(out, header, spec, settings) if out.exists() else set()
+    if not out.exists() or out.stat().st_size == 0:
+        out.write_text(",".join(header) + "\n")
+    todo = [p for p in _plan_chunks(spec, settings, memory_budget_mb) if not set(p.rows) <= done]
+
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=len(settings), initial=len(done), unit="setting", disable=not progress, desc="sweep")
+    if backend == "ray":
+        from jaxplan import _sweep_ray
+
+        results = _sweep_ray.evaluate_chunks([p.chunk for p in todo], address=address, max_retries=max_retries,
+                                             fault_marker=_fault_marker)
+    else:
+        results = (evaluate_chunk(p.chunk) for p in todo)
+    try:
+        with open(out, "a") as fh:
+            for plan, result in zip(todo, results):
+                missing = [n for n in plan.rows if n not in done]
+                if not missing:
+                    continue
+                text = _rows_text(spec, settings, plan, result)
+                if len(missing) != len(plan.rows):   # a chunk cut by a torn line: only its missing rows
+                    keep = set(missing)
+                    text = "".join(line + "\n" for line in text.splitlines() if int(line.split(",")[0]) in keep)
+                fh.write(text)
+                fh.flush()
+                os.fsync(fh.fileno())   # a chunk's rows reach the disk before the next chunk starts
+                done.update(missing)
+                bar.update(len(missing))
+                if on_chunk is not None:
+                    on_chunk(len(done), len(settings))
+    finally:
+        bar.close()
+        close = getattr(results, "close", None)
+        if close is not None:
+            close()
+    _sort_rows(out)
+    return out
+
+
+def _sort_rows(out: Path) -> None:
+    """Rows in setting order (they are written in order; this mends a file resumed after a reorder)."""
+    lines = out.read_text().splitlines()
+    body = lines[1:]
+    keys = [int(line.split(",", 1)[0]) for line in body]
+    if keys != sorted(keys):
+        order = sorted(range(len(body)), key=keys.__getitem__)
+        tmp = out.with_name(f".{out.name}.sorting")
+        tmp.write_text("\n".join([lines[0]] + [body[i] for i in order]) + "\n")
+        os.replace(tmp, out)
