@@ -175,3 +175,11 @@ def test_chunk_size_follows_the_memory_budget():
     assert sweep.chunk_size_for(scene, 10 * per / 2**20) == 10
     assert sweep.chunk_size_for(scene, 1e-9) == 1
     assert sweep.chunk_size_for(scene, 1e6, n_settings=16) == 16
+
+
+def test_ray_backend_without_ray_says_how_to_install(tmp_path, monkeypatch, budget):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ray", None)   # import ray -> ImportError
+    with pytest.raises(ValueError, match=r"jaxplan\[distributed\]"):
+        sweep.run_sweep(SPEC, tmp_path / "r.csv", backend="ray", memory_budget_mb=budget, progress=False)
