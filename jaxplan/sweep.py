@@ -47,13 +47,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan import fabric as _fabric
+from jaxplan import heatmap as _heatmap
 from jaxplan import params as _params
 from jaxplan import selection as _selection
 from jaxplan.params import FabricParams, validate_params
 from jaxplan.scene import BUILTIN_SCENES, Scene, builtin_scene, circle
 from jaxplan.spillage import SpillParams, validate_spill_params
 
-__all__ = ["METRICS", "SweepSpec", "chunk_size_for", "evaluate_chunk", "load_spec", "run_sweep", "settings_of"]
+__all__ = ["METRICS", "SweepSpec", "bytes_per_table", "chunk_size_for", "columns_of", "evaluate_chunk", "load_spec",
+           "random_scene", "run_sweep", "settings_of"]
 
 # Traced fields read from the parameter classes, so a field added there is sweepable at once.
 FABRIC_TRACED = tuple(_params._TRACED)
@@ -76,6 +78,10 @@ METRICS = {
                      "when spill.enabled is false",
     "routes_truncated": "a selected route of those sources is longer than max_steps (its numbers are partial)",
 }
+# Fabric fields that do not enter the DP table: tau_h only thresholds the heatmap into highways,
+# slack_tau only widens the route candidate set, anchor_lambda only weighs connectors (not computed
+# here). Settings differing only in these (and in spill parameters) share one build_fabric.
+_AFTER_TABLE = ("tau_h", "slack_tau", "anchor_lambda")
 # Per-setting bytes = this factor x (the fabric's output bytes + the scene's bytes): the DP's working
 # set (tables of several candidates per direction) is a few times its output.
 _WORKSPACE_FACTOR = 4
@@ -208,6 +214,8 @@ def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
     if unknown:
         _fail(unknown[0], f"unknown key; the spec's keys are {', '.join(_TOP_KEYS)}.")
     fabric_grid = _grid(spec, "fabric", FABRIC_TRACED, FABRIC_STATIC)
+    # the fields that change the DP table first: settings sharing a table are then contiguous
+    fabric_grid = tuple(sorted(fabric_grid, key=lambda kv: kv[0] in _AFTER_TABLE))
     spill_grid = _grid(spec, "spill", SPILL_TRACED, SPILL_STATIC)
     static = spec.get("static", {})
     if not isinstance(static, dict):
@@ -241,7 +249,8 @@ def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
 
 
 def settings_of(spec: SweepSpec) -> list[tuple]:
-    """Every setting as ``(scene_index, fabric_values, spill_values)`` in sweep order."""
+    """Every setting as ``(scene_index, fabric_values, spill_values)`` in sweep order (scene-major, then
+    ``spec.fabric_grid`` -- the fields that change the DP table first -- then ``spec.spill_grid``)."""
     fabric_lists = [vals for _, vals in spec.fabric_grid]
     spill_lists = [vals for _, vals in spec.spill_grid]
     return [(i, combo[:len(fabric_lists)], combo[len(fabric_lists):])
@@ -255,13 +264,25 @@ def columns_of(spec: SweepSpec) -> list[str]:
             + list(METRICS))
 
 
+def _split(spec: SweepSpec):
+    """``(table_keys, per_table)``: the swept fabric fields that change the DP table (in grid order), and
+    the number of settings sharing one table (the product of every other swept field's list length)."""
+    table_keys = tuple(k for k, _ in spec.fabric_grid if k not in _AFTER_TABLE)
+    per_table = math.prod(len(v) for k, v in spec.fabric_grid if k in _AFTER_TABLE) * \
+        math.prod(len(v) for _, v in spec.spill_grid)
+    return table_keys, per_table
+
+
 # --------------------------------------------------------------------------------------------------
 # The vmapped kernel
 # --------------------------------------------------------------------------------------------------
 
-def _metrics(scene, fp: FabricParams, sp: SpillParams, top: int, max_steps: int) -> dict:
-    """The per-setting metrics (``METRICS``) of one scene and parameter setting; vmappable."""
-    fab = _fabric._build(scene, fp)
+def _metrics(scene, fp: FabricParams, sp: SpillParams, top: int, max_steps: int, fab=None) -> dict:
+    """The per-setting metrics (``METRICS``) of one scene and parameter setting; vmappable.
+
+    fab: the fabric of ``scene`` under ``fp`` (built here when None).
+    """
+    fab = _fabric._build(scene, fp) if fab is None else fab
     occ = fab.occupied
     n = jnp.sum(occ)
     denom = jnp.maximum(n, 1).astype(jnp.float32)
@@ -288,63 +309,110 @@ def _metrics(scene, fp: FabricParams, sp: SpillParams, top: int, max_steps: int)
                 top_delivered=jnp.sum(jnp.where(valid, delivered, 0.0)), routes_truncated=jnp.any(truncated))
 
 
+def _with_highways(fab, scene, fp: FabricParams):
+    """``fab`` with its highways (Eq. 11) recomputed for ``fp.tau_h``: the only part of the fabric that
+    depends on a field in ``_AFTER_TABLE``."""
+    highways = _heatmap.highways(fab.heat, jnp.asarray(scene.target_mask, bool), fp.tau_h,
+                                 relative=fp.highway_relative, smoothing=fp.highway_smoothing, nms=fp.highway_nms)
+    return fab._replace(highways=highways)
+
+
+def _outer_mode(tables: str) -> str:
+    """``"vmap"`` or ``"map"`` for ``tables="auto"``: ``vmap`` on accelerators, ``lax.map`` on CPU, where a
+    batched DP (batched gathers, while loops that select over their whole state) measured slower than
+    one table at a time (experiments/results/sweep.md)."""
+    if tables != "auto":
+        return tables
+    return "map" if jax.default_backend() == "cpu" else "vmap"
+
+
 @functools.lru_cache(maxsize=32)
-def _chunk_kernel(fabric_static: tuple, spill_static: tuple, fabric_keys: tuple, spill_keys: tuple,
-                  top: int, max_steps: int):
-    """``jit(vmap)`` of ``_metrics`` over settings: (scenes stacked [S, ...], scene_index i32[B],
-    fabric values f32[B, F], spill values f32[B, P]) -> dict of [B] metrics."""
+def _chunk_kernel(fabric_static: tuple, spill_static: tuple, table_keys: tuple, other_keys: tuple,
+                  spill_keys: tuple, top: int, max_steps: int, tables: str = "auto"):
+    """The chunk program, one ``jit``: over the chunk's U tables (scene + the fields that change the DP:
+    one ``build_fabric`` each) a ``vmap`` or, on CPU, a ``lax.map`` (``tables``: "vmap", "map" or
+    "auto"); inside, a ``vmap`` over the M settings sharing a table (highways for their tau_h, route
+    metrics for their slack and spill parameters). The inner ``vmap`` batches only what depends on
+    those parameters: the route walks and splines of one table are computed once for all M.
+
+    (scenes stacked [S, ...], scene_index i32[U], table_values f32[U, Ft], other_values f32[M, Fo],
+    spill_values f32[M, P]) -> dict of [U, M] metrics.
+    """
     fstat, sstat = dict(fabric_static), dict(spill_static)
 
-    def one(scenes, i, fvals, svals):
+    def one_table(scenes, i, tvals, ovals, svals):
         scene = jax.tree_util.tree_map(lambda a: a[i], scenes)
-        fp = FabricParams(**fstat, **{k: fvals[j] for j, k in enumerate(fabric_keys)})
-        sp = SpillParams(**sstat, **{k: svals[j] for j, k in enumerate(spill_keys)})
-        return _metrics(scene, fp, sp, top, max_steps)
+        table_fields = {k: tvals[j] for j, k in enumerate(table_keys)}
+        fab = _fabric._build(scene, FabricParams(**fstat, **table_fields))
 
-    return jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0)))
+        def one_setting(o, s):
+            fp = FabricParams(**fstat, **table_fields, **{k: o[j] for j, k in enumerate(other_keys)})
+            sp = SpillParams(**sstat, **{k: s[j] for j, k in enumerate(spill_keys)})
+            return _metrics(scene, fp, sp, top, max_steps, fab=_with_highways(fab, scene, fp))
+
+        return jax.vmap(one_setting)(ovals, svals)
+
+    if _outer_mode(tables) == "vmap":
+        return jax.jit(jax.vmap(one_table, in_axes=(None, 0, 0, None, None)))
+
+    def mapped(scenes, index, tvals, ovals, svals):
+        return jax.lax.map(lambda x: one_table(scenes, x[0], x[1], ovals, svals), (index, tvals))
+
+    return jax.jit(mapped)
 
 
 class Chunk(NamedTuple):
-    """One chunk's inputs, plain numpy (picklable for Ray).
+    """One chunk's inputs, plain numpy (picklable for Ray): U tables x M settings each.
 
-    scenes: tuple of the stacked scene leaves [S, ...] of one grid shape; scene_index: i32[B];
-    fabric_values: f32[B, F]; spill_values: f32[B, P]; static: hashable kernel config.
+    scenes: tuple of the stacked scene leaves [S, ...] of one grid shape; scene_index: i32[U];
+    table_values: f32[U, Ft] (fields that change the DP); other_values: f32[M, Fo] (the other fabric
+    fields); spill_values: f32[M, P]; static: hashable kernel config.
     """
 
     scenes: tuple
     scene_index: np.ndarray
-    fabric_values: np.ndarray
+    table_values: np.ndarray
+    other_values: np.ndarray
     spill_values: np.ndarray
     static: tuple
 
 
-def evaluate_chunk(chunk: Chunk) -> dict:
-    """Run the vmapped kernel on one chunk: a dict of numpy metric arrays, [B] each."""
+def evaluate_chunk(chunk: Chunk, tables: str = "auto") -> dict:
+    """Run the chunk kernel on one chunk: a dict of numpy metric arrays, [U * M] each (table-major).
+
+    tables: how the chunk's U tables are batched, "vmap", "map" (``lax.map``) or "auto" (see ``_chunk_kernel``).
+    """
+    if tables not in ("auto", "vmap", "map"):
+        raise ValueError(f"tables: must be 'auto', 'vmap' or 'map'; got {tables!r}.")
     scenes = Scene(*(jnp.asarray(a) for a in chunk.scenes))
-    kernel = _chunk_kernel(*chunk.static)
-    out = kernel(scenes, jnp.asarray(chunk.scene_index), jnp.asarray(chunk.fabric_values, jnp.float32),
-                 jnp.asarray(chunk.spill_values, jnp.float32))
-    return {k: np.asarray(v) for k, v in jax.device_get(out).items()}
+    kernel = _chunk_kernel(*chunk.static, tables=tables)
+    out = kernel(scenes, jnp.asarray(chunk.scene_index), jnp.asarray(chunk.table_values, jnp.float32),
+                 jnp.asarray(chunk.other_values, jnp.float32), jnp.asarray(chunk.spill_values, jnp.float32))
+    return {k: np.asarray(v).reshape(-1) for k, v in jax.device_get(out).items()}
 
 
 def _bytes(tree) -> int:
     return sum(int(np.prod(x.shape)) * np.dtype(x.dtype).itemsize for x in jax.tree_util.tree_leaves(tree))
 
 
-def bytes_per_setting(scene: Scene, fabric_static: dict | None = None) -> int:
-    """Estimated working memory of one setting, bytes: ``_WORKSPACE_FACTOR`` x (the fabric's output
-    arrays, from ``jax.eval_shape``, plus the scene's arrays)."""
+def bytes_per_table(scene: Scene, fabric_static: dict | None = None, per_table: int = 1) -> int:
+    """Estimated working memory of one table and its ``per_table`` settings, bytes.
+
+    ``_WORKSPACE_FACTOR`` x (the fabric's output arrays, from ``jax.eval_shape``, plus the scene's
+    arrays), plus per setting ``_WORKSPACE_FACTOR`` f32 grids (highways and route metrics).
+    """
     fp = FabricParams(**(fabric_static or {}))
     out = jax.eval_shape(_fabric._build, scene, fp)
-    return _WORKSPACE_FACTOR * (_bytes(out) + _bytes(scene))
+    h, w = scene.shape
+    return _WORKSPACE_FACTOR * (_bytes(out) + _bytes(scene) + per_table * 4 * h * w)
 
 
 def chunk_size_for(scene: Scene, memory_budget_mb: float, fabric_static: dict | None = None,
-                   n_settings: int | None = None) -> int:
-    """Settings per chunk for ``scene``'s grid shape: ``budget // bytes_per_setting``, at least 1 and at
-    most ``n_settings``."""
-    size = max(1, int(memory_budget_mb * 2**20) // bytes_per_setting(scene, fabric_static))
-    return size if n_settings is None else max(1, min(size, n_settings))
+                   per_table: int = 1, n_tables: int | None = None) -> int:
+    """Tables per chunk for ``scene``'s grid shape: ``budget // bytes_per_table``, at least 1 and at most
+    ``n_tables``. A chunk evaluates ``tables x per_table`` settings."""
+    size = max(1, int(memory_budget_mb * 2**20) // bytes_per_table(scene, fabric_static, per_table))
+    return size if n_tables is None else max(1, min(size, n_tables))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -407,30 +475,52 @@ class _Plan(NamedTuple):
 
 
 def _plan_chunks(spec: SweepSpec, settings: list, memory_budget_mb: float) -> list[_Plan]:
-    """Chunks of one grid shape each, of a fixed size per shape; the last one padded by repeating its
-    last setting so every call has the same shape (one compile per grid shape)."""
-    groups: dict[tuple, list[int]] = {}
-    for n, (i, _, _) in enumerate(settings):
-        groups.setdefault(spec.scenes[i][1].shape, []).append(n)
+    """Chunks of U tables (x M settings each) from a run of consecutive scenes of one grid shape; U is
+    fixed per shape and the last chunk of a run is padded by repeating its last table, so every call of
+    one shape has the same array shapes (one compile per grid shape)."""
+    table_keys, per_table = _split(spec)
+    names = [k for k, _ in spec.fabric_grid]
+    t_idx = [names.index(k) for k in table_keys]
+    o_idx = [j for j, k in enumerate(names) if k not in table_keys]
+    other_keys = tuple(names[j] for j in o_idx)
+    spill_keys = tuple(k for k, _ in spec.spill_grid)
+    n_tables = len(settings) // per_table
+    # settings are table-major: table t owns settings [t * M, (t + 1) * M), all with the same other values
+    first = settings[:per_table]
+    other = np.array([[f[j] for j in o_idx] for _, f, _ in first], np.float32).reshape(per_table, len(o_idx))
+    spill = np.array([s for _, _, s in first], np.float32).reshape(per_table, len(spill_keys))
+    runs: list[list[int]] = []
+    for t in range(n_tables):
+        i = settings[t * per_table][0]
+        if runs and spec.scenes[settings[runs[-1][-1] * per_table][0]][1].shape == spec.scenes[i][1].shape:
+            runs[-1].append(t)
+        else:
+            runs.append([t])
+    tables_of_shape: dict[tuple, int] = {}
+    for run in runs:
+        shape = spec.scenes[settings[run[0] * per_table][0]][1].shape
+        tables_of_shape[shape] = tables_of_shape.get(shape, 0) + len(run)
     plans = []
-    fkeys = tuple(k for k, _ in spec.fabric_grid)
-    skeys = tuple(k for k, _ in spec.spill_grid)
-    for shape, members in groups.items():
-        scene_ids = sorted({settings[n][0] for n in members})
+    for run in runs:
+        scene_ids = sorted({settings[t * per_table][0] for t in run})
+        scene0 = spec.scenes[scene_ids[0]][1]
+        shape = scene0.shape
         local = {s: j for j, s in enumerate(scene_ids)}
         stacked = tuple(np.stack([np.asarray(leaf) for leaf in leaves]) for leaves in
                         zip(*(jax.tree_util.tree_leaves(spec.scenes[s][1]) for s in scene_ids)))
-        size = chunk_size_for(spec.scenes[scene_ids[0]][1], memory_budget_mb, spec.fabric_static, len(members))
+        size = chunk_size_for(scene0, memory_budget_mb, spec.fabric_static, per_table, tables_of_shape[shape])
         max_steps = spec.max_steps if spec.max_steps is not None else shape[0] + shape[1] + 1
         static = (tuple(sorted(spec.fabric_static.items())), tuple(sorted(spec.spill_static.items())),
-                  fkeys, skeys, min(spec.top_sources, shape[0] * shape[1]), max_steps)
-        for start in range(0, len(members), size):
-            rows = members[start:start + size]
-            padded = rows + [rows[-1]] * (size - len(rows))
+                  table_keys, other_keys, spill_keys, min(spec.top_sources, shape[0] * shape[1]), max_steps)
+        for start in range(0, len(run), size):
+            tables = run[start:start + size]
+            padded = tables + [tables[-1]] * (size - len(tables))
+            rows = [t * per_table + j for t in tables for j in range(per_table)]
             plans.append(_Plan(rows, Chunk(
-                stacked, np.array([local[settings[n][0]] for n in padded], np.int32),
-                np.array([settings[n][1] for n in padded], np.float32).reshape(size, len(fkeys)),
-                np.array([settings[n][2] for n in padded], np.float32).reshape(size, len(skeys)), static)))
+                stacked, np.array([local[settings[t * per_table][0]] for t in padded], np.int32),
+                np.array([[settings[t * per_table][1][j] for j in t_idx] for t in padded],
+                         np.float32).reshape(size, len(t_idx)),
+                other, spill, static)))
     return plans
 
 

@@ -29,15 +29,10 @@ top_sources = 3
 """
 
 
-def _budget_for(chunk: int) -> float:
-    scene = sweep.load_spec(SPEC).scenes[0][1]
-    return chunk * sweep.bytes_per_setting(scene) / 2**20
-
-
-
 @pytest.fixture(scope="module")
 def budget():
-    return _budget_for(4)
+    """Room for one table (theta x scene) and its 4 settings (tau_h x lam) per chunk: 4 chunks."""
+    return sweep.bytes_per_table(sweep.load_spec(SPEC).scenes[0][1], per_table=4) / 2**20
 
 
 @pytest.fixture(scope="module")
@@ -170,11 +165,17 @@ def test_bad_arguments_and_foreign_files(tmp_path, budget):
 
 def test_chunk_size_follows_the_memory_budget():
     scene = sweep.load_spec(SPEC).scenes[0][1]
-    per = sweep.bytes_per_setting(scene)
-    assert per > 0
-    assert sweep.chunk_size_for(scene, 10 * per / 2**20) == 10
+    per = sweep.bytes_per_table(scene, per_table=4)
+    assert per > sweep.bytes_per_table(scene, per_table=1) > 0
+    assert sweep.chunk_size_for(scene, 10 * per / 2**20, per_table=4) == 10
     assert sweep.chunk_size_for(scene, 1e-9) == 1
-    assert sweep.chunk_size_for(scene, 1e6, n_settings=16) == 16
+    assert sweep.chunk_size_for(scene, 1e6, n_tables=4) == 4
+
+
+def test_fields_that_change_the_table_come_first():
+    spec = sweep.load_spec({"scenes": ["default"], "fabric": {"tau_h": [0.3, 0.5], "theta_tol_deg": [45.0, 60.0]}})
+    assert [k for k, _ in spec.fabric_grid] == ["theta_tol_deg", "tau_h"]
+    assert [s[1] for s in sweep.settings_of(spec)] == [(45.0, 0.3), (45.0, 0.5), (60.0, 0.3), (60.0, 0.5)]
 
 
 def test_ray_backend_without_ray_says_how_to_install(tmp_path, monkeypatch, budget):

@@ -8,7 +8,7 @@ ray = pytest.importorskip("ray", reason="the Ray backend needs the extra jaxplan
 
 from jaxplan import sweep  # noqa: E402
 
-# One random 6x6 scene x 2 angles x 3 thresholds = 6 settings in chunks of 2 (3 Ray tasks).
+# One random 6x6 scene x 2 angles x 3 thresholds = 6 settings; one angle (3 settings) per chunk: 2 Ray tasks.
 SPEC = {"random_scenes": {"seeds": [7], "shape": [6, 6], "density": 0.7},
         "fabric": {"theta_tol_deg": [45.0, 60.0], "tau_h": [0.2, 0.4, 0.6]},
         "spill": {"lam": 0.1},
@@ -25,7 +25,7 @@ def local_ray():
 
 @pytest.fixture(scope="module")
 def budget():
-    return 2 * sweep.bytes_per_setting(sweep.load_spec(SPEC).scenes[0][1]) / 2**20
+    return sweep.bytes_per_table(sweep.load_spec(SPEC).scenes[0][1], per_table=3) / 2**20   # one theta per chunk
 
 
 def test_ray_backend_retries_and_matches_local(tmp_path, local_ray, budget):
