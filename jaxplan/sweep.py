@@ -18,11 +18,16 @@ list of values; static configuration is fixed for the whole sweep::
     [metrics]
     top_sources = 4                             # Eq. 6 delivered mass of the best N sources (0 = off)
 
-Settings are ordered scene-major, then the ``[fabric]`` and ``[spill]`` keys in the order given, the last
-varying fastest; ``setting`` (0-based) is the row's position in that order. Each setting runs
-``build_fabric`` plus cheap metrics (``METRICS``); settings are evaluated in chunks of one grid shape,
-``jit(vmap(...))`` over the chunk, each chunk padded to the same size (one compile per grid shape, and a
-setting's numbers do not depend on which chunk it lands in). The chunk size comes from a memory budget
+Settings are ordered scene-major, then by the ``[fabric]`` fields that change the DP table (all but
+``tau_h``, ``slack_tau``, ``anchor_lambda``), then the other ``[fabric]`` fields, then ``[spill]``, each
+group in the order given, the last varying fastest; ``setting`` (0-based) is the row's position in that
+order. So the settings sharing one DP table (same scene and table fields) are contiguous: a chunk holds
+U such tables, runs ``build_fabric`` once per table and evaluates the M settings of each table with a
+``vmap`` (highways for their tau_h, Eq. 6 routes for their slack and spill parameters), all in one
+``jit``; over the U tables a ``vmap`` on accelerators, a ``lax.map`` on CPU (see ``_chunk_kernel`` and
+docs/sweeps.md). Chunks hold one grid shape and are padded to a fixed size per shape (one compile per
+shape), and their boundaries are fixed, so a resumed run computes every setting exactly as an
+uninterrupted one. U comes from a memory budget
 (``chunk_size_for``). Rows are appended and flushed chunk by chunk, so an interrupted sweep resumes:
 rows already in the output file are kept (a torn last line is dropped) and only the missing chunks are
 evaluated. The resumed file is byte-identical to an uninterrupted run.
