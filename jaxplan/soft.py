@@ -133,10 +133,10 @@ def edge_log_prob(occupied, goal, dist, tvec, theta_tol_deg, monotone: bool, cel
 def soft_dp(obj, occupied, goal, dist, tvec, log_p, allowed, cell_size, t, rounds: int):
     """Fixed-round soft value iteration toward ``goal``.
 
-    Per occupied cell C, options: step i (allowed) with score ``V(N_i) - eta |step_i| + log p_i``
+    Per occupied cell C, options: step i (allowed) with score ``V(N_i) - eta |step_i| - t^(3/4) i + log p_i``
     (``V = 0`` for a goal neighbour: entering it ends the path) and the fallback with score
     ``sum_i log(1 - p_i) - eta d(C)`` (all steps closed), ``eta = sqrt(t) / s`` (the length
-    tie-break). ``V(C) = obj(C) + t logsumexp(score / t)``, ``pi = softmax(score / t)``,
+    tie-break; ``t^(3/4) i`` breaks the remaining ties toward the lower direction index). ``V(C) = obj(C) + t logsumexp(score / t)``, ``pi = softmax(score / t)``,
     expected raw ``R(C) = obj(C) + sum_i pi_i [N_i not goal] R(N_i)``, expected length
     ``L(C) = sum_i pi_i (|step_i| + [N_i not goal] L(N_i)) + pi_fb d(C)``. Rounds start from the
     0-step fallback (``V = R = obj``, ``L = d``) and run ``rounds`` times (static).
@@ -156,12 +156,16 @@ def soft_dp(obj, occupied, goal, dist, tvec, log_p, allowed, cell_size, t, round
     # Ties in raw are common (entering either of two target cells collects the same mass); the
     # hard kernel breaks them toward the shorter path. Here the utility is raw - eta * length with
     # eta = sqrt(t) per cell size: it vanishes as t -> 0 while eta / t (the tie's weight) grows.
+    # Exact ties in (raw, length) remain (two target cells entered by equal steps); the hard kernel
+    # takes the lower direction index. A bias of -t^(3/4) per direction index does the same as
+    # t -> 0 (t^(3/4) / t grows) and is smaller than the length tie-break's sqrt(t) scale.
     eta = jnp.sqrt(t) / cell_size
     fb_cost = eta * dist
+    order = (t ** 0.75) * jnp.arange(_grid.N_DIRS, dtype=jnp.float32)[:, None, None]
 
     def scores(value):
         nb_v = _grid.neighbours(value, 0.0)
-        step = jnp.where(nb_goal, 0.0, nb_v) - eta * step_len + log_p
+        step = jnp.where(nb_goal, 0.0, nb_v) - eta * step_len - order + log_p
         return jnp.concatenate([step, (log_fb - fb_cost)[None]], 0)
 
     def body(carry, _):

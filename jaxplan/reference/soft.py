@@ -91,7 +91,7 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
                 continue
             nr, nc = r + dr, c + dc
             nv = 0.0 if target[nr, nc] else value[nr, nc]
-            out.append((nv - eta * step_cells(k) * s + logp[(r, c, k)], k))
+            out.append((nv - eta * step_cells(k) * s - t ** 0.75 * k + logp[(r, c, k)], k))
             log_fb += math.log(max(-math.expm1(min(logp[(r, c, k)], 0.0)), _TINY))
         out.append((log_fb - eta * dist[r, c], 8))
         return out
