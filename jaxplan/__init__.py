@@ -16,6 +16,7 @@ from jaxplan.pusharound import PushScene, RankingParams, build_wccg, connectivit
 from jaxplan.rebuild import Affected, refresh_connectors, selective_rebuild
 from jaxplan.scene import BUILTIN_SCENES, DEFAULT_SCENE, Scene, box, builtin_scene, circle
 from jaxplan.selection import Selection, select_routes
+from jaxplan.soft import SoftFabric
 from jaxplan.spillage import SpillParams
 from jaxplan.teams import (SiteParams, TeamsConfig, paper_scenario, random_sites, run_sites,
                            simulate_site)
@@ -23,7 +24,7 @@ from jaxplan.teams import (SiteParams, TeamsConfig, paper_scenario, random_sites
 __all__ = [
     "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "Fabric",
     "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "Route", "Scene", "Selection",
-    "SiteParams", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
+    "SiteParams", "SoftFabric", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
     "circle", "connectivity", "extract_paths", "nominal_scene", "paper_scenario", "plan_connectors",
     "random_sites", "rank_gaps", "refresh_connectors", "run_episode", "run_sites", "select_routes", "selective_rebuild",
     "simulate_site",

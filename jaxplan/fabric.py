@@ -214,11 +214,18 @@ def build_fabric(scene, params: FabricParams | None = None) -> Fabric:
     """Build the whole fabric (visibility, DP, first hops, psi, heatmap, highways) for ``scene``.
 
     Jitted; ``vmap`` it over ``FabricParams`` (traced fields) or over stacked scenes of one shape.
-    Concrete inputs are validated first and raise ``ValueError`` naming the bad field.
+    Concrete inputs are validated first and raise ``ValueError`` naming the bad field. With
+    ``params.temperature`` set (> 0, or traced) it runs the soft kernels and returns a
+    ``jaxplan.soft.SoftFabric`` instead (``temperature=None`` or a concrete 0: the hard ``Fabric``).
     """
     params = FabricParams() if params is None else params
     if _is_concrete(params):
         validate_params(params)
+    if params.temperature is not None:
+        if params.is_soft:   # a temperature > 0 (or traced): the differentiable kernels
+            from jaxplan import soft
+            return soft.build_soft_fabric(scene, params)
+        params = params.replace(temperature=None)   # a concrete 0: the exact hard kernels
     return _build_jit(scene, params)
 
 

@@ -13,9 +13,9 @@ from typing import Any
 import jax
 import numpy as np
 
-_TRACED = ("theta_tol_deg", "tau_h", "anchor_lambda", "slack_tau")
+_TRACED = ("theta_tol_deg", "tau_h", "anchor_lambda", "slack_tau", "temperature")
 _STATIC = ("monotone", "k", "max_hops", "highway_relative", "highway_smoothing", "highway_nms",
-           "solver")
+           "solver", "soft_rounds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,6 +27,10 @@ class FabricParams:
       tau_h: f32[], highway threshold of Eq. 11; a fraction of ``max H`` when ``highway_relative``.
       anchor_lambda: f32[], distance weight of Eq. 12, heat units per world unit, >= 0.
       slack_tau: f32[], slack of the candidate set (Section 3.2), object units, >= 0.
+      temperature: None (default) = the exact hard kernels; a number > 0 = the soft (differentiable)
+        kernels of ``jaxplan.soft`` and ``build_fabric`` returns a ``SoftFabric``. A concrete 0 is the
+        same as None. None is an empty pytree node, so the hard path's jit cache key and ``vmap``
+        batches are unchanged; any float (or tracer) shares one soft trace (no recompile per value).
     Static:
       monotone: the strict monotone rule (Eq. 2, strict); off gives the hop-capped walk DP.
       k: continuation-table depth K (>= 1).
@@ -34,6 +38,7 @@ class FabricParams:
       highway_relative, highway_smoothing, highway_nms: highway extraction options (Eq. 11).
       solver: "auto" (policy iteration with the monotone rule, wavefront without), "policy" or
         "wavefront"; all give the same fabric (see ``fabric.continuation_dp``).
+      soft_rounds: rounds of the soft Bellman recursion (soft kernels only); None = 2 * (H + W).
     """
 
     theta_tol_deg: Any = 60.0
@@ -47,6 +52,24 @@ class FabricParams:
     highway_smoothing: bool = False
     highway_nms: bool = False
     solver: str = "auto"
+    temperature: Any = None
+    soft_rounds: int | None = None
+
+    @property
+    def is_soft(self) -> bool:
+        """Whether ``build_fabric`` runs the soft kernels: a temperature is set and is not a concrete 0."""
+        t = self.temperature
+        if t is None:
+            return False
+        if _concrete(t) and np.ndim(t) == 0 and float(t) == 0.0:
+            return False
+        return True
+
+    def resolved_soft_rounds(self, shape) -> int:
+        if self.soft_rounds is not None:
+            return int(self.soft_rounds)
+        h, w = shape
+        return 2 * (h + w)
 
     def replace(self, **changes) -> "FabricParams":
         return dataclasses.replace(self, **changes)
@@ -99,5 +122,11 @@ def validate_params(params: FabricParams) -> None:
     if params.solver == "policy" and not params.monotone:
         raise ValueError("FabricParams.solver: 'policy' needs monotone=True (an acyclic successor graph); "
                          "use 'auto' or 'wavefront'.")
+    if params.temperature is not None:
+        _check_range("temperature", params.temperature, 0.0, math.inf, False, True,
+                     "Use None (or 0) for the exact hard kernels, or a positive temperature for the soft ones.")
+    if params.soft_rounds is not None and (not isinstance(params.soft_rounds, (int, np.integer))
+                                           or params.soft_rounds < 1):
+        raise ValueError(f"FabricParams.soft_rounds: must be None or an int >= 1; got {params.soft_rounds!r}.")
     if not isinstance(params.monotone, (bool, np.bool_)):
         raise ValueError(f"FabricParams.monotone: must be True or False; got {params.monotone!r}.")

@@ -1,0 +1,201 @@
+"""Serial reference of the soft fabric kernels (``jaxplan.soft``): plain loops over cells, float64.
+
+Follows docs/conventions.md, "Soft kernels", one cell and one option at a time.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from jaxplan.reference.visibility import CONE_EPS, GATE_EPS, MONOTONE_EPS, in_grid, step_cells, step_unit
+
+__all__ = ["reference_soft_fabric"]
+
+DIRS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
+_TINY = 1e-30
+
+
+def _log_sigmoid(x: float) -> float:
+    return -math.log1p(math.exp(-x)) if x >= 0 else x - math.log1p(math.exp(x))
+
+
+def _sigmoid(x: float) -> float:
+    return math.exp(_log_sigmoid(x))
+
+
+def _soft_max(options, t):
+    """``(t * logsumexp(s / t), weights)`` over a list of finite scores; (0, []) for none."""
+    if not options:
+        return 0.0, []
+    top = max(options)
+    e = [math.exp((s - top) / t) for s in options]
+    total = sum(e)
+    return top + t * math.log(total), [x / total for x in e]
+
+
+def _fallback_dir(tvec, r, c, shape):
+    best, best_k = -math.inf, -1
+    for k in range(8):
+        if in_grid(r + DIRS[k][0], c + DIRS[k][1], shape):
+            ux, uy = step_unit(k)
+            a = tvec[r, c, 0] * ux + tvec[r, c, 1] * uy
+            if a > best:
+                best, best_k = a, k
+    return best_k
+
+
+def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, theta_tol_deg, tau_h,
+                          anchor_lambda, temperature, monotone=True, rounds=None, highway_relative=True):
+    """A dict with the ``SoftFabric`` fields (no smoothing / non-max suppression) for one grid.
+
+    obj: f[H, W] objects; target_mask: bool[H, W]; dist: f[H, W] and tvec: f[H, W, 2] the scene's
+    geometry; cell_size, origin: world units. Keyword parameters as in ``FabricParams``.
+    """
+    obj = np.asarray(obj, np.float64)
+    target = np.asarray(target_mask, bool)
+    dist = np.asarray(dist, np.float64)
+    tvec = np.asarray(tvec, np.float64)
+    h, w = obj.shape
+    t = max(float(temperature), 1e-6)
+    s = float(cell_size)
+    rounds = 2 * (h + w) if rounds is None else int(rounds)
+    occ = ~target & (obj > 0)
+    cos_t = math.cos(math.radians(float(theta_tol_deg))) - CONE_EPS
+    eta = math.sqrt(t) / s
+
+    # soft edge probabilities (log) of every allowed step
+    logp = {}
+    for r in range(h):
+        for c in range(w):
+            if not occ[r, c]:
+                continue
+            for k, (dr, dc) in enumerate(DIRS):
+                nr, nc = r + dr, c + dc
+                if not in_grid(nr, nc, (h, w)) or not (occ[nr, nc] or target[nr, nc]):
+                    continue
+                ux, uy = step_unit(k)
+                lp = _log_sigmoid((tvec[r, c, 0] * ux + tvec[r, c, 1] * uy - cos_t) / t)
+                if monotone:
+                    margin = (dist[r, c] - dist[nr, nc]) / s - MONOTONE_EPS
+                    if margin <= 0:
+                        continue
+                    lp += _log_sigmoid(margin / t)
+                logp[(r, c, k)] = lp
+
+    def options(value, r, c):
+        """[(score, kind)] with kind = direction index or 8 for the fallback."""
+        out, log_fb = [], 0.0
+        for k, (dr, dc) in enumerate(DIRS):
+            if (r, c, k) not in logp:
+                continue
+            nr, nc = r + dr, c + dc
+            nv = 0.0 if target[nr, nc] else value[nr, nc]
+            out.append((nv - eta * step_cells(k) * s - t ** 0.75 * k + logp[(r, c, k)], k))
+            log_fb += math.log(max(-math.expm1(min(logp[(r, c, k)], 0.0)), _TINY))
+        out.append((log_fb - eta * dist[r, c], 8))
+        return out
+
+    value = np.where(occ, obj - eta * dist, 0.0)
+    raw = np.where(occ, obj, 0.0)
+    length = np.where(occ, dist, 0.0)
+    for _ in range(rounds):
+        nv, nr_, nl = np.zeros_like(value), np.zeros_like(raw), np.zeros_like(length)
+        for r in range(h):
+            for c in range(w):
+                if not occ[r, c]:
+                    continue
+                opts = options(value, r, c)
+                v, pi = _soft_max([o[0] for o in opts], t)
+                nv[r, c] = obj[r, c] + v
+                nr_[r, c] = obj[r, c]
+                for p, (_, k) in zip(pi, opts):
+                    if k == 8:
+                        nl[r, c] += p * dist[r, c]
+                        continue
+                    rr, cc = r + DIRS[k][0], c + DIRS[k][1]
+                    cont = not target[rr, cc]
+                    nr_[r, c] += p * (raw[rr, cc] if cont else 0.0)
+                    nl[r, c] += p * (step_cells(k) * s + (length[rr, cc] if cont else 0.0))
+        value, raw, length = nv, nr_, nl
+
+    policy = np.zeros((h, w, 9))
+    for r in range(h):
+        for c in range(w):
+            if occ[r, c]:
+                opts = options(value, r, c)
+                _, pi = _soft_max([o[0] for o in opts], t)
+                for p, (_, k) in zip(pi, opts):
+                    policy[r, c, k] = p
+
+    # soft psi: every predecessor P of U, gated by log pi_P(P -> U)
+    own = np.where(occ, raw, 0.0)
+    psi = own.copy()
+    for _ in range(rounds):
+        new = np.zeros_like(psi)
+        for r in range(h):
+            for c in range(w):
+                opts = [0.0] + ([own[r, c]] if occ[r, c] else [])
+                for k, (dr, dc) in enumerate(DIRS):
+                    pr, pc = r - dr, c - dc
+                    if in_grid(pr, pc, (h, w)) and policy[pr, pc, k] > 0:
+                        opts.append(psi[pr, pc] + math.log(max(policy[pr, pc, k], _TINY)))
+                new[r, c], _ = _soft_max(opts, t)
+        psi = new
+
+    # soft heat: the policy-averaged Eq. 10 alignment of each source C = X - step
+    heat = np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            if target[r, c]:
+                continue
+            opts = [0.0]
+            for j, (dr, dc) in enumerate(DIRS):
+                pr, pc = r - dr, c - dc
+                if not in_grid(pr, pc, (h, w)) or not occ[pr, pc]:
+                    continue
+                fb = _fallback_dir(tvec, pr, pc, (h, w))
+                expected = 0.0
+                for i in range(9):
+                    hop = fb if i == 8 else i
+                    if hop < 0:
+                        continue
+                    ux, uy = step_unit(hop)
+                    jx, jy = step_unit(j)
+                    a = ux * jx + uy * jy
+                    if step_cells(j) <= step_cells(hop) + GATE_EPS and a * step_cells(j) > GATE_EPS:
+                        expected += policy[pr, pc, i] * a
+                opts.append(expected * psi[pr, pc])
+            heat[r, c], _ = _soft_max(opts, t)
+
+    scale = max(heat.max(), 1e-6) if highway_relative else 1.0
+    thr = float(tau_h) * scale if highway_relative else float(tau_h)
+    hw = np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            if not target[r, c]:
+                hw[r, c] = _sigmoid((heat[r, c] - thr) / (t * scale)) * _sigmoid(heat[r, c] / (t * scale))
+    cand = hw * occ
+
+    ascale = max(heat.max(), 1e-6)
+    anchors = np.zeros((h, w, h * w))
+    centre = lambda r, c: (origin[0] + (c + 0.5) * s, origin[1] + (r + 0.5) * s)  # noqa: E731
+    for r in range(h):
+        for c in range(w):
+            if not occ[r, c]:
+                continue
+            x0, y0 = centre(r, c)
+            scores, idx = [], []
+            for q in range(h * w):
+                qr, qc = divmod(q, w)
+                if cand[qr, qc] <= 0:
+                    continue
+                x1, y1 = centre(qr, qc)
+                d = math.hypot(x1 - x0, y1 - y0)
+                scores.append((heat[qr, qc] - float(anchor_lambda) * d) / ascale + math.log(max(cand[qr, qc], _TINY)))
+                idx.append(q)
+            _, wts = _soft_max(scores, t)
+            for q, wt in zip(idx, wts):
+                anchors[r, c, q] = wt
+    return dict(value=value, raw=raw, length=length, policy=policy, psi=psi, heat=heat, highways=hw,
+                candidate=cand, anchor_weights=anchors)

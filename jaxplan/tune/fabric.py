@@ -1,0 +1,216 @@
+"""Tuning the fabric parameters (theta_tol, tau_H, anchor lambda) by gradient through the soft fabric.
+
+The objective (``soft_efficiency``) is a differentiable stand-in for what an episode achieves: the
+soft **delivered mass per unit of route length**, averaged over the sources weighted by their
+counts. For every occupied source C the soft fabric gives the expected raw mass ``R(C)``, length
+``L(C)`` and first-step distribution; the curvature spill idea (``jaxplan.spillage``: a fraction
+``spill_lam`` of the load per radian of turning) turns the policy's expected total turning ``Θ(C)``
+into a kept fraction ``exp(-spill_lam Θ(C))``. A root may instead go via a highway (Eq. 12): its
+soft anchor weights give the expected via route (straight approach to the anchor, then the
+anchor's path), chosen softly when it carries ``(1 + margin)`` times the direct route's mass, as
+the episode's Rearrange rule does. Parameters are optimised in an unconstrained space with optax.
+
+``evaluate_hard`` measures the same parameters with the hard episode loop (``jaxplan.run_episode``).
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from jaxplan import _grid
+from jaxplan.fabric import build_fabric
+from jaxplan.params import FabricParams
+from jaxplan.scene import Scene, circle
+
+TUNED = ("theta_tol_deg", "tau_h", "anchor_lambda")
+
+
+# ---------------------------------------------------------------------------------------------- scenes
+
+
+def random_scene(rng: np.random.Generator, shape=(16, 16), n_piles: int = 3) -> Scene:
+    """A random scene: gaussian piles of integer counts (<= 6) and a round target near one side."""
+    h, w = shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
+    obj = np.zeros(shape)
+    for _ in range(n_piles):
+        cx, cy = rng.uniform(1.0, w - 1.0), rng.uniform(1.0, h - 1.0)
+        amp, sigma = rng.uniform(3.0, 6.0), rng.uniform(1.0, 2.5)
+        obj += amp * np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * sigma ** 2))
+    obj = np.clip(np.rint(obj), 0, 6)
+    side = rng.integers(4)
+    along = rng.uniform(0.3, 0.7)
+    centre = [(w * along, 1.5), (w - 1.5, h * along), (w * along, h - 1.5), (1.5, h * along)][side]
+    target = circle(centre, rng.uniform(1.2, 2.2), resolution=32)
+    scene = Scene.from_arrays(np.zeros(shape, np.float32), target)
+    return scene.with_obj(np.where(np.asarray(scene.target_mask), 0.0, obj).astype(np.float32))
+
+
+def random_scenes(n: int, shape=(16, 16), seed: int = 0) -> list[Scene]:
+    rng = np.random.default_rng(seed)
+    return [random_scene(rng, shape) for _ in range(n)]
+
+
+def stack_scenes(scenes: list[Scene]) -> Scene:
+    """One ``Scene`` pytree whose leaves carry a leading batch axis (all scenes of one shape)."""
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *scenes)
+
+
+# ---------------------------------------------------------------------------------------------- objective
+
+
+def _turn_matrix() -> np.ndarray:
+    """``f64[8, 8]``: the angle (radians) between step directions i and j."""
+    unit = _grid.STEP_UNIT.astype(np.float64)
+    return np.arccos(np.clip(unit @ unit.T, -1.0, 1.0))
+
+
+def expected_turning(soft_fabric, scene, rounds: int):
+    """``f32[H, W]`` radians: expected total turning of the soft policy's path from every cell.
+
+    ``Θ(C) = sum_i pi_i(C) [N_i continues] (sum_j pi_j(N_i) angle(i, j) + Θ(N_i))``; a fallback
+    at N_i turns by the angle between step i and ``t(N_i)``. Fixed ``rounds`` (static).
+    """
+    policy = jnp.moveaxis(soft_fabric.policy, -1, 0)                       # [9, H, W]
+    target = jnp.asarray(scene.target_mask, bool)
+    nb_goal = _grid.neighbours(target, False)
+    turn = jnp.asarray(_turn_matrix(), jnp.float32)
+    unit = jnp.asarray(_grid.STEP_UNIT)
+    nb_pol = _grid.neighbours(jnp.moveaxis(policy, 0, -1), 0.0)            # [8 (i), H, W, 9 (j)]
+    nb_t = _grid.neighbours(scene.tvec, 0.0)                               # [8, H, W, 2]
+    fb_angle = jnp.arccos(jnp.clip(jnp.einsum("ihwx,ix->ihw", nb_t, unit), -1.0, 1.0))
+    local = jnp.einsum("ihwj,ij->ihw", nb_pol[..., :8], turn) + nb_pol[..., 8] * fb_angle   # [8, H, W]
+    cont = ~nb_goal & (policy[:8] > 0)
+
+    def body(theta, _):
+        nb = _grid.neighbours(theta, 0.0)
+        return jnp.sum(jnp.where(cont, policy[:8] * (local + nb), 0.0), 0), None
+
+    theta, _ = jax.lax.scan(body, jnp.zeros(target.shape), None, length=rounds)
+    return theta
+
+
+class ObjectiveConfig(NamedTuple):
+    """Static settings of the objective: spill_lam (fraction per radian, as ``SpillParams.lam``),
+    rearrange_margin (as ``EpisodeParams``), temperature of the soft kernels."""
+
+    temperature: float = 0.1
+    spill_lam: float = 0.05
+    rearrange_margin: float = 0.1
+
+
+def soft_efficiency(scene: Scene, params: FabricParams, config: ObjectiveConfig = ObjectiveConfig()):
+    """``f32[]`` objects per world unit: count-weighted mean over sources of soft delivered / length.
+
+    params: the (traced) fabric parameters; its temperature is replaced by ``config.temperature``.
+    """
+    t = config.temperature
+    f = build_fabric(scene, params.replace(temperature=t))
+    obj = jnp.where(f.occupied, jnp.asarray(scene.obj, jnp.float32), 0.0)
+    rounds = params.resolved_soft_rounds(obj.shape)
+    keep = jnp.exp(-config.spill_lam * expected_turning(f, scene, rounds))
+    direct_mass = f.raw * keep
+    direct_len = jnp.maximum(f.length, 1e-3)
+    # via-highway route: a straight approach to the anchor h, then h's soft path (Section 3.4)
+    h, w = obj.shape
+    centers = _grid.cell_centers((h, w), scene.cell_size, scene.origin).reshape(-1, 2)
+    d = jnp.sqrt(jnp.sum((centers[:, None] - centers[None]) ** 2, -1) + 1e-12).reshape(h, w, h * w)
+    wts = f.anchor_weights
+    via_mass = obj + jnp.sum(wts * direct_mass.reshape(-1), -1)
+    via_len = jnp.maximum(jnp.sum(wts * (d + f.length.reshape(-1)), -1), 1e-3)
+    scale = jnp.maximum(jnp.max(f.raw), 1e-3)
+    rearrange = f.root * jnp.sum(wts, -1) * jax.nn.sigmoid(
+        (via_mass - (1.0 + config.rearrange_margin) * direct_mass) / (t * scale))
+    eff = (1.0 - rearrange) * direct_mass / direct_len + rearrange * via_mass / via_len
+    return jnp.sum(obj * eff) / jnp.maximum(jnp.sum(obj), 1e-6)
+
+
+soft_efficiency_jit = jax.jit(soft_efficiency, static_argnums=2)
+
+
+# ---------------------------------------------------------------------------------------------- fitting
+
+
+def to_unconstrained(params: FabricParams) -> dict:
+    """``{name: f32[]}``: theta in (5, 175) deg via a logit, tau_h in (0, 1) via a logit, lambda >= 0
+    via an inverse softplus."""
+    logit = lambda p: math.log(p / (1.0 - p))  # noqa: E731
+    return dict(theta_tol_deg=jnp.float32(logit((float(params.theta_tol_deg) - 5.0) / 170.0)),
+                tau_h=jnp.float32(logit(float(params.tau_h))),
+                anchor_lambda=jnp.float32(math.log(math.expm1(max(float(params.anchor_lambda), 1e-4)))))
+
+
+def from_unconstrained(u: dict, base: FabricParams) -> FabricParams:
+    return base.replace(theta_tol_deg=5.0 + 170.0 * jax.nn.sigmoid(u["theta_tol_deg"]),
+                        tau_h=jax.nn.sigmoid(u["tau_h"]), anchor_lambda=jax.nn.softplus(u["anchor_lambda"]))
+
+
+class FitResult(NamedTuple):
+    """params: the tuned FabricParams (floats); history: one dict per step (objective, parameters)."""
+
+    params: FabricParams
+    history: list
+
+
+def fit_fabric(scenes: list[Scene], init: FabricParams | None = None, *, steps: int = 60,
+               learning_rate: float = 0.05, config: ObjectiveConfig = ObjectiveConfig(),
+               on_step: Callable[[int, dict], None] | None = None) -> FitResult:
+    """Maximise the mean ``soft_efficiency`` over ``scenes`` (one shape) with optax Adam.
+
+    Returns the tuned parameters and the loss curve (``history[i]["objective"]``, the value before
+    step i's update). One jitted value-and-grad for the whole batch (``vmap`` over scenes).
+    """
+    if steps < 1:
+        raise ValueError(f"steps: must be >= 1; got {steps!r}.")
+    base = FabricParams() if init is None else init
+    batch = stack_scenes(scenes)
+
+    def loss(u):
+        p = from_unconstrained(u, base)
+        return -jnp.mean(jax.vmap(lambda s: soft_efficiency(s, p, config))(batch))
+
+    value_and_grad = jax.jit(jax.value_and_grad(loss))
+    opt = optax.adam(learning_rate)
+    u = to_unconstrained(base)
+    state = opt.init(u)
+    history = []
+    for i in range(steps):
+        value, grad = value_and_grad(u)
+        p = from_unconstrained(u, base)
+        row = dict(step=i, objective=-float(value), **{k: float(getattr(p, k)) for k in TUNED})
+        history.append(row)
+        if on_step is not None:
+            on_step(i, row)
+        updates, state = opt.update(grad, state, u)
+        u = optax.apply_updates(u, updates)
+    tuned = from_unconstrained(u, base)
+    return FitResult(base.replace(**{k: float(getattr(tuned, k)) for k in TUNED}), history)
+
+
+# ---------------------------------------------------------------------------------------------- hard check
+
+
+def evaluate_hard(scenes: list[Scene], params: FabricParams, *, max_pushes: int = 40, spill_lam: float = 0.05,
+                  rearrange_margin: float = 0.1) -> list[dict]:
+    """Run the hard episode loop on every scene; one dict per scene with delivered mass, distance
+    driven, pushes and delivered per unit driven (objects per world unit)."""
+    from jaxplan.episode import EpisodeParams, run_episode
+    from jaxplan.spillage import SpillParams
+
+    hard = params.replace(temperature=None)
+    rows = []
+    for scene in scenes:
+        ep = run_episode(scene, hard, SpillParams(lam=spill_lam),
+                         EpisodeParams(max_pushes=max_pushes, rearrange_margin=rearrange_margin))
+        delivered = float(ep.delivered[-1]) if len(ep.delivered) else 0.0
+        driven = float(ep.driven[-1]) if len(ep.driven) else 0.0
+        rows.append(dict(delivered=delivered, driven=driven, pushes=int(len(ep.pushes)),
+                         rearranges=int(np.sum(ep.mode)) if len(ep.mode) else 0,
+                         initial_remaining=float(ep.initial_remaining), stop_reason=ep.stop_reason,
+                         efficiency=delivered / driven if driven > 0 else 0.0))
+    return rows

@@ -1,0 +1,74 @@
+"""Tuning the fabric parameters by gradient (jaxplan.tune.fabric) on tiny scenes."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxplan.tune.fabric as tune
+from jaxplan import FabricParams
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    return tune.random_scenes(3, (8, 8), seed=3)
+
+
+def test_random_scenes_have_material_and_an_empty_target(scenes):
+    for s in scenes:
+        obj, target = np.asarray(s.obj), np.asarray(s.target_mask)
+        assert target.any() and obj[~target].sum() > 0 and obj[target].sum() == 0
+
+
+def test_objective_and_its_gradient_are_finite(scenes):
+    def f(theta, tau, lam):
+        return tune.soft_efficiency(scenes[0], FabricParams(theta_tol_deg=theta, tau_h=tau, anchor_lambda=lam))
+
+    value, grads = jax.jit(jax.value_and_grad(f, argnums=(0, 1, 2)))(60.0, 0.5, 1.0)
+    assert np.isfinite(float(value)) and float(value) > 0
+    assert all(np.isfinite(float(g)) for g in grads)
+    assert float(grads[0]) != 0.0
+
+
+def test_expected_turning_is_zero_for_a_straight_row():
+    from jaxplan import Scene, box
+    scene = Scene.from_arrays(np.array([[1, 2, 3, 1, 0]], np.float32), box(4.0, 0.0, 5.0, 1.0))
+    f = jax.jit(lambda s: tune.expected_turning(tune.build_fabric(s, FabricParams(temperature=1e-3)), s, 6))(scene)
+    np.testing.assert_allclose(np.asarray(f), 0.0, atol=1e-4)
+
+
+def test_unconstrained_round_trip():
+    p = FabricParams(theta_tol_deg=47.0, tau_h=0.3, anchor_lambda=0.7)
+    back = tune.from_unconstrained(tune.to_unconstrained(p), FabricParams())
+    for k in tune.TUNED:
+        assert float(getattr(back, k)) == pytest.approx(float(getattr(p, k)), rel=1e-4)
+
+
+def test_fit_raises_the_soft_objective(scenes):
+    fit = tune.fit_fabric(scenes, steps=6, learning_rate=0.1)
+    objective = [h["objective"] for h in fit.history]
+    assert len(objective) == 6 and all(np.isfinite(objective))
+    assert objective[-1] > objective[0]
+    assert isinstance(fit.params.theta_tol_deg, float) and fit.params.temperature is None
+
+
+def test_fit_rejects_zero_steps(scenes):
+    with pytest.raises(ValueError, match="steps"):
+        tune.fit_fabric(scenes, steps=0)
+
+
+def test_vmapped_objective_equals_single_calls(scenes):
+    batch = tune.stack_scenes(scenes)
+    p = FabricParams()
+    stacked = jax.jit(jax.vmap(lambda s: tune.soft_efficiency(s, p)))(batch)
+    single = jnp.array([tune.soft_efficiency_jit(s, p, tune.ObjectiveConfig()) for s in scenes])
+    np.testing.assert_allclose(np.asarray(stacked), np.asarray(single), rtol=1e-4)
+
+
+def test_evaluate_hard_runs_episodes(scenes):
+    rows = tune.evaluate_hard(scenes[:1], FabricParams(), max_pushes=1)
+    assert len(rows) == 1
+    row = rows[0]
+    assert row["pushes"] <= 1 and row["delivered"] >= 0 and row["driven"] > 0
+    assert row["efficiency"] == pytest.approx(row["delivered"] / row["driven"])
