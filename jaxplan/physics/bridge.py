@@ -31,12 +31,15 @@ from jaxplan.physics import rover as rover_mod
 from jaxplan.physics.rollout import Simulator, Trajectory
 
 __all__ = ["PursuitParams", "RouteOutcome", "Check", "pursuit_policy", "route_path", "check_routes",
-           "rasterise", "project", "plan_routes"]
+           "rasterise", "project", "plan_routes", "tracking_error", "PUSH_IN"]
 
 _SAMPLES = 8            # spline samples per waypoint segment (as spillage's default)
 _START_GAP = 0.9        # blade starts this many cells behind the source cell's centre (its wings
                         # clear a diagonal source cell's corner particles)
 _STOP_TOL = 0.05        # cells: the rover stops once the blade is this close to the path's end
+PUSH_IN = 1.0           # cells the blade drives on past a route's end by default: stopping on a
+                        # fallback route's boundary point left the carried load straddling the
+                        # boundary, mostly outside the target cells (docs/physics.md, "Pushing in")
 
 
 class PursuitParams(NamedTuple):
@@ -81,11 +84,19 @@ def pursuit_policy(p: PursuitParams, pstate, qpos, qvel, time):
     head = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
     normal = jnp.stack([-head[1], head[0]])
     blade = qpos[:2] + p.offset * head
-    # closest vertex in a window around the last progress (paths may pass near themselves)
-    d2 = jnp.sum((p.path - blade) ** 2, -1)
-    window = (p.arc >= progress - p.lookahead) & (p.arc <= progress + p.lookahead)
+    # closest point on the polyline's segments whose projection lies in a window around the last
+    # progress (paths may pass near themselves). Segments, not vertices: a fallback route's last
+    # spline segment can be many cells long, and a vertex-only search then found nothing in the
+    # window and froze the progress (the rover parked mid-route).
+    a, b = p.path[:-1], p.path[1:]
+    ab = b - a
+    len2 = jnp.sum(ab * ab, -1)
+    t = jnp.clip(jnp.sum((blade - a) * ab, -1) / jnp.maximum(len2, 1e-12), 0.0, 1.0)
+    d2 = jnp.sum((a + t[:, None] * ab - blade) ** 2, -1)
+    s_proj = p.arc[:-1] + t * (p.arc[1:] - p.arc[:-1])
+    window = (s_proj >= progress - p.lookahead) & (s_proj <= progress + p.lookahead)
     near = jnp.argmin(jnp.where(window, d2, jnp.inf))
-    progress = jnp.maximum(progress, p.arc[near])
+    progress = jnp.maximum(progress, jnp.where(window[near], s_proj[near], progress))
     remaining = p.total - progress
     done = done | (remaining < p.stop_tol)
     s_goal = progress + p.lookahead
@@ -100,12 +111,14 @@ def pursuit_policy(p: PursuitParams, pstate, qpos, qvel, time):
     return jnp.where(done, 0.0, wheels), (progress, done)
 
 
-def route_path(scene, route: execute.Route, world_geom: rover_mod.Geometry):
+def route_path(scene, route: execute.Route, world_geom: rover_mod.Geometry, push_in: float = 0.0):
     """The tracked path of one route: ``(path f[M, 2], arc f[M], total, end_dir f[2], start_xy, yaw)``.
 
     Waypoints are the start point (``_START_GAP`` cells behind the source, on the line to the next
     waypoint), then the route's waypoints (``execute.waypoints``). The spline is sampled like the
-    2D spill model's and closed with the end point. Numpy; M = (S + 1) * _SAMPLES + 1.
+    2D spill model's and closed with the end point, then extended straight on by ``push_in`` cells
+    along the end tangent (the blade stops there: with 0 it stops on a fallback route's boundary
+    point, and the load it carries straddles the boundary). Numpy; M = (S + 1) * _SAMPLES + 2.
     """
     s = float(np.asarray(scene.cell_size))
     pts, n = execute.waypoints(scene, route)
@@ -120,12 +133,14 @@ def route_path(scene, route: execute.Route, world_geom: rover_mod.Geometry):
     valid = np.asarray(samples.valid)
     end = way[n]
     poly = np.concatenate([start[None], pos[valid], end[None]], 0)
-    m = way.shape[0] * _SAMPLES + 1
-    poly = np.concatenate([poly, np.repeat(end[None], m - poly.shape[0], 0)], 0)
-    seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
-    arc = np.concatenate([[0.0], np.cumsum(seg)])
     tail = poly[valid.sum()] - poly[max(valid.sum() - 1, 0)]
     end_dir = tail / max(np.linalg.norm(tail), 1e-12)
+    stop = end + end_dir * float(push_in) * s
+    poly = np.concatenate([poly, stop[None]], 0)
+    m = way.shape[0] * _SAMPLES + 2
+    poly = np.concatenate([poly, np.repeat(stop[None], m - poly.shape[0], 0)], 0)
+    seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
     axle = start - dir0 * world_geom.blade_front
     return poly, arc, float(arc[-1]), end_dir, axle, math.atan2(dir0[1], dir0[0])
 
@@ -254,10 +269,12 @@ def plan_routes(scene, params=None, n_routes: int = 4):
 def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig | None = None,
                  spill: spillage.SpillParams | None = None, speed=0.8, lookahead: float = 0.8,
                  backend: str = "auto", horizon_factor: float = 1.5, n_ticks: int | None = None,
+                 push_in: float = PUSH_IN,
                  simulator: Simulator | None = None, world: rover_mod.World | None = None) -> Check:
     """Roll out every route of ``routes`` (leading axis B) in one batch and score it.
 
     speed: blade speed in cells/s (scalar or f[B], a per-route parameter); lookahead: cells.
+    push_in: cells the blade drives on past the route's end, along its end tangent (``route_path``).
     n_ticks: control ticks (default: the longest path at ``speed`` times ``horizon_factor``).
     world / simulator: reuse a built world (its particle count must suffice) and its compiled
     rollout; by default one world with as many particle bodies as the largest route needs.
@@ -278,7 +295,7 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
         raise ValueError(f"world: has {world.n_particles} particle bodies, the routes need {need}.")
     g = world.geometry
     speeds = np.broadcast_to(np.asarray(speed, np.float64), (b,)) * s
-    paths = [route_path(scene, _index(routes, i), g) for i in range(b)]
+    paths = [route_path(scene, _index(routes, i), g, push_in) for i in range(b)]
     q0 = np.stack([rover_mod.initial_qpos(world, p[4], p[5], lay[0]) for p, lay in zip(paths, layouts)])
     qv0 = np.zeros((b, world.model.nv))
     f32 = lambda x: jnp.asarray(np.asarray(x), jnp.float32)  # noqa: E731
@@ -342,6 +359,21 @@ def _score(scene, routes, world, traj: Trajectory, paths, layouts, masks, spill)
         cols["finite"].append(bool(traj.finite[i]))
         cols["max_contacts"].append(int(traj.ncon[i].max()))
     return RouteOutcome(**{k: np.asarray(v) for k, v in cols.items()})
+
+
+def tracking_error(scene, check: Check, i: int):
+    """``(time f[T], lateral f[T])`` of route ``i``: blade point to the tracked path, in cells, at every
+    control tick until the rover stopped (as ``RouteOutcome.mean_lateral`` / ``max_lateral`` average)."""
+    s = float(np.asarray(scene.cell_size))
+    qp = check.trajectory.qpos[i]
+    yaw = np.arctan2(2 * (qp[:, 3] * qp[:, 6] + qp[:, 4] * qp[:, 5]), 1 - 2 * (qp[:, 5] ** 2 + qp[:, 6] ** 2))
+    blade = qp[:, :2] + check.world.geometry.blade_front * np.stack([np.cos(yaw), np.sin(yaw)], -1)
+    stopped = np.nonzero(np.all(check.trajectory.ctrl[i] == 0.0, -1))[0]
+    last = int(stopped[0]) if stopped.size else check.trajectory.ctrl.shape[1]
+    track = blade[: last + 1]
+    good = np.all(np.isfinite(track), -1)
+    time = np.asarray(check.trajectory.time)[: last + 1][good]
+    return time, _point_polyline_distance(track[good], np.asarray(check.params.path[i], np.float64)) / s
 
 
 def projected_obj(scene, check: Check, i: int):
