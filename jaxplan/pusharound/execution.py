@@ -54,8 +54,8 @@ from jaxplan.pusharound.push import (PushTask, _check_tasks, _outcome, _start_po
 from jaxplan.pusharound.scene import PushScene
 from jaxplan.pusharound.wccg import build_wccg, connectivity, w_clear_path
 
-__all__ = ["ExecutionConfig", "ExecutedPush", "Execution", "Frames", "execute_schedule", "transit_policy",
-           "transition_path"]
+__all__ = ["ExecutionConfig", "ExecutedPush", "Execution", "Frames", "execute_schedule", "plan_frames",
+           "transit_policy", "transition_path"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,7 +111,8 @@ class ExecutedPush(NamedTuple):
     """One executed push. task: the :class:`PushTask` as executed (contacts possibly swapped);
     planned: f[M, 3] predicted poses after it; poses_before / poses_after: f[M, 3] actual;
     robots_after: f[N, 2]; stop: "reached" | "stalled" | "horizon" | "transit_timeout";
-    valid: the physics checks passed; deviation: f[] largest movable distance from the prediction
+    valid: the physics checks passed (else ``invalid`` names the failed ones: "hit_fixed",
+    "left_workspace", "tipped", "not_finite"); deviation: f[] largest movable distance from the prediction
     [m]; ok: the push counts as succeeded; transit_s, push_s: simulated seconds of both phases;
     plan: which plan it came from (0 the original, k the k-th replan)."""
 
@@ -127,6 +128,7 @@ class ExecutedPush(NamedTuple):
     transit_s: float
     push_s: float
     plan: int
+    invalid: str = ""
 
 
 class Execution(NamedTuple):
@@ -529,8 +531,11 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
                 dyaw = np.abs(np.angle(np.exp(1j * (after[:, 2] - planned[:, 2]))))
                 valid = bool(out.valid[0])
                 ok = valid and float(dev.max()) <= cfg.deviation_tol and float(dyaw.max()) <= cfg.yaw_deviation_tol
+                flags = {"hit_fixed": out.hit_fixed[0], "left_workspace": out.left_workspace[0],
+                         "tipped": out.tipped[0], "not_finite": not out.finite[0]}
                 executed.append(ExecutedPush(task, planned, poses_before, after, state.robots, why, valid,
-                                             float(dev.max()), ok, transit_s, push_s, plan_id))
+                                             float(dev.max()), ok, transit_s, push_s, plan_id,
+                                             ",".join(k for k, v in flags.items() if v)))
                 connected = _connected(now())
                 if connected:
                     reason = "connected"
@@ -566,3 +571,15 @@ def _frames(state: _State, world: PushWorld) -> Frames:
     tick, poses, robots, push, phase = zip(*state.frames)
     return Frames(np.asarray(tick, np.float64) * tick_s, np.stack(poses), np.stack(robots),
                   np.asarray(push, np.int32), list(phase))
+
+
+def plan_frames(scene: PushScene, result_or_schedule) -> Frames:
+    """Key frames of a schedule as planned (no physics): the start state, then every push's predicted
+    ``poses_after`` / ``robots_after``; time is the cumulative push duration [s]. For drawing a plan
+    that is not executed (``--no-execute``, or a failed search's partial schedule)."""
+    schedule = _scheduled(result_or_schedule)
+    poses = [scene.poses] + [np.asarray(s.poses_after, np.float64) for s in schedule]
+    robots = [np.asarray(scene.robots, np.float64)] + [np.asarray(s.robots_after, np.float64) for s in schedule]
+    time = np.r_[0.0, np.cumsum([float(np.asarray(s.task.duration)) for s in schedule])]
+    return Frames(time, np.stack(poses), np.stack(robots), np.arange(-1, len(schedule), dtype=np.int32),
+                  ["start"] + ["planned"] * len(schedule))
