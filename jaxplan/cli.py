@@ -566,7 +566,7 @@ def _obstacle_records(scene) -> list:
 
 
 def _pusharound_result(scene, source, args, *, plan=None, execution=None, final=None, path=None, connected=None,
-                       success=False, reason="", error=None) -> dict:
+                       success=False, reason="", error=None, final_check=None) -> dict:
     """The content of result.json (docs/pusharound.md, "Execution and CLI")."""
     final = scene if final is None else final
     stats = plan.stats._asdict() if plan is not None and hasattr(plan.stats, "_asdict") else None
@@ -588,6 +588,7 @@ def _pusharound_result(scene, source, args, *, plan=None, execution=None, final=
         "obstacles": _obstacle_records(final),
         "robots_final": _xy(np.asarray(final.robots).reshape(-1, 2)),
         "w_clear_path": None if path is None else _xy(path),
+        "scene_final_check": final_check,
     }
     if execution is not None:
         out["execution"] = {
@@ -616,7 +617,7 @@ def _cmd_pusharound(args) -> int:
 
     from tqdm import tqdm
 
-    from jaxplan.pusharound import build_push_world, build_wccg, connectivity, w_clear_path
+    from jaxplan.pusharound import PushScene, build_push_world, build_wccg, connectivity, w_clear_path
     from jaxplan.pusharound.animation import animate_execution, save_final_png
     from jaxplan.pusharound.execution import ExecutionConfig, execute_schedule, plan_frames
     from jaxplan.pusharound.modetable import ModeTable
@@ -710,6 +711,15 @@ def _cmd_pusharound(args) -> int:
                      reason=reason)
         if table is not None:
             _atomic_write(Path(args.mode_table), lambda fh: fh.write(json.dumps(table.to_dict(), indent=1).encode()))
+    try:
+        PushScene.from_dict(final.to_dict())
+    except ValueError as exc:     # e.g. two bodies left interpenetrating by contact: say so, write it anyway
+        final_check = f"the final scene does not pass validation: {exc}"
+    else:
+        final_check = "valid"
+    kw = dict(plan=plan, execution=execution, final=final, path=path, connected=connected, success=success,
+              reason=reason)
+    write_result(**kw, final_check=final_check)
     try:
         _write_json(paths["scene_final"], final.to_dict())
         title = (f"{'executed' if execution is not None else 'planned'}: "

@@ -8,11 +8,12 @@ import pytest
 from shapely.geometry import LineString, Polygon, box
 
 from jaxplan.cli import main
+from jaxplan.pusharound import PushScene
 from tests.test_pusharound_execution import TINY
 
 RESULT_KEYS = {"format", "version", "success", "reason", "W", "start", "goal", "workspace", "robot_radius", "scene",
                "planning", "schedule", "execution", "final_state", "connectivity", "obstacles", "robots_final",
-               "w_clear_path"}
+               "w_clear_path", "scene_final_check"}
 PUSH_KEYS = {"index", "movable", "name", "gap", "active_robots", "contacts_world", "directions_world", "contacts_body",
              "directions_body", "active", "velocity", "duration_s", "cost", "target_before", "target_after",
              "poses_before", "poses_after", "robots_before", "robots_after"}
@@ -81,6 +82,9 @@ def test_scene_final_matches_the_reported_state(run):
     for m in final["movables"]:
         assert np.allclose(m["pose"], poses[m["name"]], atol=1e-5)
     assert np.allclose(final["robots"]["positions"], res["robots_final"], atol=1e-5)
+    # the robots backed off after the last push, so the final scene loads as a scene file again
+    assert res["scene_final_check"] == "valid"
+    assert len(PushScene.load(out / "scene_final.json").movables) == 1
 
 
 def test_failed_planning_still_writes_the_result(tiny_file, tmp_path):

@@ -114,7 +114,9 @@ def test_scheduled_push_ends_near_its_predicted_pose(scene, planned, executed):
     assert push.transit_s > 0 and push.push_s > 0
     assert ex.success and ex.connectivity and ex.reason == "connected" and ex.replans == 0
     _w_clear(ex.final_scene, ex.w_clear_path)
-    assert ex.execution_time_s == pytest.approx(push.transit_s + push.push_s, abs=1e-6)
+    assert ex.execution_time_s > push.transit_s + push.push_s              # + the final retreat
+    # the robots backed off the box: the final scene is a valid scene again
+    PushScene.from_dict(ex.final_scene.to_dict())
 
 
 def test_frames_record_the_execution(scene, executed):
@@ -123,7 +125,7 @@ def test_frames_record_the_execution(scene, executed):
     assert k > 10 and fr.poses.shape == (k, 1, 3) and fr.robots.shape == (k, 2, 2) and len(fr.phase) == k
     assert np.all(np.diff(fr.time) > 0) and fr.time[0] == 0.0
     assert np.all(np.isfinite(fr.poses)) and np.all(np.isfinite(fr.robots))
-    assert set(fr.phase) == {"start", "transit", "push"}
+    assert set(fr.phase) == {"start", "transit", "push", "retreat"}
     assert np.allclose(fr.poses[0], scene.poses)
     np.testing.assert_allclose(fr.poses[-1], executed.final_scene.poses, atol=0.05)
 

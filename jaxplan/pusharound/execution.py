@@ -28,6 +28,7 @@ movable ended more than ``deviation_tol`` (or its yaw ``yaw_deviation_tol``) fro
 pose. On a failure (also a transition timeout, or a schedule that ran out without Eq. 7), control
 returns to the planner: ``replan(scene_now) -> SearchResult`` from the current state, at most
 ``max_replans`` times. After every push the WCCG is rebuilt; execution ends as soon as Eq. 7 holds.
+Then the robots of the last push back off ``retreat`` (they end pressing on the body).
 
 Both phases run in chunks of ``config.horizon`` ticks (one compiled program per policy on MJX);
 the time offset of a chunk enters through the policy parameters. Units: m, s, rad.
@@ -69,7 +70,8 @@ class ExecutionConfig:
     push; max_replans: calls of ``replan`` at most; grid [m]: A* cell size; transit_margin [m]: extra
     clearance of transition paths beyond the robot radius; arrive_tol [m]: a robot within this of its
     push start point has arrived; transit_slack [s]: added to 1.5 x the path time for the timeout;
-    max_pushes: executed pushes at most (guards a replanner that never converges);
+    max_pushes: executed pushes at most (guards a replanner that never converges); retreat [m]: at
+    the end the robots of the last push back off this far against their push directions (0: not);
     record_every: ticks between recorded frames; backend: "c", "mjx" or "auto" (a single
     element: the C engine is the sensible choice on a CPU).
     """
@@ -87,6 +89,7 @@ class ExecutionConfig:
     arrive_tol: float = 0.03
     transit_slack: float = 4.0
     max_pushes: int = 40
+    retreat: float = 0.1
     record_every: int = 4
     backend: str = "c"
 
@@ -98,7 +101,7 @@ class Frames(NamedTuple):
     """Recorded states every ``record_every`` ticks. time: f[K] seconds since the start; poses:
     f[K, M, 3] movable (x, y, yaw); robots: f[K, N, 2] robot positions; push: i32[K] index into
     ``Execution.executed`` of the push being executed or approached (-1 before the first);
-    phase: list of K strings ("start" / "transit" / "push")."""
+    phase: list of K strings ("start" / "transit" / "push" / "retreat" / "planned")."""
 
     time: np.ndarray
     poses: np.ndarray
@@ -373,7 +376,7 @@ def _scheduled(obj) -> list:
 
 def _run_transit(state: _State, sim: Simulator, scene: PushScene, task: PushTask, starts: np.ndarray) -> tuple:
     """Drive the active robots to ``starts f[N, 2]``. Returns (arrived, simulated seconds)."""
-    cfg, world = state.cfg, state.world
+    cfg = state.cfg
     r = float(scene.robot_radius)
     robots, poses = state.robots, state.poses
     active = np.asarray(task.active, bool)
@@ -386,6 +389,14 @@ def _run_transit(state: _State, sim: Simulator, scene: PushScene, task: PushTask
                                          clearance=r + cfg.transit_margin, grid=cfg.grid, extra=idle))
         else:
             paths.append(robots[i][None])
+    return _track(state, sim, paths, starts, active, "transit")
+
+
+def _track(state: _State, sim: Simulator, paths: list, targets: np.ndarray, active: np.ndarray, phase: str) -> tuple:
+    """Drive the robots along ``paths`` (one f[K, 2] per robot) until the ``active`` ones are within
+    ``arrive_tol`` of ``targets f[N, 2]`` after their reference ended, or the timeout. Returns
+    (arrived, simulated seconds)."""
+    cfg, world = state.cfg, state.world
     path, lens = _pack_paths(paths)
     speed = float(world.config.transit_speed)
     length = float(np.max(lens[:, -1]))
@@ -397,14 +408,14 @@ def _run_transit(state: _State, sim: Simulator, scene: PushScene, task: PushTask
                   "speed": jnp.full((1,), speed, jnp.float32), "t0": jnp.full((1,), t0, jnp.float32)}
         traj = sim.run(state.qpos[None], state.qvel[None], params, jnp.zeros((1,), jnp.float32), horizon)
         qp = np.asarray(traj.qpos[0], np.float64)
-        err = np.linalg.norm(qp[:, world.robot_adr] - starts[None], axis=-1)[:, active].max(-1)    # [T+1]
+        err = np.linalg.norm(qp[:, world.robot_adr] - targets[None], axis=-1)[:, active].max(-1)    # [T+1]
         ref_done = (np.arange(horizon + 1) * tick_s + t0) * speed >= length
         hit = np.nonzero(ref_done & (err < cfg.arrive_tol))[0]
         hit = hit[hit > 0]
         stop = int(hit[0]) if len(hit) else horizon
         if not bool(traj.finite[0]):
             stop = min(stop, max(1, int(traj.first_bad[0]) - 1))
-        state.record(qp, stop, "transit")
+        state.record(qp, stop, phase)
         state.qpos, state.qvel = qp[stop], np.asarray(traj.qvel[0, stop], np.float64)
         spent += stop
         t0 += stop * tick_s
@@ -412,6 +423,25 @@ def _run_transit(state: _State, sim: Simulator, scene: PushScene, task: PushTask
             return bool(len(hit)), spent * tick_s
         if spent * tick_s >= timeout:
             return False, spent * tick_s
+
+
+def _retreat(state: _State, sim: Simulator, task: PushTask) -> float:
+    """The robots of the last push back off ``retreat`` metres against their push directions (they
+    end pressing on the body). Returns the simulated seconds."""
+    dist = float(state.cfg.retreat)
+    active = np.asarray(task.active, bool)
+    if not dist > 0 or not active.any():
+        return 0.0
+    psi = float(state.poses[int(np.asarray(task.movable)), 2])
+    rot = np.array([[np.cos(psi), -np.sin(psi)], [np.sin(psi), np.cos(psi)]])
+    robots = state.robots
+    back = robots - dist * (np.asarray(task.directions, np.float64) @ rot.T)
+    x0, y0, x1, y1 = state.world.scene.workspace
+    r = float(state.world.scene.robot_radius)
+    back = np.clip(back, [x0 + r, y0 + r], [x1 - r, y1 - r])
+    targets = np.where(active[:, None], back, robots)
+    paths = [np.stack([robots[i], targets[i]]) if active[i] else robots[i][None] for i in range(len(robots))]
+    return _track(state, sim, paths, targets, active, "retreat")[1]
 
 
 def _run_push(state: _State, sim: Simulator, task: PushTask, planned: np.ndarray) -> tuple:
@@ -553,6 +583,8 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
                 reason = f"{failed}; replan {replans} failed" + (f" ({res.reason})" if getattr(res, "reason", "") else "")
                 break
             queue = _scheduled(res)
+    if executed and cfg.retreat > 0:
+        _retreat(state, transit_sim, executed[-1].task)
     final = now()
     g = build_wccg(final)
     conn = bool(connectivity(g, final.start, final.goal).connected)
