@@ -59,9 +59,13 @@ from jaxplan.pusharound.ranking import (DEAD_END_PENALTY, Gap, RankingParams, ca
 from jaxplan.pusharound.scene import PushScene
 from jaxplan.pusharound.wccg import MOVABLE, WALL, build_wccg, connectivity, w_clear_path
 
-__all__ = ["ScheduledPush", "SearchConfig", "SearchResult", "SearchStats", "plan_pushes"]
+__all__ = ["SEARCH_RANKING", "ScheduledPush", "SearchConfig", "SearchResult", "SearchStats", "plan_pushes"]
 
 _BUCKETS = (8, 16, 32, 64)   # physics batch sizes (the policy is jitted once per size)
+
+# The search's default ranking: Eq. 8-9 weights as RankingParams(), a smaller presearch (beam 2,
+# depth 2: the same first three gaps as beam 4, depth 3 on nominal seeds 0-3 at about half the time).
+SEARCH_RANKING = RankingParams(beam=2, depth=2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,7 +83,8 @@ class SearchConfig:
     ``duration``); omegas: yaw rates [rad/s] of the second pass; team_sizes: robots per push;
     duration: push duration [s] (<= the 2 s horizon); min_progress: widening [m] that makes a child;
     dedup_m, dedup_rad: state de-duplication grid; terminal_checks: children checked against Eq. 7 at
-    once per expansion.
+    once per expansion; reinsert_penalty: added to a reinserted node's estimate per batch it already
+    had (cost units of Eq. 9).
     """
 
     presearch: bool = True
@@ -103,6 +108,7 @@ class SearchConfig:
     dedup_m: float = 0.02
     dedup_rad: float = 0.05
     terminal_checks: int = 4
+    reinsert_penalty: float = 1.0
 
     def __post_init__(self):
         for name in ("presearch", "mode_table", "quick_pass", "reinsertion"):
@@ -117,7 +123,7 @@ class SearchConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or not v > 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number > 0; got {v!r}.")
-        for name in ("heuristic_weight", "min_progress"):
+        for name in ("heuristic_weight", "min_progress", "reinsert_penalty"):
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number >= 0; got {v!r}.")
@@ -211,11 +217,15 @@ class _Target(NamedTuple):
 
 
 class _Cand(NamedTuple):
+    """A candidate push: target index, movable, spec = (world angle, team size, speed, omega), its
+    ModeTable key, whether the table had validated it, and the task (built when first needed)."""
+
     target: int
     movable: int
-    task: PushTask
+    spec: tuple
     key: ModeKey
     hit: bool
+    task: PushTask | None = None
 
 
 @dataclasses.dataclass
@@ -231,6 +241,7 @@ class _Node:
     cands: list | None = None
     cursor: int = 0
     children: int = 0
+    expansions: int = 0
     origin: tuple = ()        # (parent nid, target index): siblings share their estimate's error
     corrected: bool = False
 
@@ -294,8 +305,6 @@ def _check_inputs(scene, config, ranking, mode_table, world):
     if not isinstance(config, SearchConfig):
         raise ValueError(f"config: expected a SearchConfig; got {type(config).__name__}.")
     validate_ranking_params(ranking)
-    if len(scene.movables) == 0:
-        raise ValueError("scene.movables: the search needs at least one movable obstacle.")
     if np.asarray(scene.robots).reshape(-1, 2).shape[0] == 0:
         raise ValueError("scene.robots: the search needs at least one robot.")
     if mode_table is not None and not isinstance(mode_table, ModeTable):
@@ -313,20 +322,15 @@ def _check_inputs(scene, config, ranking, mode_table, world):
 class _Search:
     def __init__(self, scene, config, ranking, world, sim, mode_table, progress):
         self.scene, self.cfg, self.params = scene, config, ranking
-        self.world = world if world is not None else build_push_world(scene)
-        if sim is None:
-            sim = make_push_simulator(self.world, config.backend)
-        elif sim.model is not self.world.model:
+        self.world, self.sim = world, sim      # built in run() when the scene needs pushing
+        if sim is not None and world is not None and sim.model is not world.model:
             raise ValueError("sim: built for another world; use make_push_simulator(world).")
-        self.sim = sim
         self.table = mode_table if mode_table is not None else ModeTable()
         self.use_table = bool(config.mode_table)
         self.progress = progress
         self.geom = _Geometry(scene)
         self.rng = np.random.default_rng(config.seed)
-        self.n_robots = len(self.world.robot_adr)
-        self.horizon_s = self.world.config.horizon * self.world.config.substeps * self.world.config.timestep
-        self.duration = min(float(config.duration), self.horizon_s)
+        self.n_robots = len(np.asarray(scene.robots).reshape(-1, 2))
         self.queue: list = []
         self.counter = 0
         self.seen: set = set()
@@ -336,6 +340,7 @@ class _Search:
                           time_rank_s=0.0, time_quick_pass_s=0.0, time_physics_s=0.0, time_candidates_s=0.0)
         self.best = None          # node with the least estimate (for failure reports)
         self.corrections: dict = {}   # origin -> error of the estimate seen on an evaluated sibling
+        self.tail_memo: dict = {}     # frozenset of frontier gaps -> {gap bodies: (Eq. 9 tail, final)}
 
     # ------------------------------------------------------------------ bookkeeping
     def _new_node(self, poses, robots, schedule, chi, h) -> _Node:
@@ -378,22 +383,30 @@ class _Search:
                 return path
         targets = []
         if not conn.same_face:
-            if self.cfg.presearch:
-                self.stats["rank_calls"] += 1
-                rk = rank_gaps(state, self.params, g=g, robots=node.robots)
-                for k in rk.order:
-                    gap = rk.gaps[int(k)]
-                    c_t, c_p = one_hop_terms(gap, node.robots, g.width, self.params.mass_ref)
-                    one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p
-                    cost = float(rk.cost[int(k)])
-                    final = len(rk.sequences[int(k)]) == 0 and cost < DEAD_END_PENALTY
-                    targets.append(self._gap_target(g, gap, node.poses, cost, max(cost - one, 0.0), one, final))
-            else:
-                for gap in candidate_gaps(g, conn.frontier):
-                    c_t, c_p = one_hop_terms(gap, node.robots, g.width, self.params.mass_ref)
-                    one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p
-                    targets.append(self._gap_target(g, gap, node.poses, one, 0.0, one, False))
-                targets.sort(key=lambda tg: tg.cost)
+            gaps = candidate_gaps(g, conn.frontier)
+            tails = {}
+            if self.cfg.presearch and gaps:
+                # Eq. 9's tails (Cost - C) depend on the gaps beyond this frontier: memoised on the
+                # frontier's gap set (Remark 3), so that a push that did not change the frontier does
+                # not pay for another presearch.
+                memo_key = frozenset(gap.bodies for gap in gaps)
+                tails = self.tail_memo.get(memo_key)
+                if tails is None:
+                    self.stats["rank_calls"] += 1
+                    rk = rank_gaps(state, self.params, g=g, robots=node.robots)
+                    tails = {}
+                    for k, gap in enumerate(rk.gaps):
+                        c_t, c_p = one_hop_terms(gap, node.robots, g.width, self.params.mass_ref)
+                        one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p
+                        cost = float(rk.cost[k])
+                        tails[gap.bodies] = (max(cost - one, 0.0), len(rk.sequences[k]) == 0 and cost < DEAD_END_PENALTY)
+                    self.tail_memo[memo_key] = tails
+            for gap in gaps:
+                c_t, c_p = one_hop_terms(gap, node.robots, g.width, self.params.mass_ref)
+                one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p
+                tail, final = tails.get(gap.bodies, (0.0, False))
+                targets.append(self._gap_target(g, gap, node.poses, one + tail, tail, one, final))
+            targets.sort(key=lambda tg: tg.cost)
         else:
             targets = self._endpoint_targets(node.poses)
         node.targets = targets
@@ -434,16 +447,17 @@ class _Search:
 
     # ------------------------------------------------------------------ candidates
     def _candidates(self, node: _Node) -> list:
-        """Every candidate of ``node``, in the order they are tried (module docstring)."""
+        """Every candidate of ``node``, in the order they are tried (module docstring): the first
+        pass (no yaw rate, the ``gaps_per_node`` first gaps of the sampled order) then the second
+        (the other gaps, yaw rates); within a pass, round-robin over (gap, movable) so that a batch
+        covers every gap's movables with their best modes; modes the ModeTable saw fail last."""
         t0 = time.perf_counter()
         cfg, targets = self.cfg, node.targets
         order = _softmax_order([tg.cost for tg in targets], cfg.temperature, self.rng)
         w = float(self.scene.width)
-        rel = [0.0]
-        for k in range(1, cfg.n_directions):   # 0, +d, -d, +2d, -2d, ... around "away"
-            step = 2 * math.pi / cfg.n_directions
-            rel.append(((k + 1) // 2) * step * (1 if k % 2 else -1))
-        first, second = [], []
+        step = 2 * math.pi / cfg.n_directions
+        rel = [((k + 1) // 2) * step * (1 if k % 2 else -1) for k in range(cfg.n_directions)]  # 0, +d, -d, ...
+        first, second, last = [], [], []
         for rank_pos, ti in enumerate(order):
             tg = targets[int(ti)]
             for m in sorted(tg.movables, key=lambda m: self.scene.movables[m].mass):
@@ -452,11 +466,12 @@ class _Search:
                 speeds = sorted({round(min(max(need / self.duration, 0.1), 0.6), 3) if s == 0 else float(s)
                                  for s in cfg.speeds})
                 passes = [(0.0, first if rank_pos < cfg.gaps_per_node else second)]
-                passes += [(om, second) for om in cfg.omegas]
+                passes += [(om, second) for om in cfg.omegas if om != 0]
+                base = math.atan2(tg.away[m][1], tg.away[m][0])
                 for omega, bucket in passes:
                     group = []
                     for j, da in enumerate(rel):
-                        ang = math.atan2(tg.away[m][1], tg.away[m][0]) + da
+                        ang = base + da
                         for n in cfg.team_sizes:
                             if n > self.n_robots:
                                 continue
@@ -465,24 +480,38 @@ class _Search:
                                 rec = self.table.prior(self.scene.movables[m], key) if self.use_table else None
                                 hit = rec is not None and rec.success > 0
                                 bad = rec is not None and rec.trials >= 2 and rec.success == 0
-                                score = (0 if hit else (2 if bad else 1), -(rec.rate if rec else 0.5), j)
-                                group.append((score, ang, n, s, omega, key, hit))
+                                if hit:   # reuse exactly the stored mode: the validated bin's centre
+                                    ang_c = self.table.bin_angle(key.bin) + psi
+                                else:
+                                    ang_c = ang
+                                score = (0 if hit else 1, -(rec.rate if rec else 0.5), j)
+                                entry = (score, _Cand(int(ti), m, (ang_c, n, s, omega), key, bool(hit)))
+                                (last if bad else group).append(entry)
                     group.sort(key=lambda x: x[0])
-                    for score, ang, n, s, omega, key, hit in group:
-                        if self.use_table and hit:
-                            # Snap to the validated bin's centre: reuse exactly the stored mode.
-                            ang = self.table.bin_angle(key.bin) + psi
-                        d_world = np.array([math.cos(ang), math.sin(ang)])
-                        d_body = np.array([math.cos(ang - psi), math.sin(ang - psi)])
-                        try:
-                            c, d, act = face_contacts(self.world, m, d_body, n)
-                        except ValueError:
-                            continue
-                        task = PushTask(np.int64(m), c, d, act, np.r_[s * d_world, omega], np.float64(self.duration))
-                        entry = _Cand(int(ti), m, task, key, bool(hit))
-                        (bucket if score[0] < 2 else second).append(entry)
+                    bucket.append([c for _, c in group])
+        last.sort(key=lambda x: x[0])
+
+        def interleave(groups):
+            out, k = [], 0
+            while any(k < len(gr) for gr in groups):
+                out += [gr[k] for gr in groups if k < len(gr)]
+                k += 1
+            return out
+
         self.stats["time_candidates_s"] += time.perf_counter() - t0
-        return first + second
+        return interleave(first) + interleave(second) + [c for _, c in last]
+
+    def _task(self, node: _Node, cand: _Cand) -> PushTask | None:
+        """The :class:`PushTask` of a candidate (None when the face has no room for the team)."""
+        ang, n, s, omega = cand.spec
+        psi = float(node.poses[cand.movable, 2])
+        d_world = np.array([math.cos(ang), math.sin(ang)])
+        d_body = np.array([math.cos(ang - psi), math.sin(ang - psi)])
+        try:
+            c, d, act = face_contacts(self.world, cand.movable, d_body, n)
+        except ValueError:
+            return None
+        return PushTask(np.int64(cand.movable), c, d, act, np.r_[s * d_world, omega], np.float64(self.duration))
 
     # ------------------------------------------------------------------ expansion
     def _next_batch(self, node: _Node) -> list:
@@ -492,6 +521,12 @@ class _Search:
         while node.cursor < len(node.cands) and len(out) < cfg.max_batch:
             chunk = node.cands[node.cursor:node.cursor + min(32, cfg.max_batch)]
             node.cursor += len(chunk)
+            t = time.perf_counter()
+            chunk = [c if c.task is not None else c._replace(task=self._task(node, c)) for c in chunk]
+            chunk = [c for c in chunk if c.task is not None]
+            self.stats["time_candidates_s"] += time.perf_counter() - t
+            if not chunk:
+                continue
             if cfg.quick_pass:
                 t = time.perf_counter()
                 ok = quick_pass(self.world, stack_tasks([c.task for c in chunk]), poses=node.poses).ok
@@ -604,6 +639,16 @@ class _Search:
         path = self._evaluate(root)
         if path is not None:
             return self._result(True, root, path, "")
+        if root.h == math.inf:       # blocked, and no movable borders the frontier
+            return self._result(False, root, None, "exhausted")
+        if self.world is None:
+            self.world = build_push_world(self.scene)
+        if self.sim is None:
+            self.sim = make_push_simulator(self.world, cfg.backend)
+        elif self.sim.model is not self.world.model:
+            raise ValueError("sim: built for another world; use make_push_simulator(world).")
+        wc = self.world.config
+        self.duration = min(float(cfg.duration), wc.horizon * wc.substeps * wc.timestep)
         self.best = root
         if root.h < math.inf:
             self._push(root, self._f(root))
@@ -641,13 +686,16 @@ class _Search:
             if self.best is None or node.h < self.best.h:
                 self.best = node
             found = self._expand(node)
+            node.expansions += 1
             self._emit("expand", node=node.nid, depth=node.depth, f=f, h=node.h, chi=node.chi,
                        batch_left=len(node.cands) - node.cursor)
             if found is not None:
                 path, child = found
                 return self._result(True, child, path, "")
             if cfg.reinsertion and node.cursor < len(node.cands):
-                node.h = self._node_estimate(node)
+                # Deferred expansion: back to the queue with its best unexplored gap, plus
+                # reinsert_penalty per batch already spent on it (its children come first).
+                node.h = self._node_estimate(node) + cfg.reinsert_penalty * node.expansions
                 self._push(node, self._f(node))
         best = self.best if self.best is not None else root
         return self._result(False, best, None, reason)
@@ -660,7 +708,7 @@ class _Search:
         return SearchResult(bool(success), list(node.schedule), final, path, stats, reason)
 
 
-def plan_pushes(scene: PushScene, config: SearchConfig = SearchConfig(), ranking: RankingParams = RankingParams(),
+def plan_pushes(scene: PushScene, config: SearchConfig = SearchConfig(), ranking: RankingParams = SEARCH_RANKING,
                 *, world: PushWorld | None = None, sim=None, mode_table: ModeTable | None = None,
                 progress: Callable[[dict], None] | None = None) -> SearchResult:
     """Plan a pushing schedule that opens a W-clear corridor (Algorithm 1; module docstring).
