@@ -9,6 +9,7 @@ from shapely.geometry import LineString, Polygon, box
 
 from jaxplan.cli import main
 from jaxplan.pusharound import PushScene
+from jaxplan.pusharound.execution import load_schedule
 from tests.test_pusharound_execution import TINY
 
 RESULT_KEYS = {"format", "version", "success", "reason", "W", "start", "goal", "workspace", "robot_radius", "scene",
@@ -85,6 +86,20 @@ def test_scene_final_matches_the_reported_state(run):
     # the robots backed off after the last push, so the final scene loads as a scene file again
     assert res["scene_final_check"] == "valid"
     assert len(PushScene.load(out / "scene_final.json").movables) == 1
+
+
+def test_schedule_loads_back_from_result_json(run):
+    _, out, res = run
+    schedule = load_schedule(out / "result.json")
+    assert len(schedule) == len(res["schedule"])
+    for item, rec in zip(schedule, res["schedule"]):
+        assert int(item.task.movable) == rec["movable"]
+        np.testing.assert_allclose(item.task.velocity, rec["velocity"])
+        np.testing.assert_allclose(item.poses_after, rec["poses_after"])
+    with pytest.raises(ValueError, match="result"):
+        load_schedule({"format": "something else"})
+    with pytest.raises(ValueError, match=r"schedule\[0\]"):
+        load_schedule({**res, "schedule": [{"movable": 0}]})
 
 
 def test_failed_planning_still_writes_the_result(tiny_file, tmp_path):

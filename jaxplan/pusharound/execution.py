@@ -55,8 +55,8 @@ from jaxplan.pusharound.push import (PushTask, _check_tasks, _outcome, _start_po
 from jaxplan.pusharound.scene import PushScene
 from jaxplan.pusharound.wccg import build_wccg, connectivity, w_clear_path
 
-__all__ = ["ExecutionConfig", "ExecutedPush", "Execution", "Frames", "execute_schedule", "plan_frames",
-           "transit_policy", "transition_path"]
+__all__ = ["ExecutionConfig", "ExecutedPush", "Execution", "Frames", "execute_schedule", "load_schedule",
+           "plan_frames", "transit_policy", "transition_path"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -615,3 +615,29 @@ def plan_frames(scene: PushScene, result_or_schedule) -> Frames:
     time = np.r_[0.0, np.cumsum([float(np.asarray(s.task.duration)) for s in schedule])]
     return Frames(time, np.stack(poses), np.stack(robots), np.arange(-1, len(schedule), dtype=np.int32),
                   ["start"] + ["planned"] * len(schedule))
+
+
+def load_schedule(result) -> list:
+    """The schedule of a ``jaxplan pusharound`` result.json (a path or the parsed dict) as a list of
+    ``search.ScheduledPush``, ready for :func:`execute_schedule` (e.g. to replay a ``--no-execute``
+    plan). Values carry the file's rounding (1e-6)."""
+    import json  # noqa: PLC0415
+    from pathlib import Path  # noqa: PLC0415
+
+    from jaxplan.pusharound.search import ScheduledPush  # noqa: PLC0415 (search is heavier; load on use)
+
+    data = json.loads(Path(result).read_text()) if not isinstance(result, dict) else result
+    if not isinstance(data, dict) or data.get("format") != "jaxplan.pusharound.result":
+        raise ValueError("result: not a jaxplan pusharound result.json (format 'jaxplan.pusharound.result').")
+    out = []
+    for k, p in enumerate(data.get("schedule", [])):
+        try:
+            task = PushTask(int(p["movable"]), np.asarray(p["contacts_body"], np.float64),
+                            np.asarray(p["directions_body"], np.float64), np.asarray(p["active"], bool),
+                            np.asarray(p["velocity"], np.float64), float(p["duration_s"]))
+            out.append(ScheduledPush(task, tuple(p["gap"]) if p.get("gap") is not None else None, float(p["cost"]),
+                                     np.asarray(p["poses_before"], np.float64), np.asarray(p["poses_after"], np.float64),
+                                     np.asarray(p["robots_before"], np.float64), np.asarray(p["robots_after"], np.float64)))
+        except (KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"schedule[{k}]: malformed push record ({type(e).__name__}: {e}).") from None
+    return out
