@@ -190,3 +190,27 @@ def test_animation_and_final_png(tmp_path, scene, executed):
     assert all(band.intersection(o).area < 1e-6 for o in executed.final_scene.obstacle_polygons())
     assert corridor_band(None, scene.width) is None
     assert shapely.is_valid(band)
+
+
+def test_transit_policy_tracks_its_path_jitted_and_not():
+    """On the reference the control is the feed-forward: speed along the current segment; a robot with
+    a one-point path holds still; the padded tail of a path is finite (no 0/0 in the interpolation)."""
+    import functools
+
+    import jax
+    import jax.numpy as jnp
+
+    from jaxplan.pusharound.execution import _pack_paths, transit_policy
+
+    path, lens = _pack_paths([np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), np.array([[2.0, 2.0]])])
+    pol = functools.partial(transit_policy, (0, 1, 2, 3), 4.0, 0.8)
+    params = {"path": jnp.asarray(path), "arclen": jnp.asarray(lens), "speed": jnp.asarray(0.5), "t0": jnp.asarray(1.0)}
+    for t, on_ref, ff in ((0.0, [0.5, 0.0], [0.5, 0.0]), (2.0, [1.0, 0.5], [0.0, 0.5]), (9.0, [1.0, 1.0], [0.0, 0.0])):
+        qpos = jnp.asarray(on_ref + [2.0, 2.0])
+        for f in (pol, jax.jit(pol)):
+            u, _ = f(params, None, qpos, jnp.zeros(4), jnp.asarray(t))
+            np.testing.assert_allclose(np.asarray(u), ff + [0.0, 0.0], atol=1e-6)
+    # off the reference the P term pulls back, clipped to vmax
+    u, _ = jax.jit(pol)(params, None, jnp.asarray([0.5, 3.0, 2.0, 2.0]), jnp.zeros(4), jnp.asarray(0.0))
+    assert np.all(np.isfinite(np.asarray(u))) and np.linalg.norm(np.asarray(u)[:2]) == pytest.approx(0.8, rel=1e-5)
+    assert np.asarray(u)[1] < 0
