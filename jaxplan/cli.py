@@ -613,6 +613,7 @@ def _cmd_pusharound(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
+    import threading
     from types import SimpleNamespace
 
     from tqdm import tqdm
@@ -657,14 +658,23 @@ def _cmd_pusharound(args) -> int:
     bar = tqdm(total=round(float(args.time_limit), 1), desc="planning", unit="s", file=sys.stderr, leave=False,
                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.0f} s of the time limit{postfix}")
 
+    started = time.perf_counter()
+    done = threading.Event()
+
     def progress(info: dict):
-        bar.n = min(bar.total, round(float(info.get("elapsed_s", 0.0)), 1))
         bar.set_postfix_str(f"expansions {info.get('expansions', 0)}, simulated {info.get('simulated_pushes', 0)}, "
                             f"queue {info.get('queue', 0)}", refresh=False)
-        bar.refresh()
 
+    def clock():
+        # The search reports after each expansion (seconds apart): a clock keeps the bar moving between.
+        while not done.wait(0.5):
+            bar.n = min(bar.total, round(time.perf_counter() - started, 1))
+            bar.refresh()
+
+    ticker = threading.Thread(target=clock, daemon=True)
     write_result(reason="planning")             # a result.json exists from the start
     try:
+        ticker.start()
         plan = plan_pushes(scene, config, world=world, mode_table=table, progress=progress)
     except KeyboardInterrupt:
         write_result(reason="interrupted while planning")
@@ -673,6 +683,8 @@ def _cmd_pusharound(args) -> int:
         write_result(reason="planning raised", error=f"{type(exc).__name__}: {exc}")
         raise
     finally:
+        done.set()
+        ticker.join()
         bar.close()
     if table is not None:
         _atomic_write(Path(args.mode_table), lambda fh: fh.write(json.dumps(table.to_dict(), indent=1).encode()))
