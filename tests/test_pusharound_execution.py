@@ -214,3 +214,22 @@ def test_transit_policy_tracks_its_path_jitted_and_not():
     u, _ = jax.jit(pol)(params, None, jnp.asarray([0.5, 3.0, 2.0, 2.0]), jnp.zeros(4), jnp.asarray(0.0))
     assert np.all(np.isfinite(np.asarray(u))) and np.linalg.norm(np.asarray(u)[:2]) == pytest.approx(0.8, rel=1e-5)
     assert np.asarray(u)[1] < 0
+
+
+def test_contacts_are_swapped_when_a_late_robot_would_cross_an_early_ones_contact(scene):
+    """Two robots come from the left to two start points side by side on a line: the far robot must
+    take the nearer point, or it would drive over the near robot's point after that robot arrived
+    (a deadlock in physics). Both assignments have the same total length: only the timing decides."""
+    from jaxplan.pusharound.execution import _plan_transit, _Roadmap
+
+    open_scene = scene.with_poses([[3.5, 2.6, 0.0]])                    # box out of the way
+    robots = np.array([[0.3, 0.5], [1.2, 0.5]])                          # far, near
+    starts = np.array([[2.66, 0.5], [2.34, 0.5]])                        # right, left
+    roadmap = _Roadmap(open_scene, open_scene.poses, 0.18, 0.05)
+    perm, paths = _plan_transit(roadmap, robots, starts, np.array([True, True]), 0.5, 0.15)
+    assert perm.tolist() == [1, 0]                                       # far -> left point, near -> right
+    np.testing.assert_allclose(paths[0][-1], starts[1])
+    np.testing.assert_allclose(paths[1][-1], starts[0])
+    # one active robot: nothing to swap; the idle one keeps its place
+    perm, paths = _plan_transit(roadmap, robots, starts, np.array([True, False]), 0.5, 0.15)
+    assert perm.tolist() == [0, 1] and len(paths[1]) == 1

@@ -137,6 +137,7 @@ def animate_execution(scene, execution, path, *, fps: int = 10, dpi: int = 80, m
     fig, ax = plt.subplots(figsize=(7.5, 7.5 * (scene.workspace[3] - scene.workspace[1])
                                     / (scene.workspace[2] - scene.workspace[0]) + 0.6))
     drawing = _Drawing(ax, scene)
+    fig.tight_layout()
     executed = execution.executed
 
     def draw(j):

@@ -10,9 +10,11 @@ the two phases of the paper's hybrid controller:
    in the instantaneous free space (workspace shrunk, every obstacle at its current pose and every
    robot that does not take part inflated by ``r + transit_margin``), shortcut by line of sight
    against the same free region; short straight escape / approach segments join the robot and the
-   start point to the nearest free cells (a robot that has just pushed touches its body). When two
-   active robots' straight routes would cross, their contacts are swapped (the assignment with the
-   least total distance, which never crosses). Robots track the path at ``transit_speed`` with
+   start point to the nearest free cells (a robot that has just pushed touches its body). Contacts
+   are assigned to the active robots so that no robot's path crosses another's start point after
+   that robot has arrived there (it would shove it off its contact: a deadlock), then by least total
+   path length (:func:`_plan_transit`; the paper swaps contacts on colliding paths). Robots track the
+   path at ``transit_speed`` with
    ``u = dp_ref/dt + K_p (p_ref - p)`` (:func:`transit_policy`, same gain and speed limit as the
    push controller); the phase fails after a timeout (1.5 x the path time + ``transit_slack``).
 2. **Push.** The task's P-control of the contact references, i.e. :func:`push_policy` of
@@ -165,6 +167,36 @@ def _free_region(scene: PushScene, poses, clearance: float, extra=()):
     return free.difference(blocked) if blocked is not None else free
 
 
+class _Roadmap:
+    """The free region of :func:`_free_region` and its grid, built once and queried for many paths."""
+
+    def __init__(self, scene: PushScene, poses, clearance: float, grid: float, extra=()):
+        if not grid > 0:
+            raise ValueError(f"grid: must be > 0 m; got {grid!r}.")
+        self.free = _free_region(scene, poses, clearance, extra)
+        shapely.prepare(self.free)
+        x0, y0, x1, y1 = (float(v) for v in scene.workspace)
+        nx, ny = max(1, int(math.ceil((x1 - x0) / grid))), max(1, int(math.ceil((y1 - y0) / grid)))
+        self.xs, self.ys = x0 + (np.arange(nx) + 0.5) * grid, y0 + (np.arange(ny) + 0.5) * grid
+        self.cx, self.cy = np.meshgrid(self.xs, self.ys, indexing="ij")           # [nx, ny]
+        self.ok = shapely.contains_xy(self.free, self.cx, self.cy)
+
+    def _nearest(self, p):
+        d = np.where(self.ok, (self.cx - p[0]) ** 2 + (self.cy - p[1]) ** 2, np.inf)
+        return np.unravel_index(int(np.argmin(d)), d.shape)
+
+    def path(self, start, goal) -> np.ndarray:
+        s, gl = np.asarray(start, np.float64).reshape(2), np.asarray(goal, np.float64).reshape(2)
+        if self.free.covers(LineString([s, gl])) or not self.ok.any():
+            return np.stack([s, gl])
+        cells = _astar(self.ok, self._nearest(s), self._nearest(gl))
+        if cells is None:
+            return np.stack([s, gl])
+        pts = np.stack([self.xs[[c[0] for c in cells]], self.ys[[c[1] for c in cells]]], -1)
+        pts = np.concatenate([s[None], _turning_points(pts), gl[None]])
+        return _shortcut(pts, self.free)
+
+
 def transition_path(scene: PushScene, start, goal, *, poses=None, clearance: float | None = None,
                     grid: float = 0.05, extra=()) -> np.ndarray:
     """A collision-free path ``f64[P, 2]`` for a robot centre from ``start`` to ``goal`` (both (x, y)).
@@ -178,33 +210,7 @@ def transition_path(scene: PushScene, start, goal, *, poses=None, clearance: flo
     """
     poses = scene.poses if poses is None else np.asarray(poses, np.float64)
     clearance = float(scene.robot_radius) + 0.03 if clearance is None else float(clearance)
-    if not grid > 0:
-        raise ValueError(f"grid: must be > 0 m; got {grid!r}.")
-    s, gl = np.asarray(start, np.float64).reshape(2), np.asarray(goal, np.float64).reshape(2)
-    free = _free_region(scene, poses, clearance, extra)
-    shapely.prepare(free)
-    if free.covers(LineString([s, gl])):
-        return np.stack([s, gl])
-    x0, y0, x1, y1 = (float(v) for v in scene.workspace)
-    nx, ny = max(1, int(math.ceil((x1 - x0) / grid))), max(1, int(math.ceil((y1 - y0) / grid)))
-    xs, ys = x0 + (np.arange(nx) + 0.5) * grid, y0 + (np.arange(ny) + 0.5) * grid
-    cx, cy = np.meshgrid(xs, ys, indexing="ij")                       # [nx, ny]
-    ok = shapely.contains_xy(free, cx, cy)
-    if not ok.any():
-        return np.stack([s, gl])
-
-    def nearest(p):
-        d = (cx - p[0]) ** 2 + (cy - p[1]) ** 2
-        d = np.where(ok, d, np.inf)
-        return np.unravel_index(int(np.argmin(d)), d.shape)
-
-    a, b = nearest(s), nearest(gl)
-    cells = _astar(ok, a, b)
-    if cells is None:
-        return np.stack([s, gl])
-    pts = np.stack([xs[[c[0] for c in cells]], ys[[c[1] for c in cells]]], -1)
-    pts = np.concatenate([s[None], _turning_points(pts), gl[None]])
-    return _shortcut(pts, free)
+    return _Roadmap(scene, poses, clearance, grid, extra).path(start, goal)
 
 
 _STEPS = [(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
@@ -348,19 +354,47 @@ class _State:
                 self.frames.append((self.tick, poses[k], robots[k], self.push_index, phase))
 
 
-def _assign(robots: np.ndarray, starts: np.ndarray, active: np.ndarray) -> np.ndarray:
-    """Permutation ``perm i32[N]`` of the active robots' contacts with the least total straight
-    distance (robot i takes contact perm[i]); inactive robots keep their own."""
-    act = np.nonzero(active)[0]
-    best, perm = math.inf, np.arange(len(robots))
-    if len(act) > 4:                     # more would be slow; keep the plan's assignment
-        return perm
-    for p in itertools.permutations(act):
-        cost = sum(float(np.linalg.norm(robots[i] - starts[j])) for i, j in zip(act, p))
-        if cost < best - 1e-9:
-            best, perm = cost, np.arange(len(robots))
-            perm[act] = p
-    return perm
+def _plan_transit(roadmap: _Roadmap, robots: np.ndarray, starts: np.ndarray, active: np.ndarray, speed: float,
+                  radius: float) -> tuple:
+    """Which active robot takes which contact, and the paths. Returns ``(perm i32[N], paths)``: robot
+    i takes contact perm[i]; paths: one f[K, 2] per robot (inactive robots: their position).
+
+    Every assignment of the active robots to the contacts (N <= 3; more keep the plan's) is scored by
+    (conflicts, total path length): a conflict is a robot whose path passes over another robot's start
+    point (closer than 2 r) after that robot should have arrived there (arc length / speed, 1 s
+    margin): the later robot would shove the earlier one off its contact, a deadlock in physics. This
+    is the paper's swap of contacts on colliding paths, decided on the planned paths and their timing.
+    """
+    n = len(robots)
+    act = [int(i) for i in np.nonzero(active)[0]]
+    cache: dict = {}
+
+    def path(i, k):
+        if (i, k) not in cache:
+            cache[i, k] = roadmap.path(robots[i], starts[k])
+        return cache[i, k]
+
+    def length(p):
+        return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+
+    best, best_key = np.arange(n), None
+    for p in (itertools.permutations(act) if len(act) <= 3 else [tuple(act)]):
+        perm = np.arange(n)
+        perm[act] = p
+        lens = {i: length(path(i, perm[i])) for i in act}
+        conflicts = 0
+        for i in act:
+            line = LineString(path(i, perm[i]))
+            for j in act:
+                slot = Point(*starts[perm[j]])
+                if j != i and line.distance(slot) < 2 * radius - 1e-3 and \
+                        line.project(slot) / speed > lens[j] / speed - 1.0:
+                    conflicts += 1
+        key = (conflicts, sum(lens.values()))
+        if best_key is None or key < best_key:
+            best, best_key = perm, key
+    paths = [path(i, best[i]) if active[i] else robots[i][None] for i in range(n)]
+    return best, paths
 
 
 def _swap(task: PushTask, perm: np.ndarray) -> PushTask:
@@ -375,21 +409,19 @@ def _scheduled(obj) -> list:
 
 
 def _run_transit(state: _State, sim: Simulator, scene: PushScene, task: PushTask, starts: np.ndarray) -> tuple:
-    """Drive the active robots to ``starts f[N, 2]``. Returns (arrived, simulated seconds)."""
+    """Assign contacts, plan paths and drive the active robots to their push start points ``starts
+    f[N, 2]``. Returns (task with contacts possibly swapped, arrived, simulated seconds)."""
     cfg = state.cfg
     r = float(scene.robot_radius)
     robots, poses = state.robots, state.poses
     active = np.asarray(task.active, bool)
     # Inactive robots stay where they are: obstacles for the others.
     idle = [Point(*robots[i]).buffer(r, 8) for i in np.nonzero(~active)[0]]
-    paths = []
-    for i in range(len(robots)):
-        if active[i]:
-            paths.append(transition_path(scene, robots[i], starts[i], poses=poses,
-                                         clearance=r + cfg.transit_margin, grid=cfg.grid, extra=idle))
-        else:
-            paths.append(robots[i][None])
-    return _track(state, sim, paths, starts, active, "transit")
+    roadmap = _Roadmap(scene, poses, r + cfg.transit_margin, cfg.grid, idle)
+    perm, paths = _plan_transit(roadmap, robots, starts, active, float(state.world.config.transit_speed), r)
+    task, starts = _swap(task, perm), starts[perm]
+    arrived, seconds = _track(state, sim, paths, starts, np.asarray(task.active, bool), "transit")
+    return task, arrived, seconds
 
 
 def _track(state: _State, sim: Simulator, paths: list, targets: np.ndarray, active: np.ndarray, phase: str) -> tuple:
@@ -547,9 +579,7 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
             poses_before = state.poses
             tasks1 = _check_tasks(world, stack_tasks([task]))
             starts = _start_positions(world._replace(scene=scene.replace(robots=state.robots)), tasks1, poses_before)[0]
-            perm = _assign(state.robots, starts, task.active)
-            task, starts = _swap(task, perm), starts[perm]
-            arrived, transit_s = _run_transit(state, transit_sim, scene, task, starts)
+            task, arrived, transit_s = _run_transit(state, transit_sim, scene, task, starts)
             if not arrived:
                 executed.append(ExecutedPush(task, planned, poses_before, state.poses, state.robots,
                                              "transit_timeout", False, math.nan, False, transit_s, 0.0, plan_id))
