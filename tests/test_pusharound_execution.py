@@ -154,16 +154,17 @@ def test_failed_push_triggers_an_online_replan(scene, world, planned):
     assert ex.success
     _w_clear(ex.final_scene, ex.w_clear_path)
 
-    # without a replanner the failure ends the execution; with a failing one, after max_replans
-    no = execute_schedule(scene, [wrong], world=world, config=ExecutionConfig(max_replans=0), replan=replan)
-    assert not no.success and no.reason.startswith("push failed") and no.replans == 0 and len(calls) == 1
+    # a replanner that finds nothing ends the execution with the failure
     gave_up = execute_schedule(scene, [wrong], world=world, replan=lambda now: FakeResult(False, [], "no plan"))
-    assert not gave_up.success and "replan 1 failed" in gave_up.reason and gave_up.replans == 1
+    assert not gave_up.success and gave_up.reason.startswith("push failed; replan 1 failed (no plan)")
+    assert gave_up.replans == 1 and len(gave_up.executed) == 1
 
 
 def test_bad_execution_input_is_named(scene, planned):
     with pytest.raises(ValueError, match="record_every"):
         execute_schedule(scene, [planned], record_every=0)
+    with pytest.raises(ValueError, match="max_replans"):
+        execute_schedule(scene, [planned], config=ExecutionConfig(max_replans=-1))
     with pytest.raises(ValueError, match="scene"):
         execute_schedule({"not": "a scene"}, [planned])
     other = build_push_world(PushScene.from_dict({**TINY, "robots": {"positions": [[0.5, 0.4]], "radius": 0.15}}))
