@@ -14,9 +14,10 @@ the pushed movable (these planners reason about movables, not gaps).
   valid children are pushed onto a stack, first candidate explored first. Depth, simulation and
   time limits stop it.
 - :func:`sl_push_offline` (**SL-Push, offline**): a waypointed route (the W-clear path around the
-  fixed obstacles only, Section III-A.3 with no movables), the movables within W/2 of it are the
-  blockers, and each is displaced geometrically by the minimal distance perpendicular to the local
-  route direction that clears the corridor (the nearer side). No physics during planning: the
+  fixed obstacles only, Section III-A.3 with no movables, ``route_margin`` off them), the movables
+  within W/2 of it are the blockers, and each is displaced geometrically by the minimal distance
+  perpendicular to the local route direction that clears the corridor (the nearer side, unless
+  that puts it into a fixed obstacle or out of the workspace). No physics during planning: the
   displacements are then executed open loop in physics (:func:`execute_open_loop`), which may fail.
 - :func:`sl_push_sim` (**SL-Push, sim**): the same route and blockers, but every displacement is
   validated in physics while planning: for the first blocker along the route, the candidates (both
@@ -75,6 +76,7 @@ class BaselineConfig:
     dfs_depth: DFS depth limit; dfs_max_sims: DFS simulation budget; grid: Rec-NAMO cell size [m];
     mass_penalty: Rec-NAMO cost per kg of a movable a route passes through [m / kg];
     recursion: Rec-NAMO's push-recursion depth; max_rounds: SL-Push (sim) push attempts per blocker;
+    route_margin: SL-Push's route keeps this much beyond W/2 from fixed obstacles where it fits [m];
     backend: physics engine ("auto", "c", "mjx").
     """
 
@@ -88,7 +90,8 @@ class BaselineConfig:
     grid: float = 0.1
     mass_penalty: float = 0.3
     recursion: int = 2
-    max_rounds: int = 3
+    max_rounds: int = 4
+    route_margin: float = 0.25
     backend: str = "auto"
 
     def replace(self, **changes) -> "BaselineConfig":
@@ -253,10 +256,37 @@ def _with_planning_time(res: SearchResult, seconds: float) -> SearchResult:
 
 # ------------------------------------------------------------------------------------------ routes
 
-def _fixed_route(scene: PushScene) -> np.ndarray | None:
-    """The W-clear path around the fixed obstacles only (f64[P, 2]), or None."""
-    bare = scene.replace(movables=())
-    return w_clear_path(build_wccg(bare), scene.start, scene.goal)
+def _fixed_route(scene: PushScene, margin: float) -> np.ndarray | None:
+    """The W-clear path around the fixed obstacles only (f64[P, 2]), kept ``margin`` beyond W/2 from
+    them where it fits (else the tightest W-clear path), or None."""
+    g = build_wccg(scene.replace(movables=()))
+    for delta in (margin, None):
+        path = w_clear_path(g, scene.start, scene.goal, delta=delta)
+        if path is not None:
+            return path
+    return None
+
+
+def _feasible_first(scene: PushScene, poses, m: int, options: list) -> list:
+    """``options`` [(angle, distance)] reordered: displacements that keep the body in the workspace and
+    off the fixed obstacles first (a geometric check only, no physics)."""
+    return sorted(options, key=lambda o: not _sweep_ok(scene, poses, m, *o))
+
+
+def _sweep_ok(scene: PushScene, poses, m: int, angle: float, dist: float, tol: float = 0.02) -> bool:
+    """Geometric check of a straight displacement: the body's swept hull stays in the workspace and
+    comes no closer than ``tol`` [m] to a fixed obstacle it was not already that close to (the same
+    1 cm-scale contact rule as the physics' ``hit_fixed``)."""
+    before = scene.with_poses(poses).movables[m].polygon
+    after, _ = _moved_polygon(scene, poses, m, angle, dist)
+    sweep = shapely.union_all([before, after]).convex_hull
+    if not scene.workspace_polygon.contains(after):
+        return False
+    for f in scene.fixed:
+        d = sweep.distance(f.polygon)
+        if d < tol and d < before.distance(f.polygon) - 1e-9 or (d < tol and after.distance(f.polygon) < tol):
+            return False
+    return True
 
 
 def _blockers(scene: PushScene, poses, route: LineString, clear: float) -> list:
@@ -301,7 +331,7 @@ def sl_push_offline(scene: PushScene, config: BaselineConfig = BaselineConfig(),
     _check_config(config)
     env = _Env(scene, config, world, sim)
     t0 = time.perf_counter()
-    path = _fixed_route(scene)
+    path = _fixed_route(scene, config.route_margin)
     if path is None:
         return _make_result(env, False, [], scene.poses, "no route around the fixed obstacles")
     route = LineString(path)
@@ -314,7 +344,7 @@ def sl_push_offline(scene: PushScene, config: BaselineConfig = BaselineConfig(),
             poly = scene.with_poses(poses).movables[m].polygon
             if poly.distance(route) >= 0.5 * scene.width:
                 break
-            angle, dist = _displacements(poly, route, clear)[0]
+            angle, dist = _feasible_first(scene, poses, m, _displacements(poly, route, clear))[0]
             plan.append((m, angle, dist))
             _, poses[m] = _moved_polygon(scene, poses, m, angle, dist)
     plan_time = time.perf_counter() - t0
@@ -325,7 +355,7 @@ def sl_push_sim(scene: PushScene, config: BaselineConfig = BaselineConfig(), wor
     """SL-Push with every displacement validated in physics while planning (module docstring)."""
     _check_config(config)
     env = _Env(scene, config, world, sim)
-    path = _fixed_route(scene)
+    path = _fixed_route(scene, config.route_margin)
     if path is None:
         return _make_result(env, False, [], scene.poses, "no route around the fixed obstacles")
     route = LineString(path)
@@ -491,7 +521,7 @@ def _recursive_push(scene: PushScene, poses, m: int, angle: float, dist: float, 
     """Geometric push of ``m`` with recursion into movables it would overlap; a list of
     ``(movable, angle, distance)`` (the recursive ones first) applied to ``poses`` in place, or None."""
     poly, pose = _moved_polygon(scene, poses, m, angle, dist)
-    if not scene.workspace_polygon.contains(poly) or any(poly.intersects(f.polygon) for f in scene.fixed):
+    if not _sweep_ok(scene, poses, m, angle, dist):
         return None
     plan = []
     placed = scene.with_poses(poses)
