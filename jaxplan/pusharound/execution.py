@@ -29,7 +29,10 @@ After each push the outcome is compared with the plan: the push **fails** when i
 movable ended more than ``deviation_tol`` (or its yaw ``yaw_deviation_tol``) from its predicted
 pose. On a failure (also a transition timeout, or a schedule that ran out without Eq. 7), control
 returns to the planner: ``replan(scene_now) -> SearchResult`` from the current state, at most
-``max_replans`` times. After every push the WCCG is rebuilt; execution ends as soon as Eq. 7 holds.
+``max_replans`` times. With no replanning left (none given, budget used, or a replan that found
+nothing) the rest of the schedule runs open loop (``open_loop``; a push whose transition timed out is
+skipped), every failure recorded. After every push the WCCG is rebuilt; execution ends as soon as
+Eq. 7 holds.
 Then the robots of the last push back off ``retreat`` (they end pressing on the body).
 
 Both phases run in chunks of ``config.horizon`` ticks (one compiled program per policy on MJX);
@@ -72,7 +75,9 @@ class ExecutionConfig:
     push; max_replans: calls of ``replan`` at most; grid [m]: A* cell size; transit_margin [m]: extra
     clearance of transition paths beyond the robot radius; arrive_tol [m]: a robot within this of its
     push start point has arrived; transit_slack [s]: added to 1.5 x the path time for the timeout;
-    max_pushes: executed pushes at most (guards a replanner that never converges); retreat [m]: at
+    max_pushes: executed pushes at most (guards a replanner that never converges); open_loop: when a
+    push fails and no replanning is left (no ``replan``, ``max_replans`` used, or a replan found
+    nothing), carry on with the rest of the schedule (True) or stop there (False); retreat [m]: at
     the end the robots of the last push back off this far against their push directions (0: not);
     record_every: ticks between recorded frames; backend: "c", "mjx" or "auto" (a single
     element: the C engine is the sensible choice on a CPU).
@@ -91,6 +96,7 @@ class ExecutionConfig:
     arrive_tol: float = 0.03
     transit_slack: float = 4.0
     max_pushes: int = 40
+    open_loop: bool = True
     retreat: float = 0.1
     record_every: int = 4
     backend: str = "c"
@@ -560,7 +566,7 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
     def now() -> PushScene:
         return scene.with_poses(state.poses).replace(robots=state.robots)
 
-    reason = "schedule exhausted"
+    reason, notes, can_replan = "schedule exhausted", [], replan is not None
     connected = _connected(scene)
     if connected:
         reason = "connected"
@@ -602,17 +608,26 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
                     break
                 if not ok:
                     failed = "push failed" if valid else "push invalid in physics"
-        if failed is not None:
-            if replan is None or replans >= cfg.max_replans:
-                reason = failed + ("" if replan is None else f" (replans exhausted: {replans})")
-                break
+        if failed is None:
+            continue
+        if can_replan and replans < cfg.max_replans:
             replans += 1
-            plan_id += 1
             res = replan(now())
-            if res is None or (hasattr(res, "success") and not res.success):
-                reason = f"{failed}; replan {replans} failed" + (f" ({res.reason})" if getattr(res, "reason", "") else "")
-                break
-            queue = _scheduled(res)
+            if res is not None and getattr(res, "success", True):
+                plan_id += 1
+                queue = _scheduled(res)
+                continue
+            notes.append(f"{failed}; replan {replans} failed" + (f" ({res.reason})" if getattr(res, "reason", "") else ""))
+            can_replan = False          # a replanner that found nothing from here will not from a later state
+        elif replan is not None and can_replan:
+            notes.append(f"{failed} (replans exhausted: {replans})")
+            can_replan = False
+        else:
+            notes.append(failed)
+        # No replanning left: finish the schedule open loop (or stop), the failure recorded in ``executed``.
+        if failed == "schedule exhausted" or not cfg.open_loop:
+            reason = "; ".join(dict.fromkeys(notes))
+            break
     if executed and cfg.retreat > 0:
         _retreat(state, transit_sim, executed[-1].task)
     final = now()
