@@ -231,6 +231,20 @@ def write_outputs(records: list, out: Path, args_dict: dict) -> dict:
 
 # ------------------------------------------------------------------------------------------ main
 
+def _code_version() -> str:
+    """HEAD commit of the repository (+ "-dirty" with uncommitted changes), "" outside git."""
+    import subprocess  # noqa: PLC0415
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                              timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True,
+                               text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return head + ("-dirty" if dirty else "")
+
+
 def _trial_key(r: dict) -> tuple:
     return (r["planner"], r["scene"], r.get("density_n"), int(r["seed"]))
 
@@ -247,6 +261,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--out", default=str(RESULTS), help="output folder")
     ap.add_argument("--seed0", type=int, default=0, help="first seed")
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--report-only", action="store_true", help="only rewrite table1.json/.md from the JSONL")
     args = ap.parse_args(argv)
     if args.quick:
         args.trials, args.scenes, args.time_limit = 1, "corridor", min(args.time_limit, 20.0)
@@ -267,7 +282,7 @@ def main(argv=None) -> dict:
     records = [json.loads(line) for line in jsonl.read_text().splitlines() if line.strip()] if jsonl.exists() else []
     done = {_trial_key(r) for r in records}
     # Trials interleave planners per seed, so an interrupted run has comparable counts for every planner.
-    todo = [(p, s, n, seed) for s in scenes for n in (densities if s == "density" else [None])
+    todo = [] if args.report_only else [(p, s, n, seed) for s in scenes for n in (densities if s == "density" else [None])
             for seed in range(args.seed0, args.seed0 + args.trials) for p in planners
             if (p, s, n, seed) not in done]
     from tqdm import tqdm  # noqa: PLC0415
@@ -276,6 +291,7 @@ def main(argv=None) -> dict:
         bar.set_postfix_str(f"{planner} {kind}{'' if n is None else n} seed {seed}")
         rec = run_trial(planner, kind, seed, n, args.time_limit, not args.no_execute)
         rec["utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        rec["code"] = _code_version()
         with jsonl.open("a") as fh:
             fh.write(json.dumps(rec) + "\n")
         records.append(rec)
