@@ -40,6 +40,7 @@ __all__ = ["MAX_BATCH", "PushTask", "PushOutcome", "QuickPass", "direction_tasks
 
 MAX_BATCH = 64      # candidates per physics call (the paper's 64 per expansion)
 _SWEEP_SAMPLES = 8  # poses along a push for the swept-polygon quick-pass
+_TOUCH_CHUNK = 4096  # polygon pairs per exact-distance call in the fixed-obstacle contact test
 
 
 class PushTask(NamedTuple):
@@ -286,12 +287,19 @@ def _touching(verts, fixed_verts, tol: float) -> np.ndarray:
     def pad(a):
         return np.concatenate([a, np.repeat(a[:, -1:], v - a.shape[1], 1)], 1)
 
+    # Shapes are bucketed so that few programs compile, shared across scenes and batches: vertex
+    # counts to a power of two >= 16, pair counts to a power of two in [256, _TOUCH_CHUNK] (larger sets
+    # in chunks of _TOUCH_CHUNK).
+    v = max(16, 1 << int(np.ceil(np.log2(v))))
     a, b = pad(verts[ki]), pad(fixed_verts[fi])
-    n = 1 << int(np.ceil(np.log2(len(ki))))
-    a = np.concatenate([a, np.repeat(a[-1:], n - len(ki), 0)])
-    b = np.concatenate([b, np.repeat(b[-1:], n - len(ki), 0)])
-    with jax.enable_x64(True):
-        d = np.asarray(pair_distances(jnp.asarray(a), jnp.asarray(b))[0])[:len(ki)]
+    d = np.empty(len(ki))
+    for s0 in range(0, len(ki), _TOUCH_CHUNK):
+        s1 = min(s0 + _TOUCH_CHUNK, len(ki))
+        n = max(256, 1 << int(np.ceil(np.log2(s1 - s0))))
+        aa = np.concatenate([a[s0:s1], np.repeat(a[s1 - 1:s1], n - (s1 - s0), 0)])
+        bb = np.concatenate([b[s0:s1], np.repeat(b[s1 - 1:s1], n - (s1 - s0), 0)])
+        with jax.enable_x64(True):
+            d[s0:s1] = np.asarray(pair_distances(jnp.asarray(aa), jnp.asarray(bb))[0])[:s1 - s0]
     np.logical_or.at(out, ki, d < tol)
     return out
 

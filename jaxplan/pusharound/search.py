@@ -79,11 +79,13 @@ class SearchConfig:
     sampling. heuristic_weight: factor on the estimate in Eq. 10; temperature: softmax temperature of
     the gap order over costs normalised to [0, 1]; gaps_per_node: ranked gaps whose movables get
     candidates in the first pass (the rest follow after a node is re-popped); n_directions: push
-    directions per movable; speeds: candidate body speeds [m/s] (0: the speed that opens the gap in
+    directions per movable; first_directions: of those, how many (nearest "away from the gap") enter
+    the first pass, at the first speed only; speeds: candidate body speeds [m/s] (0: the speed that opens the gap in
     ``duration``); omegas: yaw rates [rad/s] of the second pass; team_sizes: robots per push;
     duration: push duration [s] (<= the 2 s horizon); min_progress: widening [m] that makes a child;
     dedup_m, dedup_rad: state de-duplication grid; terminal_checks: children checked against Eq. 7 at
-    once per expansion; reinsert_penalty: added to a reinserted node's estimate per batch it already
+    once per expansion (those predicted to connect); open_margin: a gap counts as opened at W + this [m];
+    reinsert_penalty: added to a reinserted node's estimate per batch it already
     had (cost units of Eq. 9).
     """
 
@@ -99,6 +101,7 @@ class SearchConfig:
     heuristic_weight: float = 10.0
     temperature: float = 0.05
     gaps_per_node: int = 3
+    first_directions: int = 5
     n_directions: int = 8
     speeds: tuple = (0.0, 0.45)
     omegas: tuple = (0.35, -0.35)
@@ -108,6 +111,7 @@ class SearchConfig:
     dedup_m: float = 0.02
     dedup_rad: float = 0.05
     terminal_checks: int = 4
+    open_margin: float = 0.01
     reinsert_penalty: float = 1.0
 
     def __post_init__(self):
@@ -115,7 +119,8 @@ class SearchConfig:
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"SearchConfig.{name}: must be a bool; got {getattr(self, name)!r}.")
         for name, lo, hi in (("max_batch", 1, MAX_BATCH), ("max_expansions", 1, None), ("gaps_per_node", 1, None),
-                             ("n_directions", 1, 64), ("terminal_checks", 0, None)):
+                             ("n_directions", 1, 64), ("terminal_checks", 0, None),
+                             ("first_directions", 1, 64)):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo or (hi is not None and v > hi):
                 raise ValueError(f"SearchConfig.{name}: must be an int in [{lo}, {hi or 'inf'}]; got {v!r}.")
@@ -123,7 +128,7 @@ class SearchConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or not v > 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number > 0; got {v!r}.")
-        for name in ("heuristic_weight", "min_progress", "reinsert_penalty"):
+        for name in ("heuristic_weight", "min_progress", "reinsert_penalty", "open_margin"):
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number >= 0; got {v!r}.")
@@ -159,8 +164,8 @@ class ScheduledPush(NamedTuple):
 class SearchStats(NamedTuple):
     """planning_time_s: wall clock; expansions: batches simulated; simulated_pushes: rollouts run
     (padding excluded); physics_calls: ``simulate_pushes`` calls; mode_table_hits: candidates
-    simulated whose mode the table had validated on that shape; evaluations: nodes evaluated (WCCG,
-    Eq. 7, ranking); nodes: nodes created; quick_pass_rejected: candidates the quick-pass removed;
+    simulated whose mode the table had validated on that shape; evaluations: nodes ranked (targets
+    and estimate); checks: Eq. 7 tests (WCCG + connectivity); nodes: nodes created; quick_pass_rejected: candidates the quick-pass removed;
     valid_rollouts: rollouts physics validated; children: children pushed to the queue; rank_calls;
     max_depth: longest schedule seen; time_*_s: time in ranking (incl. WCCG and Eq. 7), the
     quick-pass, physics, and candidate generation."""
@@ -171,6 +176,7 @@ class SearchStats(NamedTuple):
     physics_calls: int
     mode_table_hits: int
     evaluations: int = 0
+    checks: int = 0
     nodes: int = 0
     quick_pass_rejected: int = 0
     valid_rollouts: int = 0
@@ -239,9 +245,11 @@ class _Node:
     evaluated: bool = False
     targets: list | None = None
     cands: list | None = None
+    pass_ends: list = dataclasses.field(default_factory=list)
     cursor: int = 0
     children: int = 0
     expansions: int = 0
+    check: tuple | None = None  # (WCCG, Connectivity, path) once Eq. 7 was tested
     origin: tuple = ()        # (parent nid, target index): siblings share their estimate's error
     corrected: bool = False
 
@@ -335,12 +343,12 @@ class _Search:
         self.counter = 0
         self.seen: set = set()
         self.n_nodes = 0
-        self.stats = dict(expansions=0, simulated_pushes=0, physics_calls=0, mode_table_hits=0, evaluations=0,
+        self.stats = dict(expansions=0, simulated_pushes=0, physics_calls=0, mode_table_hits=0, evaluations=0, checks=0,
                           nodes=0, quick_pass_rejected=0, valid_rollouts=0, children=0, rank_calls=0, max_depth=0,
                           time_rank_s=0.0, time_quick_pass_s=0.0, time_physics_s=0.0, time_candidates_s=0.0)
         self.best = None          # node with the least estimate (for failure reports)
         self.corrections: dict = {}   # origin -> error of the estimate seen on an evaluated sibling
-        self.tail_memo: dict = {}     # frozenset of frontier gaps -> {gap bodies: (Eq. 9 tail, final)}
+        self.tail_memo: dict = {}     # gap bodies -> (Eq. 9 tail, crossing it is predicted to connect)
 
     # ------------------------------------------------------------------ bookkeeping
     def _new_node(self, poses, robots, schedule, chi, h) -> _Node:
@@ -368,39 +376,51 @@ class _Search:
     def _scene_at(self, node: _Node) -> PushScene:
         return self.scene.with_poses(node.poses).replace(robots=node.robots)
 
-    def _evaluate(self, node: _Node):
-        """WCCG, Eq. 7 and the targets of ``node``. Returns the W-clear path when Eq. 7 holds."""
+    def _check(self, node: _Node):
+        """WCCG and Eq. 7 of ``node`` (Algorithm 1's termination test). Returns the W-clear path when
+        Eq. 7 holds (and a path is found), else None; keeps the WCCG and frontier for ranking."""
+        if node.check is not None:
+            return node.check[2]
         t = time.perf_counter()
-        self.stats["evaluations"] += 1
+        self.stats["checks"] += 1
         state = self._scene_at(node)
         g = build_wccg(state)
         conn = connectivity(g, state.start, state.goal)
+        path = w_clear_path(g, state.start, state.goal) if conn.connected else None
+        node.check = (g, conn, path)
+        self.stats["time_rank_s"] += time.perf_counter() - t
+        return path
+
+    def _evaluate(self, node: _Node):
+        """:meth:`_check`, then the targets of ``node`` and its estimate ``h`` (min Cost). Returns the
+        W-clear path when Eq. 7 holds."""
+        path = self._check(node)
         node.evaluated = True
-        if conn.connected:
-            path = w_clear_path(g, state.start, state.goal)
-            if path is not None:
-                self.stats["time_rank_s"] += time.perf_counter() - t
-                return path
+        if path is not None:
+            return path
+        t = time.perf_counter()
+        self.stats["evaluations"] += 1
+        g, conn, _ = node.check
+        state = self._scene_at(node)
         targets = []
         if not conn.same_face:
             gaps = candidate_gaps(g, conn.frontier)
             tails = {}
             if self.cfg.presearch and gaps:
-                # Eq. 9's tails (Cost - C) depend on the gaps beyond this frontier: memoised on the
-                # frontier's gap set (Remark 3), so that a push that did not change the frontier does
-                # not pay for another presearch.
-                memo_key = frozenset(gap.bodies for gap in gaps)
-                tails = self.tail_memo.get(memo_key)
-                if tails is None:
+                # Eq. 9's tail of a gap (Cost - C: the predicted cost beyond it) depends on the region
+                # behind the gap, not on where the robots are: memoised per gap (Remark 3's cached
+                # transitions), and only gaps not seen before are presearched.
+                new = [gap.bodies for gap in gaps if gap.bodies not in self.tail_memo]
+                if new:
                     self.stats["rank_calls"] += 1
-                    rk = rank_gaps(state, self.params, g=g, robots=node.robots)
-                    tails = {}
+                    rk = rank_gaps(state, self.params, g=g, robots=node.robots, first=new)
                     for k, gap in enumerate(rk.gaps):
                         c_t, c_p = one_hop_terms(gap, node.robots, g.width, self.params.mass_ref)
                         one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p
                         cost = float(rk.cost[k])
-                        tails[gap.bodies] = (max(cost - one, 0.0), len(rk.sequences[k]) == 0 and cost < DEAD_END_PENALTY)
-                    self.tail_memo[memo_key] = tails
+                        self.tail_memo[gap.bodies] = (max(cost - one, 0.0),
+                                                      len(rk.sequences[k]) == 0 and cost < DEAD_END_PENALTY)
+                tails = self.tail_memo
             for gap in gaps:
                 c_t, c_p = one_hop_terms(gap, node.robots, g.width, self.params.mass_ref)
                 one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p
@@ -411,6 +431,7 @@ class _Search:
             targets = self._endpoint_targets(node.poses)
         node.targets = targets
         node.h = min((tg.cost for tg in targets), default=math.inf)
+        node.check = (None, None, None)      # the WCCG is not needed any more
         self.stats["time_rank_s"] += time.perf_counter() - t
         return None
 
@@ -460,35 +481,39 @@ class _Search:
         first, second, last = [], [], []
         for rank_pos, ti in enumerate(order):
             tg = targets[int(ti)]
+            top = rank_pos < cfg.gaps_per_node
             for m in sorted(tg.movables, key=lambda m: self.scene.movables[m].mass):
                 psi = float(node.poses[m, 2])
-                need = (w - tg.width + 0.15) if tg.kind == "gap" else (0.5 * w - tg.width + 0.15)
-                speeds = sorted({round(min(max(need / self.duration, 0.1), 0.6), 3) if s == 0 else float(s)
-                                 for s in cfg.speeds})
-                passes = [(0.0, first if rank_pos < cfg.gaps_per_node else second)]
-                passes += [(om, second) for om in cfg.omegas if om != 0]
+                need = (w - tg.width + 0.3) if tg.kind == "gap" else (0.5 * w - tg.width + 0.3)
+                speeds = [round(min(max(need / self.duration, 0.1), 0.6), 3) if s == 0 else float(s)
+                          for s in cfg.speeds]
                 base = math.atan2(tg.away[m][1], tg.away[m][0])
-                for omega, bucket in passes:
-                    group = []
+                g1, g2 = [], []
+                for omega in (0.0,) + tuple(om for om in cfg.omegas if om != 0):
                     for j, da in enumerate(rel):
                         ang = base + da
                         for n in cfg.team_sizes:
                             if n > self.n_robots:
                                 continue
-                            for s in speeds:
+                            for si, s in enumerate(speeds):
                                 key = self.table.key(ang - psi, n, s, omega)
                                 rec = self.table.prior(self.scene.movables[m], key) if self.use_table else None
                                 hit = rec is not None and rec.success > 0
                                 bad = rec is not None and rec.trials >= 2 and rec.success == 0
-                                if hit:   # reuse exactly the stored mode: the validated bin's centre
-                                    ang_c = self.table.bin_angle(key.bin) + psi
-                                else:
-                                    ang_c = ang
-                                score = (0 if hit else 1, -(rec.rate if rec else 0.5), j)
+                                # Reuse exactly a stored mode: the validated bin's centre.
+                                ang_c = self.table.bin_angle(key.bin) + psi if hit else ang
+                                score = (0 if hit else 1, -(rec.rate if rec else 0.5), j, si)
                                 entry = (score, _Cand(int(ti), m, (ang_c, n, s, omega), key, bool(hit)))
-                                (last if bad else group).append(entry)
-                    group.sort(key=lambda x: x[0])
-                    bucket.append([c for _, c in group])
+                                if bad:
+                                    last.append(entry)
+                                elif top and (hit or (omega == 0 and si == 0 and j < cfg.first_directions)):
+                                    g1.append(entry)
+                                else:
+                                    g2.append(entry)
+                for grp, bucket in ((g1, first), (g2, second)):
+                    if grp:
+                        grp.sort(key=lambda x: x[0])
+                        bucket.append([c for _, c in grp])
         last.sort(key=lambda x: x[0])
 
         def interleave(groups):
@@ -499,7 +524,8 @@ class _Search:
             return out
 
         self.stats["time_candidates_s"] += time.perf_counter() - t0
-        return interleave(first) + interleave(second) + [c for _, c in last]
+        passes = [interleave(first), interleave(second), [c for _, c in last]]
+        return [c for ps in passes for c in ps], list(np.cumsum([len(ps) for ps in passes]))
 
     def _task(self, node: _Node, cand: _Cand) -> PushTask | None:
         """The :class:`PushTask` of a candidate (None when the face has no room for the team)."""
@@ -519,7 +545,11 @@ class _Search:
         cfg = self.cfg
         out = []
         while node.cursor < len(node.cands) and len(out) < cfg.max_batch:
-            chunk = node.cands[node.cursor:node.cursor + min(32, cfg.max_batch)]
+            # A batch does not run past the end of a pass once it holds a candidate.
+            end = next(e for e in node.pass_ends + [len(node.cands)] if e > node.cursor)
+            if out and node.cursor in node.pass_ends:
+                break
+            chunk = node.cands[node.cursor:min(end, node.cursor + min(32, cfg.max_batch))]
             node.cursor += len(chunk)
             t = time.perf_counter()
             chunk = [c if c.task is not None else c._replace(task=self._task(node, c)) for c in chunk]
@@ -536,6 +566,7 @@ class _Search:
             room = cfg.max_batch - len(out)
             if len(chunk) > room:   # survivors beyond the batch go back to the front of the list
                 node.cands[node.cursor:node.cursor] = chunk[room:]
+                node.pass_ends = [e + (len(chunk) - room if e >= node.cursor else 0) for e in node.pass_ends]
                 chunk = chunk[:room]
             out += chunk
         return out
@@ -544,7 +575,7 @@ class _Search:
         """One batch of ``node``: simulate, make children. Returns a success (path, child) or None."""
         cfg = self.cfg
         if node.cands is None:
-            node.cands = self._candidates(node)
+            node.cands, node.pass_ends = self._candidates(node)
         batch = self._next_batch(node)
         self.stats["expansions"] += 1
         if not batch:
@@ -579,7 +610,7 @@ class _Search:
                 a, bb = (self.geom.body(x, poses) for x in tg.bodies)
                 new_w = float(a.distance(bb))
                 before = tg.width
-                opened = new_w >= float(self.scene.width)
+                opened = new_w >= float(self.scene.width) + cfg.open_margin
                 frac = 1.0 if opened else max(0.0, (new_w - before) / max(float(self.scene.width) - before, 1e-9))
                 progress = new_w - before
             else:
@@ -610,19 +641,15 @@ class _Search:
             children.append((opened, tg.final, child))
         node.children += len(children)
         self.stats["children"] += len(children)
-        # Algorithm 1, line 5.5: children predicted to connect are checked at once (best first).
-        checks = sorted([c for c in children if c[0]], key=lambda c: (not c[1], self._f(c[2])))
+        # Algorithm 1, line 5.5: children that opened their gap are tested against Eq. 7 at once,
+        # those the presearch predicts to connect first (a WCCG and a connectivity query each).
+        checks = sorted([c for c in children if c[0] and (c[1] or not cfg.presearch)], key=lambda c: self._f(c[2]))
         for opened, final, child in checks[:cfg.terminal_checks]:
-            if not final and cfg.presearch:
-                continue
-            path = self._evaluate(child)
+            path = self._check(child)
             if path is not None:
                 return path, child
-            if child.h < math.inf:
-                self._push(child, self._f(child))
         for opened, final, child in children:
-            if not child.evaluated:
-                self._push(child, self._f(child))
+            self._push(child, self._f(child))
         return None
 
     def _node_estimate(self, node: _Node) -> float:
