@@ -53,6 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import shapely
+from shapely import affinity
 from shapely.geometry import LineString, Point
 
 from jaxplan.physics.rollout import Simulator, Trajectory
@@ -532,9 +533,12 @@ def _outline_deviation(scene: PushScene, poses, planned) -> np.ndarray:
     out = np.zeros(len(scene.movables))
     for i, m in enumerate(scene.movables):
         if np.max(np.abs(np.asarray(poses[i]) - np.asarray(planned[i]))) > 1e-9:
-            a = shapely.union_all(m.world_pieces(tuple(poses[i])))
-            b = shapely.union_all(m.world_pieces(tuple(planned[i])))
-            out[i] = float(shapely.hausdorff_distance(a, b))
+            # The body-frame union moved rigidly, as Movable.polygon: a union of separately moved pieces
+            # may split or keep slivers, which the Hausdorff distance would report as a deviation.
+            body = shapely.union_all(m.pieces)
+            a, b = (affinity.translate(affinity.rotate(body, float(p[2]), origin=(0, 0), use_radians=True),
+                                       float(p[0]), float(p[1])) for p in (poses[i], planned[i]))
+            out[i] = float(shapely.hausdorff_distance(a, b, densify=0.25))
     return out
 
 
