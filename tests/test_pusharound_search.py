@@ -92,6 +92,16 @@ def test_opens_two_box_corridor():
     _check_schedule(res, scene)
 
 
+def test_endpoint_disk_is_cleared():
+    """Remark 5: start and goal share a face but a box intrudes into the goal's disk."""
+    scene = _scene([_box("b", (4.2, 1.85, 0.0))], lo=0.8, hi=2.2)
+    conn = connectivity(build_wccg(scene), scene.start, scene.goal)
+    assert conn.same_face and not conn.goal_clear
+    res = plan_pushes(scene, FAST)
+    assert res.success and res.schedule and res.schedule[0].gap == (0,)
+    _check_corridor(res, scene)
+
+
 def test_already_clear_scene_gives_empty_schedule():
     scene = _scene([_box("box", (1.5, 0.4, 0.0))], lo=0.8, hi=2.2)
     res = plan_pushes(scene, FAST)

@@ -61,7 +61,7 @@ from jaxplan.pusharound.wccg import MOVABLE, WALL, build_wccg, connectivity, w_c
 
 __all__ = ["SEARCH_RANKING", "ScheduledPush", "SearchConfig", "SearchResult", "SearchStats", "plan_pushes"]
 
-_BUCKETS = (8, 16, 32, 64)   # physics batch sizes (the policy is jitted once per size)
+_BUCKETS = (16, 64)   # physics batch sizes (the C engine's policy is jitted once per size and scene)
 
 # The search's default ranking: Eq. 8-9 weights as RankingParams(), a smaller presearch (beam 2,
 # depth 2: the same first three gaps as beam 4, depth 3 on nominal seeds 0-3 at about half the time).
@@ -74,7 +74,9 @@ class SearchConfig:
 
     presearch: Eq. 9 ranking (False: one-hop cost Eq. 8 only); mode_table: ModeTable priors;
     quick_pass: geometric rejection before physics; reinsertion: deferred expansion / reinsertion of
-    partly expanded nodes; max_batch: candidates per physics call (<= 64); time_limit_s: wall-clock
+    partly expanded nodes; max_batch: candidates per physics call (<= 64); batch_size: candidates an
+    expansion simulates (capped by max_batch; 16 on the 2-core CPU: the paper's 64 cost four times
+    the physics per expansion, and the deferred expansion reaches the rest later); time_limit_s: wall-clock
     budget [s]; max_expansions: batches simulated at most; backend: "c" | "mjx" | "auto"; seed: gap
     sampling. heuristic_weight: factor on the estimate in Eq. 10; temperature: softmax temperature of
     the gap order over costs normalised to [0, 1]; gaps_per_node: ranked gaps whose movables get
@@ -94,6 +96,7 @@ class SearchConfig:
     quick_pass: bool = True
     reinsertion: bool = True
     max_batch: int = 64
+    batch_size: int = 16
     time_limit_s: float = 60.0
     max_expansions: int = 200
     backend: str = "auto"
@@ -120,7 +123,7 @@ class SearchConfig:
                 raise ValueError(f"SearchConfig.{name}: must be a bool; got {getattr(self, name)!r}.")
         for name, lo, hi in (("max_batch", 1, MAX_BATCH), ("max_expansions", 1, None), ("gaps_per_node", 1, None),
                              ("n_directions", 1, 64), ("terminal_checks", 0, None),
-                             ("first_directions", 1, 64)):
+                             ("first_directions", 1, 64), ("batch_size", 1, MAX_BATCH)):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo or (hi is not None and v > hi):
                 raise ValueError(f"SearchConfig.{name}: must be an int in [{lo}, {hi or 'inf'}]; got {v!r}.")
@@ -232,6 +235,7 @@ class _Cand(NamedTuple):
     key: ModeKey
     hit: bool
     task: PushTask | None = None
+    passed: bool = False      # survived the quick-pass (or it is off)
 
 
 @dataclasses.dataclass
@@ -245,7 +249,6 @@ class _Node:
     evaluated: bool = False
     targets: list | None = None
     cands: list | None = None
-    pass_ends: list = dataclasses.field(default_factory=list)
     cursor: int = 0
     children: int = 0
     expansions: int = 0
@@ -524,8 +527,7 @@ class _Search:
             return out
 
         self.stats["time_candidates_s"] += time.perf_counter() - t0
-        passes = [interleave(first), interleave(second), [c for _, c in last]]
-        return [c for ps in passes for c in ps], list(np.cumsum([len(ps) for ps in passes]))
+        return interleave(first) + interleave(second) + [c for _, c in last]
 
     def _task(self, node: _Node, cand: _Cand) -> PushTask | None:
         """The :class:`PushTask` of a candidate (None when the face has no room for the team)."""
@@ -541,32 +543,30 @@ class _Search:
 
     # ------------------------------------------------------------------ expansion
     def _next_batch(self, node: _Node) -> list:
-        """The next candidates of ``node`` that pass the quick-pass (at most max_batch)."""
+        """The next ``batch_size`` (<= max_batch) candidates of ``node`` that pass the quick-pass,
+        in list order (first pass, second pass, modes the ModeTable saw fail)."""
         cfg = self.cfg
+        limit = min(cfg.batch_size, cfg.max_batch)
         out = []
-        while node.cursor < len(node.cands) and len(out) < cfg.max_batch:
-            # A batch does not run past the end of a pass once it holds a candidate.
-            end = next(e for e in node.pass_ends + [len(node.cands)] if e > node.cursor)
-            if out and node.cursor in node.pass_ends:
-                break
-            chunk = node.cands[node.cursor:min(end, node.cursor + min(32, cfg.max_batch))]
+        while node.cursor < len(node.cands) and len(out) < limit:
+            chunk = node.cands[node.cursor:node.cursor + 32]
             node.cursor += len(chunk)
             t = time.perf_counter()
             chunk = [c if c.task is not None else c._replace(task=self._task(node, c)) for c in chunk]
             chunk = [c for c in chunk if c.task is not None]
             self.stats["time_candidates_s"] += time.perf_counter() - t
-            if not chunk:
-                continue
-            if cfg.quick_pass:
+            todo = [k for k, c in enumerate(chunk) if not c.passed]
+            if cfg.quick_pass and todo:
                 t = time.perf_counter()
-                ok = quick_pass(self.world, stack_tasks([c.task for c in chunk]), poses=node.poses).ok
+                ok = quick_pass(self.world, stack_tasks([chunk[k].task for k in todo]), poses=node.poses).ok
                 self.stats["time_quick_pass_s"] += time.perf_counter() - t
                 self.stats["quick_pass_rejected"] += int(np.sum(~ok))
-                chunk = [c for c, k in zip(chunk, ok) if k]
-            room = cfg.max_batch - len(out)
+                bad = {k for k, o in zip(todo, ok) if not o}
+                chunk = [c for k, c in enumerate(chunk) if k not in bad]
+            chunk = [c._replace(passed=True) for c in chunk]
+            room = limit - len(out)
             if len(chunk) > room:   # survivors beyond the batch go back to the front of the list
                 node.cands[node.cursor:node.cursor] = chunk[room:]
-                node.pass_ends = [e + (len(chunk) - room if e >= node.cursor else 0) for e in node.pass_ends]
                 chunk = chunk[:room]
             out += chunk
         return out
@@ -575,7 +575,7 @@ class _Search:
         """One batch of ``node``: simulate, make children. Returns a success (path, child) or None."""
         cfg = self.cfg
         if node.cands is None:
-            node.cands, node.pass_ends = self._candidates(node)
+            node.cands = self._candidates(node)
         batch = self._next_batch(node)
         self.stats["expansions"] += 1
         if not batch:
