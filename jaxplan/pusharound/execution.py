@@ -620,7 +620,7 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
                                              ",".join(k for k, v in flags.items() if v)))
                 connected = _connected(now())
                 if connected:
-                    reason = "connected"
+                    reason = "connected" + (f" (after: {'; '.join(dict.fromkeys(notes))})" if notes else "")
                     break
                 if not ok:
                     failed = "push failed" if valid else "push invalid in physics"
