@@ -718,7 +718,8 @@ def _cmd_pusharound(args) -> int:
             raise
         final, connected, path = execution.final_scene, execution.connectivity, execution.w_clear_path
         success = bool(execution.success)
-        reason = "executed; W-clear corridor open" if success else f"execution: {execution.reason}"
+        reason = (("executed; W-clear corridor open" if execution.executed else "Eq. 7 already holds; nothing to push")
+                  if success else f"execution: {execution.reason}")
         write_result(plan=plan, execution=execution, final=final, path=path, connected=connected, success=success,
                      reason=reason)
         if table is not None:
