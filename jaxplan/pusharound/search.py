@@ -57,9 +57,10 @@ from jaxplan.pusharound.push import (MAX_BATCH, PushTask, face_contacts, make_pu
 from jaxplan.pusharound.ranking import (DEAD_END_PENALTY, Gap, RankingParams, candidate_gaps, one_hop_terms,
                                         rank_gaps, validate_ranking_params)
 from jaxplan.pusharound.scene import PushScene
-from jaxplan.pusharound.wccg import MOVABLE, WALL, build_wccg, connectivity, w_clear_path
+from jaxplan.pusharound.wccg import (_BRIDGE_EPS, MOVABLE, WCCG, _cluster_region, _rings, _skeleton, build_wccg,
+                                     connectivity, w_clear_path)
 
-__all__ = ["SEARCH_RANKING", "ScheduledPush", "SearchConfig", "SearchResult", "SearchStats", "plan_pushes"]
+__all__ = ["SEARCH_RANKING", "FaceGraph", "ScheduledPush", "face_graph", "SearchConfig", "SearchResult", "SearchStats", "plan_pushes"]
 
 _BUCKETS = (16, 64)   # physics batch sizes (the C engine's policy is jitted once per size and scene)
 
@@ -88,10 +89,13 @@ class SearchConfig:
     dedup_m, dedup_rad: state de-duplication grid; terminal_checks: children checked against Eq. 7 at
     once per expansion (those predicted to connect); open_margin: a gap counts as opened at W + this [m];
     reinsert_penalty: added to a reinserted node's estimate per batch it already
-    had (cost units of Eq. 9).
+    had (cost units of Eq. 9); progress_bonus: subtracted from the estimate per gap the node's
+    schedule opened (cost units; the depth-limited presearch hardly sees progress until the goal is
+    within its depth, so without it the search goes breadth-first over equally rated states).
     """
 
     presearch: bool = True
+    presearch_mode: str = "graph"
     mode_table: bool = True
     quick_pass: bool = True
     reinsertion: bool = True
@@ -116,6 +120,7 @@ class SearchConfig:
     terminal_checks: int = 4
     open_margin: float = 0.01
     reinsert_penalty: float = 1.0
+    progress_bonus: float = 1.0
 
     def __post_init__(self):
         for name in ("presearch", "mode_table", "quick_pass", "reinsertion"):
@@ -131,10 +136,12 @@ class SearchConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or not v > 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number > 0; got {v!r}.")
-        for name in ("heuristic_weight", "min_progress", "reinsert_penalty", "open_margin"):
+        for name in ("heuristic_weight", "min_progress", "reinsert_penalty", "open_margin", "progress_bonus"):
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number >= 0; got {v!r}.")
+        if self.presearch_mode not in ("graph", "beam"):
+            raise ValueError(f"SearchConfig.presearch_mode: expected 'graph' or 'beam'; got {self.presearch_mode!r}.")
         if self.backend not in ("c", "mjx", "auto"):
             raise ValueError(f"SearchConfig.backend: expected 'c', 'mjx' or 'auto'; got {self.backend!r}.")
         if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool):
@@ -252,6 +259,8 @@ class _Node:
     cursor: int = 0
     children: int = 0
     expansions: int = 0
+    opened: int = 0             # gaps (or endpoint disks) the schedule opened that lowered the estimate
+    parent_h: float = math.inf
     check: tuple | None = None  # (WCCG, Connectivity, path) once Eq. 7 was tested
     origin: tuple = ()        # (parent nid, target index): siblings share their estimate's error
     corrected: bool = False
@@ -328,6 +337,114 @@ def _check_inputs(scene, config, ranking, mode_table, world):
                              "use build_push_world(scene).")
 
 
+
+# ------------------------------------------------------------------------------ face-graph presearch
+
+class FaceGraph(NamedTuple):
+    """The faces of the WCCG skeleton and the gaps between them (the "graph" presearch).
+
+    faces: per gap (body pair with a movable) the set of face ids its bottleneck bridges border;
+    start_face, goal_face: the faces of the endpoints (-1: outside every ring, -2: inside an
+    obstacle cluster); tail: per gap, the least cost of the gap sequence after crossing it to reach
+    the goal face (Eq. 9's continuation, minimised by Dijkstra instead of a beam of limited depth;
+    inf when no sequence reaches the goal); final: per gap, crossing it reaches the goal face.
+    """
+
+    faces: dict
+    start_face: int
+    goal_face: int
+    tail: dict
+    final: dict
+
+
+def face_graph(g: WCCG, goal, params: RankingParams) -> FaceGraph:
+    """Eq. 9's continuation costs for every gap of the scene, without beam or depth limit.
+
+    Faces are the rings of the skeleton's clusters (a point lies in the face of the smallest ring
+    polygon containing it when that ring is a hole; in an obstacle when it is a cluster's exterior).
+    A gap (a body pair with at least one movable and bottleneck bridges) borders the faces found a
+    hair off each of its bridges, on both sides. Two gaps are neighbours when they border a common
+    face (crossing one then the other is a gap sequence; crossed gaps stay open, so the region only
+    grows). Costs follow Eqs. 8-9 after the first gap: moving the team from gap to gap
+    ``lambda_t |m - m'|`` (bridge midpoints, straight line), widening ``lambda_p C_p(g')`` and the
+    goal term ``eta |m' - goal|``; ``tail(g)`` is the least sum over sequences from ``g`` to a gap
+    bordering the goal face (0 if ``g`` borders it). One union per cluster (the same as Eq. 7's
+    query) and a point location per bridge side: ~30-60 ms on a nominal scene.
+    """
+    lt, lp, eta = (float(np.asarray(v)) for v in (params.lambda_t, params.lambda_p, params.eta))
+    w = float(g.width)
+    goal = np.asarray(goal, np.float64)
+    sk = _skeleton(g)
+    rings = []
+    for c in np.unique(sk.labels):
+        rings += _rings(_cluster_region(g, sk, int(c)), int(c))
+    polys = np.asarray([r.region for r in rings], dtype=object)
+    areas = shapely.area(polys)
+    hole = np.asarray([r.is_hole for r in rings], bool)
+    tree = shapely.STRtree(polys)
+
+    def locate(points):
+        points = np.asarray(points, np.float64).reshape(-1, 2)
+        pi, ri = tree.query(shapely.points(points), predicate="within")
+        face = np.full(len(points), -1, np.int64)
+        best = np.full(len(points), np.inf)
+        for p, r in zip(pi, ri):
+            if areas[r] < best[p]:
+                best[p] = areas[r]
+                face[p] = r if hole[r] else -2
+        return face
+
+    # Bottleneck bridges between two bodies, one of them movable: the crossable gaps.
+    bb = g.bridge_bodies
+    kinds = g.body_kind[bb]
+    ok = sk.active & (bb[:, 0] != bb[:, 1]) & np.any(kinds == MOVABLE, axis=1)
+    edges = np.nonzero(ok)[0]
+    pu, pv = g.bridge_pts[edges, 0], g.bridge_pts[edges, 1]
+    mid = 0.5 * (pu + pv)
+    d = pv - pu
+    touch = np.linalg.norm(d, axis=1) < 10 * _BRIDGE_EPS * w
+    if np.any(touch):   # touching bodies: across the line of their components' centroids
+        uv = g.bridge_uv[edges[touch]]
+        d[touch] = g.centroids[uv[:, 1]] - g.centroids[uv[:, 0]]
+    n = np.stack([-d[:, 1], d[:, 0]], 1) / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    tau = np.where(touch, 0.05 * w, 3.0 * _BRIDGE_EPS * w)[:, None]
+    side = locate(np.concatenate([mid + tau * n, mid - tau * n])).reshape(2, -1)
+    goal_face = int(locate(goal[None])[0])
+    faces, where, cp = {}, {}, {}
+    for k, e in enumerate(edges):
+        pair = (int(bb[e, 0]), int(bb[e, 1]))
+        fs = faces.setdefault(pair, set())
+        fs.update(int(f) for f in side[:, k] if f >= -1)
+        if pair not in cp or g.bridge_width[e] < cp[pair][0]:
+            cp[pair] = (float(g.bridge_width[e]), mid[k])
+    for pair, (width_p, m) in cp.items():
+        mass = min(g.body_mass[b] for b in pair if g.body_kind[b] == MOVABLE)
+        where[pair] = (m, lp * max(w - width_p, 0.0) * mass / params.mass_ref + eta * float(np.linalg.norm(m - goal)))
+    # Reverse Dijkstra from the gaps bordering the goal face.
+    by_face: dict = {}
+    for pair, fs in faces.items():
+        for f in fs:
+            by_face.setdefault(f, []).append(pair)
+    tail = {pair: math.inf for pair in faces}
+    heap = []
+    for pair in by_face.get(goal_face, []):
+        tail[pair] = 0.0
+        heap.append((0.0, pair))
+    heapq.heapify(heap)
+    while heap:
+        dist, pair = heapq.heappop(heap)
+        if dist > tail[pair]:
+            continue
+        m, c = where[pair]
+        for f in faces[pair]:
+            for q in by_face[f]:
+                nd = dist + c + lt * float(np.linalg.norm(where[q][0] - m))
+                if nd < tail[q] - 1e-12:
+                    tail[q] = nd
+                    heapq.heappush(heap, (nd, q))
+    final = {pair: goal_face in fs for pair, fs in faces.items()}
+    return FaceGraph(faces, -1, goal_face, tail, final)
+
 # ----------------------------------------------------------------------------------------- search
 
 class _Search:
@@ -367,7 +484,8 @@ class _Search:
         heapq.heappush(self.queue, (float(f), -node.depth, self.counter, node))
 
     def _f(self, node: _Node) -> float:
-        return node.chi + self.cfg.heuristic_weight * node.h
+        """Eq. 10 with the heuristic factor, less ``progress_bonus`` per gap the schedule opened."""
+        return node.chi + self.cfg.heuristic_weight * (node.h - self.cfg.progress_bonus * node.opened)
 
     def _emit(self, event: str, **kw):
         if self.progress is not None:
@@ -409,7 +527,12 @@ class _Search:
         if not conn.same_face:
             gaps = candidate_gaps(g, conn.frontier)
             tails = {}
-            if self.cfg.presearch and gaps:
+            if self.cfg.presearch and gaps and self.cfg.presearch_mode == "graph":
+                self.stats["rank_calls"] += 1
+                fg = face_graph(g, state.goal, self.params)
+                tails = {pair: (t if math.isfinite(t) else DEAD_END_PENALTY, fg.final[pair])
+                         for pair, t in fg.tail.items()}
+            elif self.cfg.presearch and gaps:
                 # Eq. 9's tail of a gap (Cost - C: the predicted cost beyond it) depends on the region
                 # behind the gap, not on where the robots are: memoised per gap (Remark 3's cached
                 # transitions), and only gaps not seen before are presearched.
@@ -434,6 +557,8 @@ class _Search:
             targets = self._endpoint_targets(node.poses)
         node.targets = targets
         node.h = min((tg.cost for tg in targets), default=math.inf)
+        if node.opened and not node.h < node.parent_h - 1e-6:
+            node.opened -= 1      # the gap it opened did not bring the goal closer: no bonus
         node.check = (None, None, None)      # the WCCG is not needed any more
         self.stats["time_rank_s"] += time.perf_counter() - t
         return None
@@ -638,6 +763,8 @@ class _Search:
             h = tg.tail if opened else max(tg.cost - frac * tg.one_hop, tg.tail)
             child = self._new_node(poses, out.robots[i], node.schedule + (sp,), node.chi + float(cost[i]), h)
             child.origin = (node.nid, cand.target)
+            child.opened = node.opened + int(opened)
+            child.parent_h = node.h
             children.append((opened, tg.final, child))
         node.children += len(children)
         self.stats["children"] += len(children)
