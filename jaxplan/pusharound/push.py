@@ -40,6 +40,7 @@ __all__ = ["MAX_BATCH", "PushTask", "PushOutcome", "QuickPass", "direction_tasks
 
 MAX_BATCH = 64      # candidates per physics call (the paper's 64 per expansion)
 _SWEEP_SAMPLES = 8  # poses along a push for the swept-polygon quick-pass
+_TOUCH_CHUNK = 4096  # polygon pairs per exact-distance call in the fixed-obstacle contact test
 
 
 class PushTask(NamedTuple):
@@ -246,13 +247,56 @@ def _check_tasks(world: PushWorld, tasks: PushTask) -> PushTask:
                     out["active"].astype(bool), out["velocity"].astype(np.float64), dur)
 
 
+_OUTLINES: dict = {}   # id(movable.pieces) -> (pieces, body-frame outline): kept alive with their key
+
+
+def _body_outline(movable):
+    key = id(movable.pieces)
+    hit = _OUTLINES.get(key)
+    if hit is None or hit[0] is not movable.pieces:
+        if len(_OUTLINES) > 4096:
+            _OUTLINES.clear()
+        hit = (movable.pieces, shapely.union_all(list(movable.pieces)))
+        _OUTLINES[key] = hit
+    return hit[1]
+
+
+def _clear_of_body(world: PushWorld, tasks: PushTask, local: np.ndarray, clearance: float) -> np.ndarray:
+    """Body-frame robot starts ``local f[B, N, 2]`` moved back along their push directions until
+    the robot disk clears the pushed body by ``standoff`` (a contact on a slanted edge or next to a
+    re-entrant corner of a non-convex body puts the disk ``r + standoff`` behind the contact inside the
+    body's other edges). Starts already clear are unchanged; at most 0.3 m of extra backing."""
+    act = np.nonzero(tasks.active)
+    if len(act[0]) == 0:
+        return local
+    out = local.copy()
+    mov = tasks.movable[act[0]]
+    pts = out[act]
+    d = tasks.directions[act]
+    outlines = np.asarray([_body_outline(world.scene.movables[int(m)]) for m in mov], dtype=object)
+    back = np.zeros(len(pts))
+    for _ in range(6):
+        dist = shapely.distance(outlines, shapely.points(pts))
+        deficit = clearance - dist
+        need = (deficit > 1e-6) & (back < 0.3)
+        if not np.any(need):
+            break
+        step = np.where(need, np.minimum(deficit + 1e-4, 0.3 - back), 0.0)
+        pts = pts - step[:, None] * d
+        back += step
+    out[act] = pts
+    return out
+
+
 def _start_positions(world: PushWorld, tasks: PushTask, poses) -> np.ndarray:
-    """Robot start positions f[B, N, 2]: active robots ``r + standoff`` behind their contacts."""
+    """Robot start positions f[B, N, 2]: active robots ``r + standoff`` behind their contacts (farther
+    back along the push direction where the disk would otherwise touch the pushed body)."""
     cfg, r = world.config, float(world.scene.robot_radius)
     pose0 = poses[tasks.movable]                                       # [B, 3]
     c, s = np.cos(pose0[:, 2]), np.sin(pose0[:, 2])
     rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)    # [B, 2, 2]
-    local = tasks.contacts - (r + cfg.standoff) * tasks.directions
+    local = _clear_of_body(world, tasks, tasks.contacts - (r + cfg.standoff) * tasks.directions,
+                           r + cfg.standoff - 1e-6)
     world_xy = pose0[:, None, :2] + np.einsum("bij,bnj->bni", rot, local)
     home = np.broadcast_to(np.asarray(world.scene.robots, np.float64), world_xy.shape)
     return np.where(tasks.active[..., None], world_xy, home)
@@ -286,12 +330,19 @@ def _touching(verts, fixed_verts, tol: float) -> np.ndarray:
     def pad(a):
         return np.concatenate([a, np.repeat(a[:, -1:], v - a.shape[1], 1)], 1)
 
+    # Shapes are bucketed so that few programs compile, shared across scenes and batches: vertex
+    # counts to a power of two >= 16, pair counts to a power of two in [256, _TOUCH_CHUNK] (larger sets
+    # in chunks of _TOUCH_CHUNK).
+    v = max(16, 1 << int(np.ceil(np.log2(v))))
     a, b = pad(verts[ki]), pad(fixed_verts[fi])
-    n = 1 << int(np.ceil(np.log2(len(ki))))
-    a = np.concatenate([a, np.repeat(a[-1:], n - len(ki), 0)])
-    b = np.concatenate([b, np.repeat(b[-1:], n - len(ki), 0)])
-    with jax.enable_x64(True):
-        d = np.asarray(pair_distances(jnp.asarray(a), jnp.asarray(b))[0])[:len(ki)]
+    d = np.empty(len(ki))
+    for s0 in range(0, len(ki), _TOUCH_CHUNK):
+        s1 = min(s0 + _TOUCH_CHUNK, len(ki))
+        n = max(256, 1 << int(np.ceil(np.log2(s1 - s0))))
+        aa = np.concatenate([a[s0:s1], np.repeat(a[s1 - 1:s1], n - (s1 - s0), 0)])
+        bb = np.concatenate([b[s0:s1], np.repeat(b[s1 - 1:s1], n - (s1 - s0), 0)])
+        with jax.enable_x64(True):
+            d[s0:s1] = np.asarray(pair_distances(jnp.asarray(aa), jnp.asarray(bb))[0])[:s1 - s0]
     np.logical_or.at(out, ki, d < tol)
     return out
 

@@ -250,9 +250,11 @@ def gap_costs(params: RankingParams, feats: PresearchFeatures):
 
 
 def rank_gaps(scene: PushScene, params: RankingParams = RankingParams(), g: WCCG | None = None,
-              robots=None) -> Ranking:
+              robots=None, first=None) -> Ranking:
     """Rank the blocking gaps of ``scene`` (Section III-B). ``g``: a prebuilt WCCG of the scene;
-    ``robots: f[N, 2]``: robot positions (default ``scene.robots``)."""
+    ``robots: f[N, 2]``: robot positions (default ``scene.robots``); ``first``: if given, a collection
+    of body pairs ``(a, b)``: only the frontier gaps among them are presearched and returned (the
+    hybrid search asks only for gaps whose cost it has not memoised)."""
     validate_ranking_params(params)
     g = build_wccg(scene) if g is None else g
     team = np.asarray(scene.robots if robots is None else robots, np.float64).reshape(-1, 2)
@@ -261,6 +263,9 @@ def rank_gaps(scene: PushScene, params: RankingParams = RankingParams(), g: WCCG
     conn = connectivity(g, scene.start, scene.goal) if same_face else None
     if same_face:
         return Ranking(bool(conn.connected), None, (), np.zeros(0), np.zeros(0, np.int32), (), None)
+    if first is not None:
+        wanted = {tuple(sorted(int(v) for v in pair)) for pair in first}
+        cands = [gap for gap in cands if gap.bodies in wanted]
     if not cands:
         return Ranking(False, frontier, (), np.zeros(0), np.zeros(0, np.int32), (), None)
     all_leaves = [_presearch(frontiers, gap, scene.goal, params, g.width) for gap in cands]
@@ -276,7 +281,14 @@ def rank_gaps(scene: PushScene, params: RankingParams = RankingParams(), g: WCCG
         m, penalty[i] = _leaf_mask(status)
         mask[i, :len(leaves)] = m
     feats = PresearchFeatures(jnp.asarray(first), jnp.asarray(tail), jnp.asarray(mask), jnp.asarray(penalty))
-    cost = np.asarray(gap_costs(params, feats), np.float64)
+    # The concrete costs from features padded to power-of-two sizes (padded rows are independent and
+    # dropped): JAX compiles its primitives per shape, and the hybrid search ranks many frontiers.
+    kp, pp = 1 << max(k - 1, 0).bit_length(), 1 << max(n_leaves - 1, 0).bit_length()
+    padded = PresearchFeatures(jnp.asarray(np.pad(first, ((0, kp - k), (0, 0)))),
+                               jnp.asarray(np.pad(tail, ((0, kp - k), (0, pp - n_leaves), (0, 0)))),
+                               jnp.asarray(np.pad(mask, ((0, kp - k), (0, pp - n_leaves)))),
+                               jnp.asarray(np.pad(penalty, (0, kp - k))))
+    cost = np.asarray(gap_costs(params, padded), np.float64)[:k]
     tail_cost = (float(params.lambda_t) * tail[..., 0] + float(params.lambda_p) * tail[..., 1]
                  + float(params.eta) * tail[..., 2])
     best = np.argmin(np.where(mask, tail_cost, np.inf), axis=1)

@@ -10,6 +10,15 @@ fails, so that the scene needs pushing.
 
 Choices the paper leaves open (documented in docs/pusharound.md): W = 0.8 m, the bar geometry, shape
 sizes, 0.15 m separation, 0.05 m margin around the endpoint disks, friction 0.5.
+
+:func:`dense_scene`: the scalability scene of Section IV-A.3 (Fig. 9), the nominal layout with 30
+movables (exactly ``n_movables``: a shape that finds no room is replaced by a fresh draw).
+:func:`corridor_scene`: a tiny one-blocker scene (6 x 2.4 m, a wall with a 1 m opening, one box
+in it) for smoke runs and tests.
+:func:`density_scene`: the density sweep of the RA-L version (8 x 8 m, 15-45 movables). As there,
+denser instances of one seed add objects to the same layout: ``density_scene(s, n)``'s movables are
+the first ``n`` of ``density_scene(s, n + k)``'s (the draw is chosen blocked at ``base`` movables;
+adding obstacles never reconnects start and goal, so every larger count is blocked too).
 """
 from __future__ import annotations
 
@@ -23,11 +32,18 @@ from shapely.geometry import box as _box
 from jaxplan.pusharound import shapes
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene, validate_scene
 
-__all__ = ["nominal_scene", "random_shape", "NOMINAL"]
+__all__ = ["nominal_scene", "dense_scene", "density_scene", "corridor_scene", "random_shape", "NOMINAL", "DENSITY"]
 
 NOMINAL = dict(workspace=(0.0, 0.0, 8.0, 5.0), width=0.8, start=(1.0, 4.0), goal=(7.0, 2.0),
                bars=((2.6, 0.0, 2.8, 3.3), (5.2, 1.7, 5.4, 5.0)),
                openings=((2.3, 3.3, 3.1, 5.0), (4.9, 0.0, 5.7, 1.7)),
+               robots=((0.5, 0.5), (1.0, 0.5)), robot_radius=0.15, mass=(5.0, 15.0))
+
+# The density sweep's 8 x 8 m layout (our choice; the RA-L text gives only the size): the nominal
+# bars stretched to the taller room, start top left, goal bottom right, robots lower left.
+DENSITY = dict(workspace=(0.0, 0.0, 8.0, 8.0), width=0.8, start=(1.0, 7.0), goal=(7.0, 1.0),
+               bars=((2.6, 0.0, 2.8, 5.3), (5.2, 2.7, 5.4, 8.0)),
+               openings=((2.3, 5.3, 3.1, 8.0), (4.9, 0.0, 5.7, 2.7)),
                robots=((0.5, 0.5), (1.0, 0.5)), robot_radius=0.15, mass=(5.0, 15.0))
 
 
@@ -112,3 +128,102 @@ def nominal_scene(seed: int, n_movables: int | None = None, width: float = NOMIN
             return scene
     raise ValueError(f"nominal_scene: no blocked scene in {max_draws} draws (seed {seed}); raise "
                      "n_movables or max_draws, or pass require_blocked=False.")
+
+
+def _layout_scene(rng: np.random.Generator, layout: dict, n: int, min_sep: float, width: float,
+                  shape_tries: int) -> PushScene:
+    """Exactly ``n`` movables placed one after another on ``layout`` (NOMINAL / DENSITY keys): the
+    first four in the two bottleneck openings, the rest anywhere; a shape that finds no room after
+    ``_place``'s draws is replaced by a new shape, up to ``shape_tries`` times (then ``ValueError``).
+    The rng is consumed object by object, so the first k movables do not depend on ``n``."""
+    ws = layout["workspace"]
+    fixed = tuple(Fixed(name=f"bar{k}", pieces=(shapely.orient_polygons(_box(*b), exterior_cw=False),))
+                  for k, b in enumerate(layout["bars"]))
+    r = 0.5 * width
+    reserved = shapely.union_all([Point(layout["start"]).buffer(r + 0.05), Point(layout["goal"]).buffer(r + 0.05)]
+                                 + [Point(p).buffer(2 * layout["robot_radius"]) for p in layout["robots"]])
+    taken = [f.pieces[0] for f in fixed]
+    keep = (_box(*ws).buffer(-0.05), reserved)
+    inner = (ws[0] + 0.3, ws[1] + 0.3, ws[2] - 0.3, ws[3] - 0.3)
+    movables = []
+    for k in range(n):
+        region = layout["openings"][k % 2] if k < 4 else inner
+        for _ in range(shape_tries):
+            shape = random_shape(rng)
+            placed = _place(rng, shape, region, taken, keep, min_sep)
+            if placed is None and k < 4:   # a crowded opening: anywhere instead
+                placed = _place(rng, shape, inner, taken, keep, min_sep)
+            if placed is not None:
+                break
+        else:
+            raise ValueError(f"n_movables: no room for movable {k} after {shape_tries} shapes; lower n_movables "
+                             f"(got {n}) or min_sep (got {min_sep}).")
+        pose, poly = placed
+        taken.append(poly)
+        mass = float(rng.uniform(*layout["mass"]))
+        movables.append(Movable(name=f"{shape.kind}{k}", pieces=shape.pieces, pose=pose, mass=mass,
+                                inertia=shapes.polygon_inertia(shape.outline, mass), friction=0.5,
+                                shape={"kind": shape.kind, **shape.params}))
+    scene = PushScene(workspace=ws, width=width, start=layout["start"], goal=layout["goal"], fixed=fixed,
+                      movables=tuple(movables), robots=np.asarray(layout["robots"], np.float64),
+                      robot_radius=layout["robot_radius"])
+    validate_scene(scene)
+    return scene
+
+
+def _blocked(scene: PushScene) -> bool:
+    from jaxplan.pusharound.wccg import build_wccg, connectivity  # noqa: PLC0415 (cycle-free import)
+    return not connectivity(build_wccg(scene), scene.start, scene.goal).connected
+
+
+def dense_scene(seed: int, n_movables: int = 30, width: float = NOMINAL["width"], min_sep: float = 0.1,
+                max_draws: int = 50, shape_tries: int = 40) -> PushScene:
+    """The 30-movable scalability scene (Section IV-A.3, Fig. 9): the nominal 8 x 5 m layout with
+    exactly ``n_movables`` movables (``min_sep`` 0.1 m: 30 shapes with the nominal 0.15 m leave too
+    little room), redrawn (seed stream ``[seed, draw]``) until Eq. 7 fails."""
+    if not isinstance(n_movables, (int, np.integer)) or n_movables < 1:
+        raise ValueError(f"n_movables: must be a positive int; got {n_movables!r}.")
+    for d in range(max_draws):
+        scene = _layout_scene(np.random.default_rng([seed, d]), NOMINAL, int(n_movables), min_sep, width, shape_tries)
+        if _blocked(scene):
+            return scene
+    raise ValueError(f"dense_scene: no blocked scene in {max_draws} draws (seed {seed}); raise max_draws.")
+
+
+def density_scene(seed: int, n_movables: int, width: float = DENSITY["width"], min_sep: float = 0.15,
+                  base: int = 15, max_draws: int = 50, shape_tries: int = 40) -> PushScene:
+    """The density sweep (RA-L version, Section IV-A): an 8 x 8 m room (``DENSITY``) with exactly
+    ``n_movables`` movables (the paper sweeps 15-45). Nested in ``n_movables`` for one seed (module
+    docstring): the draw ``[seed, d]`` is the first whose ``min(base, n_movables)``-movable prefix is
+    blocked (Eq. 7 fails), hence blocked at every larger count."""
+    if not isinstance(n_movables, (int, np.integer)) or n_movables < 1:
+        raise ValueError(f"n_movables: must be a positive int; got {n_movables!r}.")
+    n0 = min(int(base), int(n_movables))
+    for d in range(max_draws):
+        prefix = _layout_scene(np.random.default_rng([seed, d]), DENSITY, n0, min_sep, width, shape_tries)
+        if _blocked(prefix):
+            if n0 == n_movables:
+                return prefix
+            return _layout_scene(np.random.default_rng([seed, d]), DENSITY, int(n_movables), min_sep, width,
+                                 shape_tries)
+    raise ValueError(f"density_scene: no blocked scene in {max_draws} draws (seed {seed}); raise max_draws.")
+
+
+def corridor_scene(seed: int = 0, width: float = 0.8) -> PushScene:
+    """A tiny blocked scene: 6 x 2.4 m, a fixed wall at x in [2.9, 3.1] with an opening y in [0.7, 1.7],
+    one box (0.4 x 0.5 m, mass U[5, 15] kg) in the opening (centre jittered by up to 5 cm), start
+    (0.6, 1.2), goal (5.4, 1.2), robots (0.4, 0.4) and (0.4, 0.9). Pushing the box about 1.1 m along
+    +x (or -x) opens the corridor; pushing it along y runs it into the wall."""
+    rng = np.random.default_rng(seed)
+    wall = tuple(Fixed(name=f"wall{k}", pieces=(shapely.orient_polygons(_box(*b), exterior_cw=False),))
+                 for k, b in enumerate(((2.9, 0.0, 3.1, 0.7), (2.9, 1.7, 3.1, 2.4))))
+    shape = shapes.rectangle(0.4, 0.5)
+    mass = float(rng.uniform(5.0, 15.0))
+    pose = (3.0 + rng.uniform(-0.05, 0.05), 1.2 + rng.uniform(-0.05, 0.05), 0.0)
+    mov = Movable(name="box0", pieces=shape.pieces, pose=pose, mass=mass,
+                  inertia=shapes.polygon_inertia(shape.outline, mass), friction=0.5,
+                  shape={"kind": shape.kind, **shape.params})
+    scene = PushScene(workspace=(0.0, 0.0, 6.0, 2.4), width=width, start=(0.6, 1.2), goal=(5.4, 1.2), fixed=wall,
+                      movables=(mov,), robots=np.array([[0.4, 0.4], [0.4, 0.9]]), robot_radius=0.15)
+    validate_scene(scene)
+    return scene

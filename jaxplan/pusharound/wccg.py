@@ -230,19 +230,26 @@ def _cluster_region(g: WCCG, sk: _Skeleton, c: int, inflate: float = 0.0):
 
 
 def _rings(region: Polygon, c: int) -> list:
-    out = [_Ring(c, region.exterior, Polygon(region.exterior), False)]
-    out += [_Ring(c, h, Polygon(h), True) for h in region.interiors]
-    return out
+    holes = list(region.interiors)
+    # One vectorised call builds every ring's interior (a cluster may have hundreds of sliver holes).
+    polys = shapely.polygons(np.asarray([region.exterior] + holes, dtype=object))
+    return [_Ring(c, r, p, k > 0) for k, (r, p) in enumerate(zip([region.exterior] + holes, polys))]
 
 
 def _segment_hits(seg: LineString, rings: list, s: np.ndarray, d: np.ndarray) -> list:
     """For each ring, the sorted crossing parameters ``t in [0, 1]`` along ``s + t d``."""
-    out = []
     dd = float(d @ d)
-    for r in rings:
-        inter = seg.intersection(r.ring)
-        xy = shapely.get_coordinates(inter)
-        out.append(np.sort((xy - s) @ d / dd) if len(xy) else np.zeros(0))
+    if not rings:
+        return []
+    # One vectorised intersection over all rings (bounding boxes first: most rings miss the segment).
+    arr = np.asarray([r.ring for r in rings], dtype=object)
+    hit = np.nonzero(shapely.intersects(arr, seg))[0]
+    out = [np.zeros(0)] * len(rings)
+    if len(hit):
+        xy, idx = shapely.get_coordinates(shapely.intersection(arr[hit], seg), return_index=True)
+        t = (xy - s) @ d / dd
+        for j, k in enumerate(hit):
+            out[k] = np.sort(t[idx == j])
     return out
 
 
@@ -302,9 +309,18 @@ def _relevant_clusters(g: WCCG, sk: _Skeleton, seg: LineString) -> np.ndarray:
     """Clusters whose skeleton touches the segment (the others cannot be crossed by the walk)."""
     hit_comp = np.nonzero(shapely.intersects(np.asarray(g.pieces, dtype=object), seg))[0]
     act = np.nonzero(sk.active)[0]
-    lines = [LineString(g.bridge_pts[e]) if g.bridge_width[e] > 0 else Point(g.bridge_pts[e, 0])
-             for e in act]
-    hit_br = act[shapely.intersects(np.asarray(lines, dtype=object), seg)] if len(act) else act
+    if len(act):
+        # Vectorised: segments for the bridges of positive width, points for touching pairs.
+        pts = g.bridge_pts[act]
+        pos = g.bridge_width[act] > 0
+        lines = np.empty(len(act), dtype=object)
+        if np.any(pos):
+            lines[pos] = shapely.linestrings(pts[pos])
+        if np.any(~pos):
+            lines[~pos] = shapely.points(pts[~pos, 0])
+        hit_br = act[shapely.intersects(lines, seg)]
+    else:
+        hit_br = act
     return np.unique(np.concatenate([sk.labels[hit_comp], sk.labels[g.bridge_uv[hit_br, 0]]]))
 
 
@@ -321,8 +337,9 @@ def connectivity(g: WCCG, start, goal, removed=(), _sk: _Skeleton | None = None)
     rings = []
     for c in _relevant_clusters(g, sk, seg):
         rings += _rings(_cluster_region(g, sk, int(c)), int(c))
-    enc_s = [bool(shapely.contains_xy(rg.region, *s)) for rg in rings]
-    enc_g = [bool(shapely.contains_xy(rg.region, *gl)) for rg in rings]
+    regions = np.asarray([rg.region for rg in rings], dtype=object)
+    enc_s = [bool(v) for v in shapely.contains_xy(regions, *s)] if rings else []
+    enc_g = [bool(v) for v in shapely.contains_xy(regions, *gl)] if rings else []
     separates = [a != b for a, b in zip(enc_s, enc_g)]
     pieces, blocking = _trace(s, gl, rings, separates)
     start_clear, goal_clear = bool(clr[0] >= r), bool(clr[1] >= r)
