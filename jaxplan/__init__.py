@@ -12,7 +12,9 @@ from jaxplan.episode import Episode, EpisodeParams, run_episode
 from jaxplan.execute import Push, Route
 from jaxplan.fabric import Fabric, Paths, Table, build_fabric, extract_paths
 from jaxplan.params import FabricParams
-from jaxplan.pusharound import PushScene, RankingParams, build_wccg, connectivity, nominal_scene, rank_gaps
+from jaxplan import sweep, tune
+from jaxplan.pusharound import (PushScene, RankingParams, SearchConfig, build_wccg, connectivity, nominal_scene,
+                                plan_pushes, rank_gaps)
 from jaxplan.rebuild import Affected, refresh_connectors, selective_rebuild
 from jaxplan.scene import BUILTIN_SCENES, DEFAULT_SCENE, Scene, box, builtin_scene, circle
 from jaxplan.selection import Selection, select_routes
@@ -23,10 +25,10 @@ from jaxplan.teams import (SiteParams, TeamsConfig, paper_scenario, random_sites
 
 __all__ = [
     "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "Fabric",
-    "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "Route", "Scene", "Selection",
+    "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "SearchConfig", "Route", "Scene", "Selection",
     "SiteParams", "SoftFabric", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
-    "circle", "connectivity", "extract_paths", "nominal_scene", "paper_scenario", "plan_connectors",
+    "circle", "connectivity", "extract_paths", "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes",
     "random_sites", "rank_gaps", "refresh_connectors", "run_episode", "run_sites", "select_routes", "selective_rebuild",
-    "simulate_site",
+    "simulate_site", "sweep", "tune",
 ]
 __version__ = "0.1.0"

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 import shapely
-from shapely.geometry import LineString, Point, box
+from shapely.geometry import LineString, box
 
 from jaxplan.pusharound import shapes
 from jaxplan.pusharound.modetable import ModeKey, ModeTable, shape_signature
