@@ -302,6 +302,20 @@ def plot_episode(scene, episode):
     return fig
 
 
+def save_animation(fig, draw, n: int, path, *, fps: int, dpi: int) -> None:
+    """Render ``draw(i)`` for ``i < n`` into ``path`` (.gif with Pillow, else ffmpeg) and close ``fig``."""
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib import animation  # noqa: PLC0415
+
+    anim = animation.FuncAnimation(fig, draw, frames=n, blit=False)
+    suffix = str(path).lower().rsplit(".", 1)[-1]
+    writer = animation.PillowWriter(fps=fps) if suffix == "gif" else animation.FFMpegWriter(fps=fps)
+    try:
+        anim.save(str(path), writer=writer, dpi=dpi)
+    finally:
+        plt.close(fig)
+
+
 def animate_episode(scene, episode, path, *, fps: int = 4, dpi: int = 90, progress=None):
     """Write the episode tick by tick as an animation (``.gif`` with Pillow, ``.mp4`` with ffmpeg).
 
@@ -310,7 +324,6 @@ def animate_episode(scene, episode, path, *, fps: int = 4, dpi: int = 90, progre
     record=True)``. progress: optional callable ``progress(i, n)`` after each rendered frame.
     """
     import matplotlib.pyplot as plt
-    from matplotlib import animation
     from matplotlib.collections import LineCollection
 
     frames = episode.frames
@@ -368,10 +381,4 @@ def animate_episode(scene, episode, path, *, fps: int = 4, dpi: int = 90, progre
             progress(i + 1, n)
         return im, highway_lines, quiver, spline_line, conn_line, start_dot, title
 
-    anim = animation.FuncAnimation(fig, draw, frames=n, blit=False)
-    suffix = str(path).lower().rsplit(".", 1)[-1]
-    writer = animation.PillowWriter(fps=fps) if suffix == "gif" else animation.FFMpegWriter(fps=fps)
-    try:
-        anim.save(str(path), writer=writer, dpi=dpi)
-    finally:
-        plt.close(fig)
+    save_animation(fig, draw, n, path, fps=fps, dpi=dpi)

@@ -122,7 +122,8 @@ def animate_execution(scene, execution, path, *, fps: int = 10, dpi: int = 80, m
     ``progress(i, n)`` after each rendered frame.
     """
     import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib import animation  # noqa: PLC0415
+
+    from jaxplan.viz import save_animation  # noqa: PLC0415
 
     fr = execution.frames
     n_rec = len(fr.time)
@@ -154,13 +155,7 @@ def animate_execution(scene, execution, path, *, fps: int = 10, dpi: int = 80, m
             progress(j + 1, n)
         return out
 
-    anim = animation.FuncAnimation(fig, draw, frames=n, blit=False)
-    suffix = str(path).lower().rsplit(".", 1)[-1]
-    writer = animation.PillowWriter(fps=fps) if suffix == "gif" else animation.FFMpegWriter(fps=fps)
-    try:
-        anim.save(str(path), writer=writer, dpi=dpi)
-    finally:
-        plt.close(fig)
+    save_animation(fig, draw, n, path, fps=fps, dpi=dpi)
 
 
 def save_final_png(scene, poses, robots, path, out, *, dpi: int = 110, title: str | None = None) -> None:

@@ -85,6 +85,17 @@ def _place(rng, shape, region, taken, keep_out, min_sep, tries=60):
     return None
 
 
+def _fixed_and_reserved(layout: dict, width: float):
+    """The layout's bars as fixed obstacles, and the region no movable may cover: the endpoint disks
+    (vehicle radius plus 5 cm) and the robots (plus their radius)."""
+    fixed = tuple(Fixed(name=f"bar{k}", pieces=(shapely.orient_polygons(_box(*b), exterior_cw=False),))
+                  for k, b in enumerate(layout["bars"]))
+    r = 0.5 * width
+    reserved = shapely.union_all([Point(layout["start"]).buffer(r + 0.05), Point(layout["goal"]).buffer(r + 0.05)]
+                                 + [Point(p).buffer(2 * layout["robot_radius"]) for p in layout["robots"]])
+    return fixed, reserved
+
+
 def nominal_scene(seed: int, n_movables: int | None = None, width: float = NOMINAL["width"],
                   min_sep: float = 0.15, require_blocked: bool = True, max_draws: int = 50) -> PushScene:
     """The nominal scenario of Section IV-A, seeded (see the module docstring).
@@ -97,12 +108,7 @@ def nominal_scene(seed: int, n_movables: int | None = None, width: float = NOMIN
     rng = np.random.default_rng(seed)
     n = int(rng.integers(10, 16)) if n_movables is None else int(n_movables)
     ws = NOMINAL["workspace"]
-    fixed = tuple(Fixed(name=f"bar{k}", pieces=(shapely.orient_polygons(_box(*b), exterior_cw=False),))
-                  for k, b in enumerate(NOMINAL["bars"]))
-    r = 0.5 * width
-    # Keep the endpoint disks (plus 5 cm) and the robots (plus their radius) free.
-    reserved = shapely.union_all([Point(NOMINAL["start"]).buffer(r + 0.05), Point(NOMINAL["goal"]).buffer(r + 0.05)]
-                                 + [Point(p).buffer(2 * NOMINAL["robot_radius"]) for p in NOMINAL["robots"]])
+    fixed, reserved = _fixed_and_reserved(NOMINAL, width)
     for _ in range(max_draws):
         taken = [f.pieces[0] for f in fixed]
         keep = (_box(*ws).buffer(-0.05), reserved)
@@ -137,11 +143,7 @@ def _layout_scene(rng: np.random.Generator, layout: dict, n: int, min_sep: float
     ``_place``'s draws is replaced by a new shape, up to ``shape_tries`` times (then ``ValueError``).
     The rng is consumed object by object, so the first k movables do not depend on ``n``."""
     ws = layout["workspace"]
-    fixed = tuple(Fixed(name=f"bar{k}", pieces=(shapely.orient_polygons(_box(*b), exterior_cw=False),))
-                  for k, b in enumerate(layout["bars"]))
-    r = 0.5 * width
-    reserved = shapely.union_all([Point(layout["start"]).buffer(r + 0.05), Point(layout["goal"]).buffer(r + 0.05)]
-                                 + [Point(p).buffer(2 * layout["robot_radius"]) for p in layout["robots"]])
+    fixed, reserved = _fixed_and_reserved(layout, width)
     taken = [f.pieces[0] for f in fixed]
     keep = (_box(*ws).buffer(-0.05), reserved)
     inner = (ws[0] + 0.3, ws[1] + 0.3, ws[2] - 0.3, ws[3] - 0.3)
