@@ -87,3 +87,16 @@ def test_fit_rejects_bad_input(clean_data):
     with pytest.raises(ValueError, match="data"):
         fit_spill(SpillData(clean_data.waypoints, clean_data.n_points, clean_data.pickup,
                             clean_data.delivered[:3], clean_data.spilled))
+
+
+def test_loss_gradients_agree_with_finite_differences(clean_data):
+    """d loss / d lam and d loss / d threshold of the soft spill model against central differences."""
+    loss = jax.jit(spill_loss)
+    at = TRUE.replace(lam=0.1, threshold=0.05, temperature=0.02)
+    grads = _loss_grad(at, clean_data)
+    for field, eps in (("lam", 1e-3), ("threshold", 1e-3)):
+        x = float(getattr(at, field))
+        up = float(loss(at.replace(**{field: x + eps}), clean_data))
+        down = float(loss(at.replace(**{field: x - eps}), clean_data))
+        numeric = (up - down) / (2 * eps)
+        np.testing.assert_allclose(float(getattr(grads, field)), numeric, rtol=0.05, atol=1e-3 * abs(numeric) + 1e-6)
