@@ -102,14 +102,20 @@ def test_schedule_loads_back_from_result_json(run):
         load_schedule({**res, "schedule": [{"movable": 0}]})
 
 
-def test_failed_planning_still_writes_the_result(tiny_file, tmp_path):
-    rc = main(["pusharound", "--scene", str(tiny_file), "--out", str(tmp_path), "--time-limit", "0.01",
+def test_failed_planning_still_writes_the_result(tmp_path):
+    # A fixed stub under the box leaves at most 0.75 m < W below the wall, wherever the box goes: no
+    # schedule exists, so planning fails whatever the search's speed.
+    blocked = {**TINY, "fixed": TINY["fixed"] + [{"name": "stub", "pieces": [[[1.9, 0.0], [2.1, 0.0], [2.1, 0.25],
+                                                                             [1.9, 0.25]]]}]}
+    scene_file = tmp_path / "blocked.json"
+    scene_file.write_text(json.dumps(blocked))
+    rc = main(["pusharound", "--scene", str(scene_file), "--out", str(tmp_path), "--time-limit", "0.01",
                "--no-execute", "--max-frames", "2", "--backend", "c"])
     assert rc == 0
     res = json.loads((tmp_path / "result.json").read_text())
     assert res["success"] is False and res["reason"] and res["w_clear_path"] is None
     assert res["execution"] is None and res["planning"]["success"] is False
-    assert len(res["obstacles"]) == 2
+    assert len(res["obstacles"]) == 3
     for name in OUTPUTS:
         assert (tmp_path / name).exists(), name
 
