@@ -137,7 +137,9 @@ def sample_route(waypoints, n_points, samples_per_step: int) -> PathSamples:
     cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
     # kappa * ds = cross / |r'|^3 * |r'| dt
     turn = cross / jnp.maximum(speed2, _TINY) / m
-    ds = jnp.sqrt(speed2) / m
+    # Double where: exactly 0 on zero-length (padding) segments, with a finite gradient there.
+    moving = speed2 > _TINY
+    ds = jnp.where(moving, jnp.sqrt(jnp.where(moving, speed2, 1.0)), 0.0) / m
     tangent = vel / jnp.sqrt(jnp.maximum(speed2, _TINY))[..., None]
     segment = jnp.repeat(jnp.arange(s - 1, dtype=jnp.int32), m)
     valid = segment < n_points - 1
