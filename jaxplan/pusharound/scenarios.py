@@ -85,6 +85,14 @@ def _place(rng, shape, region, taken, keep_out, min_sep, tries=60):
     return None
 
 
+def _movable(rng: np.random.Generator, k: int, shape, pose, layout: dict) -> Movable:
+    """Movable number ``k`` of ``shape`` at ``pose``, its mass drawn uniformly from ``layout["mass"]`` [kg]."""
+    mass = float(rng.uniform(*layout["mass"]))
+    return Movable(name=f"{shape.kind}{k}", pieces=shape.pieces, pose=pose, mass=mass,
+                   inertia=shapes.polygon_inertia(shape.outline, mass), friction=0.5,
+                   shape={"kind": shape.kind, **shape.params})
+
+
 def _fixed_and_reserved(layout: dict, width: float):
     """The layout's bars as fixed obstacles, and the region no movable may cover: the endpoint disks
     (vehicle radius plus 5 cm) and the robots (plus their radius)."""
@@ -119,12 +127,8 @@ def nominal_scene(seed: int, n_movables: int | None = None, width: float = NOMIN
             placed = _place(rng, shape, region, taken, keep, min_sep)
             if placed is None:
                 continue
-            pose, poly = placed
-            taken.append(poly)
-            mass = float(rng.uniform(*NOMINAL["mass"]))
-            movables.append(Movable(name=f"{shape.kind}{k}", pieces=shape.pieces, pose=pose, mass=mass,
-                                    inertia=shapes.polygon_inertia(shape.outline, mass), friction=0.5,
-                                    shape={"kind": shape.kind, **shape.params}))
+            taken.append(placed[1])
+            movables.append(_movable(rng, k, shape, placed[0], NOMINAL))
         scene = PushScene(workspace=ws, width=width, start=NOMINAL["start"], goal=NOMINAL["goal"],
                           fixed=fixed, movables=tuple(movables),
                           robots=np.asarray(NOMINAL["robots"], np.float64),
@@ -160,12 +164,8 @@ def _layout_scene(rng: np.random.Generator, layout: dict, n: int, min_sep: float
         else:
             raise ValueError(f"n_movables: no room for movable {k} after {shape_tries} shapes; lower n_movables "
                              f"(got {n}) or min_sep (got {min_sep}).")
-        pose, poly = placed
-        taken.append(poly)
-        mass = float(rng.uniform(*layout["mass"]))
-        movables.append(Movable(name=f"{shape.kind}{k}", pieces=shape.pieces, pose=pose, mass=mass,
-                                inertia=shapes.polygon_inertia(shape.outline, mass), friction=0.5,
-                                shape={"kind": shape.kind, **shape.params}))
+        taken.append(placed[1])
+        movables.append(_movable(rng, k, shape, placed[0], layout))
     scene = PushScene(workspace=ws, width=width, start=layout["start"], goal=layout["goal"], fixed=fixed,
                       movables=tuple(movables), robots=np.asarray(layout["robots"], np.float64),
                       robot_radius=layout["robot_radius"])
