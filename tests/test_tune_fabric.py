@@ -72,3 +72,26 @@ def test_evaluate_hard_runs_episodes(scenes):
     row = rows[0]
     assert row["pushes"] <= 1 and row["delivered"] >= 0 and row["driven"] > 0
     assert row["efficiency"] == pytest.approx(row["delivered"] / row["driven"])
+
+
+def test_job_and_source_aggregates_agree_for_a_single_source():
+    # one occupied cell and no rearranging: the harmonic and arithmetic means of one ratio agree
+    from jaxplan import Scene, box
+    scene = Scene.from_arrays(np.array([[0, 3, 0, 0, 0]], np.float32), box(4.0, 0.0, 5.0, 1.0))
+    config = tune.ObjectiveConfig(rearrange_margin=1e9)
+    job, source = (float(tune.soft_efficiency_jit(scene, FabricParams(), config._replace(aggregate=a)))
+                   for a in ("job", "source"))
+    assert job > 0 and np.isclose(job, source, rtol=1e-5)
+
+
+def test_job_aggregate_charges_cheap_sources_less_than_the_mean_of_ratios(scenes):
+    # harmonic <= arithmetic mean of the same per-object ratios (with the same approach charge)
+    p = FabricParams()
+    job, source = (float(tune.soft_efficiency_jit(scenes[0], p, tune.ObjectiveConfig(aggregate=a)))
+                   for a in ("job", "source"))
+    assert 0 < job <= source + 1e-6
+
+
+def test_unknown_aggregate_is_rejected(scenes):
+    with pytest.raises(ValueError, match="aggregate"):
+        tune.soft_efficiency(scenes[0], FabricParams(), tune.ObjectiveConfig(aggregate="median"))

@@ -1,8 +1,9 @@
 """Tuning the fabric parameters (theta_tol, tau_H, anchor lambda) by gradient through the soft fabric.
 
 The objective (``soft_efficiency``) is a differentiable stand-in for what an episode achieves: the
-soft **delivered mass per unit of route length**, averaged over the sources weighted by their
-counts. For every occupied source C the soft fabric gives the expected raw mass ``R(C)``, length
+soft **delivered mass per unit driven** over the whole job. Every cell's objects are taken to ride on
+that cell's own route, which costs its length plus the drive back from the target (``d(C, T)``), so
+the job's ratio is the total count over the count-weighted sum of cost per delivered object. For every occupied source C the soft fabric gives the expected raw mass ``R(C)``, length
 ``L(C)`` and first-step distribution; the curvature spill idea (``jaxplan.spillage``: a fraction
 ``spill_lam`` of the load per radian of turning) turns the policy's expected total turning ``Θ(C)``
 into a kept fraction ``exp(-spill_lam Θ(C))``. A root may instead go via a highway (Eq. 12): its
@@ -95,39 +96,63 @@ def expected_turning(soft_fabric, scene, rounds: int):
     return theta
 
 
+AGGREGATES = ("job", "source")
+
+
 class ObjectiveConfig(NamedTuple):
     """Static settings of the objective: spill_lam (fraction per radian, as ``SpillParams.lam``),
-    rearrange_margin (as ``EpisodeParams``), temperature of the soft kernels."""
+    rearrange_margin (as ``EpisodeParams``), temperature of the soft kernels.
+
+    approach: charge every route the drive back from the target to its source (``d(C, T)``), as the
+    episode's distance driven does. aggregate: ``"job"`` (default) delivered per driven over the
+    whole job, i.e. total count over the count-weighted sum of length per delivered object of each
+    cell's route (a harmonic mean); ``"source"`` the count-weighted arithmetic mean of each route's
+    delivered per length. Measured in ``experiments/results/tune_fabric.md``: without the approach
+    and with ``"source"`` the tuned parameters lose under the hard episodes (they favour narrow
+    cones whose many short routes the mean of ratios over-rewards).
+    """
 
     temperature: float = 0.1
     spill_lam: float = 0.05
     rearrange_margin: float = 0.1
+    approach: bool = True
+    aggregate: str = "job"
 
 
 def soft_efficiency(scene: Scene, params: FabricParams, config: ObjectiveConfig = ObjectiveConfig()):
-    """``f32[]`` objects per world unit: count-weighted mean over sources of soft delivered / length.
+    """``f32[]`` objects per world unit: the soft delivered mass per unit driven (``config.aggregate``).
 
     params: the (traced) fabric parameters; its temperature is replaced by ``config.temperature``.
     """
+    if config.aggregate not in AGGREGATES:
+        raise ValueError(f"ObjectiveConfig.aggregate: must be one of {AGGREGATES}; got {config.aggregate!r}.")
     t = config.temperature
     f = build_fabric(scene, params.replace(temperature=t))
     obj = jnp.where(f.occupied, jnp.asarray(scene.obj, jnp.float32), 0.0)
     rounds = params.resolved_soft_rounds(obj.shape)
     keep = jnp.exp(-config.spill_lam * expected_turning(f, scene, rounds))
     direct_mass = f.raw * keep
-    direct_len = jnp.maximum(f.length, 1e-3)
+    # the rover drives back from the target to every source it pushes from: charge that approach
+    approach = jnp.asarray(scene.dist, jnp.float32) if config.approach else jnp.zeros(obj.shape)
+    direct_len = jnp.maximum(f.length + approach, 1e-3)
     # via-highway route: a straight approach to the anchor h, then h's soft path (Section 3.4)
     h, w = obj.shape
     centers = _grid.cell_centers((h, w), scene.cell_size, scene.origin).reshape(-1, 2)
     d = jnp.sqrt(jnp.sum((centers[:, None] - centers[None]) ** 2, -1) + 1e-12).reshape(h, w, h * w)
     wts = f.anchor_weights
     via_mass = obj + jnp.sum(wts * direct_mass.reshape(-1), -1)
-    via_len = jnp.maximum(jnp.sum(wts * (d + f.length.reshape(-1)), -1), 1e-3)
+    via_len = jnp.maximum(jnp.sum(wts * (d + f.length.reshape(-1)), -1) + approach, 1e-3)
     scale = jnp.maximum(jnp.max(f.raw), 1e-3)
     rearrange = f.root * jnp.sum(wts, -1) * jax.nn.sigmoid(
         (via_mass - (1.0 + config.rearrange_margin) * direct_mass) / (t * scale))
-    eff = (1.0 - rearrange) * direct_mass / direct_len + rearrange * via_mass / via_len
-    return jnp.sum(obj * eff) / jnp.maximum(jnp.sum(obj), 1e-6)
+    if config.aggregate == "source":
+        eff = (1.0 - rearrange) * direct_mass / direct_len + rearrange * via_mass / via_len
+        return jnp.sum(obj * eff) / jnp.maximum(jnp.sum(obj), 1e-6)
+    # "job": every cell's objects ride on its own route, so they cost length/mass of that route per
+    # object; delivered per driven over the whole job is then a count-weighted harmonic mean
+    safe = lambda m: jnp.maximum(m, 1e-3)  # noqa: E731
+    cost = (1.0 - rearrange) * direct_len / safe(direct_mass) + rearrange * via_len / safe(via_mass)
+    return jnp.sum(obj) / jnp.maximum(jnp.sum(obj * cost), 1e-6)
 
 
 soft_efficiency_jit = jax.jit(soft_efficiency, static_argnums=2)
