@@ -39,7 +39,11 @@ def run_one(seed: int, variant: str, args) -> dict:
     config = tune.ObjectiveConfig(temperature=args.temperature, spill_lam=args.spill_lam, **VARIANTS[variant])
     default = FabricParams()
     t0 = time.perf_counter()
-    fit = tune.fit_fabric(train, default, steps=args.steps, learning_rate=args.lr, config=config)
+    fit = tune.fit_fabric(train, default, steps=args.steps, learning_rate=args.lr, config=config,
+                          on_step=lambda i, r: i % 10 == 0 and print(
+                              f"seed {seed} {variant:5s} step {i:3d}  objective {r['objective']:.4f}  theta "
+                              f"{r['theta_tol_deg']:.2f}  tau_h {r['tau_h']:.3f}  lambda {r['anchor_lambda']:.3f}",
+                              flush=True))
     fit_s = time.perf_counter() - t0
     tuned = fit.params
     t1 = time.perf_counter()

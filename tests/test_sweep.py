@@ -102,6 +102,39 @@ def test_interrupted_sweep_resumes_to_the_same_file(tmp_path, full_run, budget):
     assert out.read_text() == full_run
 
 
+_KILLABLE = """
+import sys, time
+from jaxplan import sweep
+spec, out, budget = eval(sys.argv[1]), sys.argv[2], float(sys.argv[3])
+sweep.run_sweep(spec, out, memory_budget_mb=budget, progress=False, on_chunk=lambda done, total: time.sleep(60))
+"""
+
+
+def test_sweep_killed_by_sigkill_resumes_to_the_same_file(tmp_path, full_run, budget):
+    # a real kill -9 of a separate process after its first chunk is on disk: no handler runs
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "killed.csv"
+    proc = subprocess.Popen([sys.executable, "-c", _KILLABLE, repr(SPEC), str(out), str(budget)],
+                            env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    try:
+        deadline = time.monotonic() + 240
+        while not (out.exists() and len(out.read_text().splitlines()) > 1):
+            assert proc.poll() is None and time.monotonic() < deadline, "the sweep process ended early"
+            time.sleep(0.2)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    assert 1 < len(out.read_text().splitlines()) < len(full_run.splitlines())
+    sweep.run_sweep(SPEC, out, memory_budget_mb=budget, progress=False)
+    assert out.read_text() == full_run
+
+
 def test_resume_drops_a_torn_row_inside_a_written_chunk(tmp_path, full_run, budget):
     out = tmp_path / "torn.csv"
     lines = full_run.splitlines(keepends=True)
