@@ -3,27 +3,30 @@
 Best-first search over nodes ``nu = (s, pi)``: ``s`` the poses of every movable and the robot
 positions, ``pi`` the partial schedule. Priority (Eq. 10)::
 
-    f(nu) = chi(nu) + heuristic_weight * min_{g in Rank(nu), unexplored} Cost(g)
+    f(nu) = chi(nu) + heuristic_weight * (min_{g in Rank(nu), unexplored} Cost(g) - progress_bonus * opened)
 
 ``chi`` the realised cost of the schedule (sum of Eq. 11 over its pushes), ``Cost(g)`` the predicted
-cost-to-connect of gap g (Eq. 9, :func:`jaxplan.pusharound.ranking.rank_gaps`; with
-``presearch=False`` the one-hop cost Eq. 8 only). ``heuristic_weight`` is the paper's "heuristic
-factor" (10).
+cost-to-connect of gap g: Eq. 8's one-hop cost plus Eq. 9's continuation, by default minimised
+exactly over the skeleton's face graph (:func:`face_graph`, ``presearch_mode="graph"``), or by
+:func:`jaxplan.pusharound.ranking.rank_gaps`'s beam (``"beam"``); with ``presearch=False`` the
+one-hop cost only. ``heuristic_weight`` is the paper's "heuristic factor" (10); ``opened`` counts
+the schedule's pushes that opened a gap and lowered the estimate.
 
 Loop (one iteration = one pop):
 
 1. Pop the node of least ``f``. A child is *evaluated lazily*, when it is first popped: its WCCG,
    Eq. 7 (termination: success if a W-clear path exists) and its ranking. Its priority, until then
    estimated from its parent's ranking (below), is corrected and the node goes back to the queue if
-   another node is now better.
+   another node is now better (siblings from the same gap are shifted by the error seen first).
 2. Expansion: the node's candidate pushes ``tau = (g, v, xi)`` are generated once (for the movables
    adjacent to each ranked gap, gaps in a seeded softmax order over their normalised costs,
    temperature 0.05; per movable, world directions around "away from the gap", team sizes, speeds,
    and yaw rates; the contact mode ``xi`` from :func:`push.face_contacts`), ordered by the ModeTable's
-   prior, and consumed in batches: candidates pass the geometric quick-pass until ``max_batch``
-   survive, and ALL survivors are simulated in ONE :func:`push.simulate_pushes` call.
+   prior, and consumed in batches: candidates pass the geometric quick-pass until ``batch_size``
+   (<= ``max_batch``) survive, and ALL survivors are simulated in ONE :func:`push.simulate_pushes`
+   call.
 3. Every valid rollout that widened its gap (by ``min_progress``, or opened it: the two bodies are
-   ``>= W`` apart) becomes a child ``nu' = (s', pi + tau)``, ``chi' = chi + delta_T + alpha delta_J``
+   ``>= W + open_margin`` apart) becomes a child ``nu' = (s', pi + tau)``, ``chi' = chi + delta_T + alpha delta_J``
    (Eq. 11). Its estimate: the gap's ``Cost(g)`` minus the part of the one-hop cost it achieved
    (opened: the presearch tail ``Cost(g) - C(g)``). Children that opened a gap whose crossing the
    presearch predicts to connect are checked against Eq. 7 at once (Algorithm 1, line 5.5).
@@ -73,7 +76,9 @@ SEARCH_RANKING = RankingParams(beam=2, depth=2)
 class SearchConfig:
     """Switches and budgets of :func:`plan_pushes` (module docstring).
 
-    presearch: Eq. 9 ranking (False: one-hop cost Eq. 8 only); mode_table: ModeTable priors;
+    presearch: Eq. 9 ranking (False: one-hop cost Eq. 8 only); presearch_mode: "graph" (Eq. 9's
+    continuation by Dijkstra over the face graph, :func:`face_graph`) or "beam" (``rank_gaps``, its
+    beam and depth from the ``ranking`` argument); mode_table: ModeTable priors;
     quick_pass: geometric rejection before physics; reinsertion: deferred expansion / reinsertion of
     partly expanded nodes; max_batch: candidates per physics call (<= 64); batch_size: candidates an
     expansion simulates (capped by max_batch; 16 on the 2-core CPU: the paper's 64 cost four times
@@ -90,8 +95,8 @@ class SearchConfig:
     once per expansion (those predicted to connect); open_margin: a gap counts as opened at W + this [m];
     reinsert_penalty: added to a reinserted node's estimate per batch it already
     had (cost units of Eq. 9); progress_bonus: subtracted from the estimate per gap the node's
-    schedule opened (cost units; the depth-limited presearch hardly sees progress until the goal is
-    within its depth, so without it the search goes breadth-first over equally rated states).
+    schedule opened that lowered the estimate (cost units; without it the search goes
+    breadth-first over equally rated states).
     """
 
     presearch: bool = True
