@@ -96,7 +96,8 @@ class SearchConfig:
     reinsert_penalty: added to a reinserted node's estimate per batch it already
     had (cost units of Eq. 9); progress_bonus: subtracted from the estimate per gap the node's
     schedule opened that lowered the estimate (cost units; without it the search goes
-    breadth-first over equally rated states).
+    breadth-first over equally rated states); stuck_penalty: added to a gap's cost (one-hop and in
+    the face graph) for the rest of the search each time a batch's pushes on it all fail to widen it.
     """
 
     presearch: bool = True
@@ -126,6 +127,7 @@ class SearchConfig:
     open_margin: float = 0.01
     reinsert_penalty: float = 1.0
     progress_bonus: float = 1.0
+    stuck_penalty: float = 0.5
 
     def __post_init__(self):
         for name in ("presearch", "mode_table", "quick_pass", "reinsertion"):
@@ -141,7 +143,8 @@ class SearchConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or not v > 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number > 0; got {v!r}.")
-        for name in ("heuristic_weight", "min_progress", "reinsert_penalty", "open_margin", "progress_bonus"):
+        for name in ("heuristic_weight", "min_progress", "reinsert_penalty", "open_margin", "progress_bonus",
+                     "stuck_penalty"):
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number >= 0; got {v!r}.")
@@ -362,7 +365,7 @@ class FaceGraph(NamedTuple):
     final: dict
 
 
-def face_graph(g: WCCG, goal, params: RankingParams) -> FaceGraph:
+def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, _sk=None) -> FaceGraph:
     """Eq. 9's continuation costs for every gap of the scene, without beam or depth limit.
 
     Faces are the rings of the skeleton's clusters (a point lies in the face of the smallest ring
@@ -374,12 +377,13 @@ def face_graph(g: WCCG, goal, params: RankingParams) -> FaceGraph:
     ``lambda_t |m - m'|`` (bridge midpoints, straight line), widening ``lambda_p C_p(g')`` and the
     goal term ``eta |m' - goal|``; ``tail(g)`` is the least sum over sequences from ``g`` to a gap
     bordering the goal face (0 if ``g`` borders it). One union per cluster (the same as Eq. 7's
-    query) and a point location per bridge side: ~30-60 ms on a nominal scene.
+    query) and a point location per bridge side: ~30-60 ms on a nominal scene. ``extra``: an added
+    cost per gap (body pair), e.g. the search's penalty for gaps its pushes failed to widen.
     """
     lt, lp, eta = (float(np.asarray(v)) for v in (params.lambda_t, params.lambda_p, params.eta))
     w = float(g.width)
     goal = np.asarray(goal, np.float64)
-    sk = _skeleton(g)
+    sk = _sk if _sk is not None else _skeleton(g)   # a connectivity query's skeleton shares its unions
     rings = []
     for c in np.unique(sk.labels):
         rings += _rings(_cluster_region(g, sk, int(c)), int(c))
@@ -424,7 +428,8 @@ def face_graph(g: WCCG, goal, params: RankingParams) -> FaceGraph:
             cp[pair] = (float(g.bridge_width[e]), mid[k])
     for pair, (width_p, m) in cp.items():
         mass = min(g.body_mass[b] for b in pair if g.body_kind[b] == MOVABLE)
-        where[pair] = (m, lp * max(w - width_p, 0.0) * mass / params.mass_ref + eta * float(np.linalg.norm(m - goal)))
+        where[pair] = (m, lp * max(w - width_p, 0.0) * mass / params.mass_ref + eta * float(np.linalg.norm(m - goal))
+                       + (extra or {}).get(pair, 0.0))
     # Reverse Dijkstra from the gaps bordering the goal face.
     by_face: dict = {}
     for pair, fs in faces.items():
@@ -473,6 +478,7 @@ class _Search:
                           time_rank_s=0.0, time_quick_pass_s=0.0, time_physics_s=0.0, time_candidates_s=0.0)
         self.best = None          # node with the least estimate (for failure reports)
         self.corrections: dict = {}   # origin -> error of the estimate seen on an evaluated sibling
+        self.stuck: dict = {}         # gap bodies -> added cost (stuck_penalty per batch that failed it)
         self.tail_memo: dict = {}     # gap bodies -> (Eq. 9 tail, crossing it is predicted to connect)
 
     # ------------------------------------------------------------------ bookkeeping
@@ -511,9 +517,10 @@ class _Search:
         self.stats["checks"] += 1
         state = self._scene_at(node)
         g = build_wccg(state)
-        conn = connectivity(g, state.start, state.goal)
+        sk = _skeleton(g)
+        conn = connectivity(g, state.start, state.goal, _sk=sk)
         path = w_clear_path(g, state.start, state.goal) if conn.connected else None
-        node.check = (g, conn, path)
+        node.check = (g, conn, path, sk)
         self.stats["time_rank_s"] += time.perf_counter() - t
         return path
 
@@ -526,7 +533,7 @@ class _Search:
             return path
         t = time.perf_counter()
         self.stats["evaluations"] += 1
-        g, conn, _ = node.check
+        g, conn, _, sk = node.check
         state = self._scene_at(node)
         targets = []
         if not conn.same_face:
@@ -534,7 +541,7 @@ class _Search:
             tails = {}
             if self.cfg.presearch and gaps and self.cfg.presearch_mode == "graph":
                 self.stats["rank_calls"] += 1
-                fg = face_graph(g, state.goal, self.params)
+                fg = face_graph(g, state.goal, self.params, self.stuck, _sk=sk)
                 tails = {pair: (t if math.isfinite(t) else DEAD_END_PENALTY, fg.final[pair])
                          for pair, t in fg.tail.items()}
             elif self.cfg.presearch and gaps:
@@ -554,7 +561,7 @@ class _Search:
                 tails = self.tail_memo
             for gap in gaps:
                 c_t, c_p = one_hop_terms(gap, node.robots, g.width, self.params.mass_ref)
-                one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p
+                one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p + self.stuck.get(gap.bodies, 0.0)
                 tail, final = tails.get(gap.bodies, (0.0, False))
                 targets.append(self._gap_target(g, gap, node.poses, one + tail, tail, one, final))
             targets.sort(key=lambda tg: tg.cost)
@@ -564,7 +571,7 @@ class _Search:
         node.h = min((tg.cost for tg in targets), default=math.inf)
         if node.opened and not node.h < node.parent_h - 1e-6:
             node.opened -= 1      # the gap it opened did not bring the goal closer: no bonus
-        node.check = (None, None, None)      # the WCCG is not needed any more
+        node.check = (None, None, None, None)      # the WCCG is not needed any more
         self.stats["time_rank_s"] += time.perf_counter() - t
         return None
 
@@ -772,6 +779,12 @@ class _Search:
             child.parent_h = node.h
             children.append((opened, tg.final, child))
         node.children += len(children)
+        # Gaps whose every simulated push in this batch failed to widen them get dearer (for the
+        # rest of the search): the presearch then prefers routes around obstacles stuck in clutter.
+        tried = {node.targets[c.target].bodies for c in batch}
+        widened = {node.targets[ch.origin[1]].bodies for _, _, ch in children}
+        for pair in tried - widened:
+            self.stuck[pair] = self.stuck.get(pair, 0.0) + cfg.stuck_penalty
         self.stats["children"] += len(children)
         # Algorithm 1, line 5.5: children that opened their gap are tested against Eq. 7 at once,
         # those the presearch predicts to connect first (a WCCG and a connectivity query each).
