@@ -11,7 +11,8 @@ from jaxplan.pusharound.modetable import ModeKey, ModeTable, shape_signature
 from jaxplan.pusharound.physics import build_push_world
 from jaxplan.pusharound.push import make_push_simulator
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene
-from jaxplan.pusharound.search import SearchConfig, plan_pushes
+from jaxplan.pusharound.ranking import RankingParams
+from jaxplan.pusharound.search import SearchConfig, face_graph, plan_pushes
 from jaxplan.pusharound.wccg import build_wccg, connectivity
 
 # Small candidate sets keep every search to a few physics calls of at most 16 rollouts.
@@ -110,16 +111,32 @@ def test_already_clear_scene_gives_empty_schedule():
     _check_corridor(res, scene)
 
 
-@pytest.mark.parametrize("switch", ["presearch", "mode_table", "quick_pass", "reinsertion"])
+@pytest.mark.parametrize("switch", ["presearch", "mode_table", "quick_pass", "reinsertion", "beam"])
 def test_ablations_still_solve(one_world, switch):
     world, sim = one_world
-    res = plan_pushes(ONE, FAST.replace(**{switch: False}), world=world, sim=sim)
+    change = {"presearch_mode": "beam"} if switch == "beam" else {switch: False}
+    res = plan_pushes(ONE, FAST.replace(**change), world=world, sim=sim)
     assert res.success, res.reason
     _check_corridor(res, ONE)
     if switch == "quick_pass":
         assert res.stats.quick_pass_rejected == 0
     if switch == "mode_table":
         assert res.stats.mode_table_hits == 0
+
+
+def test_face_graph_on_the_tiny_scene():
+    """Both gaps of the box (to the lower and the upper wall) separate the start's face from the
+    goal's: crossing either reaches the goal (continuation 0); a second box far from the wall opening
+    adds no gap on the way."""
+    g = build_wccg(ONE)
+    fg = face_graph(g, ONE.goal, RankingParams())
+    assert set(fg.tail) == {(0, 1), (0, 2)}
+    assert all(fg.final.values()) and all(t == 0.0 for t in fg.tail.values())
+    assert all(len(f) == 2 for f in fg.faces.values())
+    blocked = _scene([_box("box", (2.5, 1.5, np.pi / 2)), _box("b2", (3.65, 1.5, np.pi / 2), 2.2, 0.2)])
+    fg2 = face_graph(build_wccg(blocked), blocked.goal, RankingParams())
+    # The opening's gaps now lead to a face from which the tall box's gaps to the walls remain.
+    assert not fg2.final[(0, 2)] and 0 < fg2.tail[(0, 2)] < 1e3
 
 
 def test_deterministic_for_a_seed(one_world):
@@ -176,7 +193,8 @@ def test_mode_table_unit():
 
 @pytest.mark.parametrize("field, value", [("max_batch", 0), ("max_batch", 65), ("backend", "gpu"),
                                           ("time_limit_s", 0.0), ("presearch", "yes"), ("seed", 1.5),
-                                          ("speeds", ()), ("team_sizes", (0,)), ("heuristic_weight", -1.0)])
+                                          ("speeds", ()), ("team_sizes", (0,)), ("heuristic_weight", -1.0),
+                                          ("presearch_mode", "dfs"), ("batch_size", 0)])
 def test_bad_config_raises(field, value):
     with pytest.raises(ValueError, match=field):
         SearchConfig(**{field: value})

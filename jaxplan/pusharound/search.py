@@ -3,27 +3,30 @@
 Best-first search over nodes ``nu = (s, pi)``: ``s`` the poses of every movable and the robot
 positions, ``pi`` the partial schedule. Priority (Eq. 10)::
 
-    f(nu) = chi(nu) + heuristic_weight * min_{g in Rank(nu), unexplored} Cost(g)
+    f(nu) = chi(nu) + heuristic_weight * (min_{g in Rank(nu), unexplored} Cost(g) - progress_bonus * opened)
 
 ``chi`` the realised cost of the schedule (sum of Eq. 11 over its pushes), ``Cost(g)`` the predicted
-cost-to-connect of gap g (Eq. 9, :func:`jaxplan.pusharound.ranking.rank_gaps`; with
-``presearch=False`` the one-hop cost Eq. 8 only). ``heuristic_weight`` is the paper's "heuristic
-factor" (10).
+cost-to-connect of gap g: Eq. 8's one-hop cost plus Eq. 9's continuation, by default minimised
+exactly over the skeleton's face graph (:func:`face_graph`, ``presearch_mode="graph"``), or by
+:func:`jaxplan.pusharound.ranking.rank_gaps`'s beam (``"beam"``); with ``presearch=False`` the
+one-hop cost only. ``heuristic_weight`` is the paper's "heuristic factor" (10); ``opened`` counts
+the schedule's pushes that opened a gap and lowered the estimate.
 
 Loop (one iteration = one pop):
 
 1. Pop the node of least ``f``. A child is *evaluated lazily*, when it is first popped: its WCCG,
    Eq. 7 (termination: success if a W-clear path exists) and its ranking. Its priority, until then
    estimated from its parent's ranking (below), is corrected and the node goes back to the queue if
-   another node is now better.
+   another node is now better (siblings from the same gap are shifted by the error seen first).
 2. Expansion: the node's candidate pushes ``tau = (g, v, xi)`` are generated once (for the movables
    adjacent to each ranked gap, gaps in a seeded softmax order over their normalised costs,
    temperature 0.05; per movable, world directions around "away from the gap", team sizes, speeds,
    and yaw rates; the contact mode ``xi`` from :func:`push.face_contacts`), ordered by the ModeTable's
-   prior, and consumed in batches: candidates pass the geometric quick-pass until ``max_batch``
-   survive, and ALL survivors are simulated in ONE :func:`push.simulate_pushes` call.
+   prior, and consumed in batches: candidates pass the geometric quick-pass until ``batch_size``
+   (<= ``max_batch``) survive, and ALL survivors are simulated in ONE :func:`push.simulate_pushes`
+   call.
 3. Every valid rollout that widened its gap (by ``min_progress``, or opened it: the two bodies are
-   ``>= W`` apart) becomes a child ``nu' = (s', pi + tau)``, ``chi' = chi + delta_T + alpha delta_J``
+   ``>= W + open_margin`` apart) becomes a child ``nu' = (s', pi + tau)``, ``chi' = chi + delta_T + alpha delta_J``
    (Eq. 11). Its estimate: the gap's ``Cost(g)`` minus the part of the one-hop cost it achieved
    (opened: the presearch tail ``Cost(g) - C(g)``). Children that opened a gap whose crossing the
    presearch predicts to connect are checked against Eq. 7 at once (Algorithm 1, line 5.5).
@@ -73,7 +76,9 @@ SEARCH_RANKING = RankingParams(beam=2, depth=2)
 class SearchConfig:
     """Switches and budgets of :func:`plan_pushes` (module docstring).
 
-    presearch: Eq. 9 ranking (False: one-hop cost Eq. 8 only); mode_table: ModeTable priors;
+    presearch: Eq. 9 ranking (False: one-hop cost Eq. 8 only); presearch_mode: "graph" (Eq. 9's
+    continuation by Dijkstra over the face graph, :func:`face_graph`) or "beam" (``rank_gaps``, its
+    beam and depth from the ``ranking`` argument); mode_table: ModeTable priors;
     quick_pass: geometric rejection before physics; reinsertion: deferred expansion / reinsertion of
     partly expanded nodes; max_batch: candidates per physics call (<= 64); batch_size: candidates an
     expansion simulates (capped by max_batch; 16 on the 2-core CPU: the paper's 64 cost four times
@@ -90,8 +95,9 @@ class SearchConfig:
     once per expansion (those predicted to connect); open_margin: a gap counts as opened at W + this [m];
     reinsert_penalty: added to a reinserted node's estimate per batch it already
     had (cost units of Eq. 9); progress_bonus: subtracted from the estimate per gap the node's
-    schedule opened (cost units; the depth-limited presearch hardly sees progress until the goal is
-    within its depth, so without it the search goes breadth-first over equally rated states).
+    schedule opened that lowered the estimate (cost units; without it the search goes
+    breadth-first over equally rated states); stuck_penalty: added to a gap's cost (one-hop and in
+    the face graph) for the rest of the search each time a batch's pushes on it all fail to widen it.
     """
 
     presearch: bool = True
@@ -121,6 +127,7 @@ class SearchConfig:
     open_margin: float = 0.01
     reinsert_penalty: float = 1.0
     progress_bonus: float = 1.0
+    stuck_penalty: float = 0.5
 
     def __post_init__(self):
         for name in ("presearch", "mode_table", "quick_pass", "reinsertion"):
@@ -136,7 +143,8 @@ class SearchConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or not v > 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number > 0; got {v!r}.")
-        for name in ("heuristic_weight", "min_progress", "reinsert_penalty", "open_margin", "progress_bonus"):
+        for name in ("heuristic_weight", "min_progress", "reinsert_penalty", "open_margin", "progress_bonus",
+                     "stuck_penalty"):
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number >= 0; got {v!r}.")
@@ -357,7 +365,7 @@ class FaceGraph(NamedTuple):
     final: dict
 
 
-def face_graph(g: WCCG, goal, params: RankingParams) -> FaceGraph:
+def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, _sk=None) -> FaceGraph:
     """Eq. 9's continuation costs for every gap of the scene, without beam or depth limit.
 
     Faces are the rings of the skeleton's clusters (a point lies in the face of the smallest ring
@@ -369,12 +377,13 @@ def face_graph(g: WCCG, goal, params: RankingParams) -> FaceGraph:
     ``lambda_t |m - m'|`` (bridge midpoints, straight line), widening ``lambda_p C_p(g')`` and the
     goal term ``eta |m' - goal|``; ``tail(g)`` is the least sum over sequences from ``g`` to a gap
     bordering the goal face (0 if ``g`` borders it). One union per cluster (the same as Eq. 7's
-    query) and a point location per bridge side: ~30-60 ms on a nominal scene.
+    query) and a point location per bridge side: ~30-60 ms on a nominal scene. ``extra``: an added
+    cost per gap (body pair), e.g. the search's penalty for gaps its pushes failed to widen.
     """
     lt, lp, eta = (float(np.asarray(v)) for v in (params.lambda_t, params.lambda_p, params.eta))
     w = float(g.width)
     goal = np.asarray(goal, np.float64)
-    sk = _skeleton(g)
+    sk = _sk if _sk is not None else _skeleton(g)   # a connectivity query's skeleton shares its unions
     rings = []
     for c in np.unique(sk.labels):
         rings += _rings(_cluster_region(g, sk, int(c)), int(c))
@@ -419,7 +428,8 @@ def face_graph(g: WCCG, goal, params: RankingParams) -> FaceGraph:
             cp[pair] = (float(g.bridge_width[e]), mid[k])
     for pair, (width_p, m) in cp.items():
         mass = min(g.body_mass[b] for b in pair if g.body_kind[b] == MOVABLE)
-        where[pair] = (m, lp * max(w - width_p, 0.0) * mass / params.mass_ref + eta * float(np.linalg.norm(m - goal)))
+        where[pair] = (m, lp * max(w - width_p, 0.0) * mass / params.mass_ref + eta * float(np.linalg.norm(m - goal))
+                       + (extra or {}).get(pair, 0.0))
     # Reverse Dijkstra from the gaps bordering the goal face.
     by_face: dict = {}
     for pair, fs in faces.items():
@@ -468,6 +478,7 @@ class _Search:
                           time_rank_s=0.0, time_quick_pass_s=0.0, time_physics_s=0.0, time_candidates_s=0.0)
         self.best = None          # node with the least estimate (for failure reports)
         self.corrections: dict = {}   # origin -> error of the estimate seen on an evaluated sibling
+        self.stuck: dict = {}         # gap bodies -> added cost (stuck_penalty per batch that failed it)
         self.tail_memo: dict = {}     # gap bodies -> (Eq. 9 tail, crossing it is predicted to connect)
 
     # ------------------------------------------------------------------ bookkeeping
@@ -506,9 +517,10 @@ class _Search:
         self.stats["checks"] += 1
         state = self._scene_at(node)
         g = build_wccg(state)
-        conn = connectivity(g, state.start, state.goal)
+        sk = _skeleton(g)
+        conn = connectivity(g, state.start, state.goal, _sk=sk)
         path = w_clear_path(g, state.start, state.goal) if conn.connected else None
-        node.check = (g, conn, path)
+        node.check = (g, conn, path, sk)
         self.stats["time_rank_s"] += time.perf_counter() - t
         return path
 
@@ -521,7 +533,7 @@ class _Search:
             return path
         t = time.perf_counter()
         self.stats["evaluations"] += 1
-        g, conn, _ = node.check
+        g, conn, _, sk = node.check
         state = self._scene_at(node)
         targets = []
         if not conn.same_face:
@@ -529,7 +541,7 @@ class _Search:
             tails = {}
             if self.cfg.presearch and gaps and self.cfg.presearch_mode == "graph":
                 self.stats["rank_calls"] += 1
-                fg = face_graph(g, state.goal, self.params)
+                fg = face_graph(g, state.goal, self.params, self.stuck, _sk=sk)
                 tails = {pair: (t if math.isfinite(t) else DEAD_END_PENALTY, fg.final[pair])
                          for pair, t in fg.tail.items()}
             elif self.cfg.presearch and gaps:
@@ -549,7 +561,7 @@ class _Search:
                 tails = self.tail_memo
             for gap in gaps:
                 c_t, c_p = one_hop_terms(gap, node.robots, g.width, self.params.mass_ref)
-                one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p
+                one = float(self.params.lambda_t) * c_t + float(self.params.lambda_p) * c_p + self.stuck.get(gap.bodies, 0.0)
                 tail, final = tails.get(gap.bodies, (0.0, False))
                 targets.append(self._gap_target(g, gap, node.poses, one + tail, tail, one, final))
             targets.sort(key=lambda tg: tg.cost)
@@ -559,7 +571,7 @@ class _Search:
         node.h = min((tg.cost for tg in targets), default=math.inf)
         if node.opened and not node.h < node.parent_h - 1e-6:
             node.opened -= 1      # the gap it opened did not bring the goal closer: no bonus
-        node.check = (None, None, None)      # the WCCG is not needed any more
+        node.check = (None, None, None, None)      # the WCCG is not needed any more
         self.stats["time_rank_s"] += time.perf_counter() - t
         return None
 
@@ -767,6 +779,12 @@ class _Search:
             child.parent_h = node.h
             children.append((opened, tg.final, child))
         node.children += len(children)
+        # Gaps whose every simulated push in this batch failed to widen them get dearer (for the
+        # rest of the search): the presearch then prefers routes around obstacles stuck in clutter.
+        tried = {node.targets[c.target].bodies for c in batch}
+        widened = {node.targets[ch.origin[1]].bodies for _, _, ch in children}
+        for pair in tried - widened:
+            self.stuck[pair] = self.stuck.get(pair, 0.0) + cfg.stuck_penalty
         self.stats["children"] += len(children)
         # Algorithm 1, line 5.5: children that opened their gap are tested against Eq. 7 at once,
         # those the presearch predicts to connect first (a WCCG and a connectivity query each).
