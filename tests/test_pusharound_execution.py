@@ -241,3 +241,14 @@ def test_contacts_are_swapped_when_a_late_robot_would_cross_an_early_ones_contac
     # one active robot: nothing to swap; the idle one keeps its place
     perm, paths = _plan_transit(roadmap, robots, starts, np.array([True, False]), 0.5, 0.15)
     assert perm.tolist() == [0, 1] and len(paths[1]) == 1
+
+
+def test_robots_driving_head_on_meet_and_parallel_ones_do_not():
+    from jaxplan.pusharound.execution import _meet
+
+    a, b = np.array([[0.0, 0.0], [2.0, 0.0]]), np.array([[2.0, 0.0], [0.0, 0.0]])
+    assert _meet(a, b, 0.5, 0.15)                                         # swap places on one line
+    assert not _meet(a, a + [0.0, 0.5], 0.5, 0.15)                        # side by side, 0.5 m apart
+    touching = np.array([[0.0, 0.3], [0.0, 1.0]])                         # start in contact, move apart
+    assert not _meet(np.array([[0.0, 0.0], [0.0, -1.0]]), touching, 0.5, 0.15)
+    assert not _meet(a[:1], np.array([[1.0, 0.0]]), 0.5, 0.15)            # two robots standing still

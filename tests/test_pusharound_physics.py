@@ -6,8 +6,8 @@ from shapely.geometry import Point, box
 
 from jaxplan.pusharound import shapes
 from jaxplan.pusharound.physics import PushPhysicsConfig, build_push_world, initial_state, movable_poses
-from jaxplan.pusharound.push import (PushTask, direction_tasks, face_contacts, make_push_simulator, push_cost, quick_pass,
-                                     simulate_pushes, stack_tasks)
+from jaxplan.pusharound.push import (PushTask, direction_tasks, face_contacts, free_components, make_push_simulator,
+                                     push_cost, quick_pass, simulate_pushes, stack_tasks)
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene
 
 
@@ -210,3 +210,19 @@ def test_direction_tasks_put_contacts_on_the_back_face(world):
             assert np.linalg.norm(t.contacts[0] - t.contacts[1]) >= 2 * world.scene.robot_radius
     with pytest.raises(ValueError, match="speed"):
         direction_tasks(world, 0, [0.0], speed=0.0, duration=1.0)
+
+
+def test_quick_pass_rejects_a_start_walled_off_from_every_robot():
+    """A wall across the whole workspace between the robots and the box: every push start point is
+    out of reach (check 4), which only the robots' positions reveal."""
+    mov = _movable("box", shapes.rectangle(0.6, 0.4), (2.0, 1.5, 0.0), 8.0)
+    wall = Fixed("wall", (box(1.0, 0.0, 1.2, 3.0),))
+    scene = PushScene(workspace=(0, 0, 5, 3), width=0.8, start=(0.5, 2.5), goal=(4.5, 0.5), fixed=(wall,),
+                      movables=(mov,), robots=np.array([[0.5, 0.4], [0.5, 1.0]]), robot_radius=0.15)
+    w = build_push_world(scene)
+    tasks = stack_tasks([_task(w, (1, 0), (0.3, 0, 0))])
+    assert quick_pass(w, tasks).ok[0]                                     # no robots given: not checked
+    cut_off = quick_pass(w, tasks, robots=scene.robots)
+    assert not cut_off.ok[0] and "walled off" in cut_off.reason[0]
+    assert quick_pass(w, tasks, robots=np.array([[3.0, 0.5], [3.0, 1.0]])).ok[0]   # robots on the box's side
+    assert len(free_components(scene, scene.poses, 0.18)) == 2

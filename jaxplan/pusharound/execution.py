@@ -362,6 +362,27 @@ class _State:
                 self.frames.append((self.tick, poses[k], robots[k], self.push_index, phase))
 
 
+_MEET_SLACK = 0.02   # m: robots that start touching (after a joint push) do not count as meeting
+
+
+def _positions(path: np.ndarray, arclen: np.ndarray) -> np.ndarray:
+    """``f[T, 2]``: where a robot driving ``path`` f[K, 2] is at arc lengths ``arclen`` f[T] (it waits
+    at the end)."""
+    seg = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    return np.stack([np.interp(arclen, seg, path[:, 0]), np.interp(arclen, seg, path[:, 1])], -1)
+
+
+def _meet(path_a: np.ndarray, path_b: np.ndarray, speed: float, radius: float, dt: float = 0.05) -> bool:
+    """Whether two robots driving their paths at ``speed`` from the same instant come closer than
+    ``2 radius - _MEET_SLACK`` at some moment after they were at least that far apart."""
+    total = max(float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1))) if len(p) > 1 else 0.0
+                for p in (path_a, path_b))
+    s = np.arange(0.0, total + speed * dt, speed * dt)
+    gap = np.linalg.norm(_positions(path_a, s) - _positions(path_b, s), axis=-1)
+    close = gap < 2 * radius - _MEET_SLACK
+    return bool(np.any(close[np.argmax(~close):])) if (~close).any() else False
+
+
 def _plan_transit(roadmap: _Roadmap, robots: np.ndarray, starts: np.ndarray, active: np.ndarray, speed: float,
                   radius: float) -> tuple:
     """Which active robot takes which contact, and the paths. Returns ``(perm i32[N], paths)``: robot
@@ -370,8 +391,10 @@ def _plan_transit(roadmap: _Roadmap, robots: np.ndarray, starts: np.ndarray, act
     Every assignment of the active robots to the contacts (N <= 3; more keep the plan's) is scored by
     (conflicts, total path length): a conflict is a robot whose path passes over another robot's start
     point (closer than 2 r) after that robot should have arrived there (arc length / speed, 1 s
-    margin): the later robot would shove the earlier one off its contact, a deadlock in physics. This
-    is the paper's swap of contacts on colliding paths, decided on the planned paths and their timing.
+    margin): the later robot would shove the earlier one off its contact, a deadlock in physics; or
+    two robots that meet on the way (closer than 2 r - ``_MEET_SLACK`` at the same time, both driving
+    at ``speed``): head-on they block each other. This is the paper's swap of contacts on colliding
+    paths, decided on the planned paths and their timing.
     """
     n = len(robots)
     act = [int(i) for i in np.nonzero(active)[0]]
@@ -398,6 +421,8 @@ def _plan_transit(roadmap: _Roadmap, robots: np.ndarray, starts: np.ndarray, act
                 if j != i and line.distance(slot) < 2 * radius - 1e-3 and \
                         line.project(slot) / speed > lens[j] / speed - 1.0:
                     conflicts += 1
+        conflicts += sum(_meet(path(i, perm[i]), path(j, perm[j]), speed, radius)
+                         for a, i in enumerate(act) for j in act[a + 1:])
         key = (conflicts, sum(lens.values()))
         if best_key is None or key < best_key:
             best, best_key = perm, key

@@ -434,14 +434,38 @@ def _outcome(world: PushWorld, tasks: PushTask, traj, poses0, check_every: int) 
 
 # --------------------------------------------------------------------------------------- quick pass
 
-def quick_pass(world: PushWorld, tasks: PushTask, poses=None) -> QuickPass:
+REACH_MARGIN = 0.03   # m beyond the robot radius; the clearance of execution's transition paths
+
+
+def free_components(scene, poses, clearance: float) -> list:
+    """The connected pieces (shapely Polygons) of where a robot centre may be: the workspace shrunk
+    by ``clearance`` [m] minus every obstacle at ``poses`` f[M, 3] inflated by it."""
+    blocked = shapely.union_all([o.buffer(clearance, 8) for o in scene.with_poses(poses).obstacle_polygons()])
+    free = scene.workspace_polygon.buffer(-clearance).difference(blocked)
+    return [g for g in getattr(free, "geoms", [free]) if not g.is_empty]
+
+
+def _component_of(components: list, point) -> int:
+    """Index of the component nearest to ``point`` (a robot at a contact lies just inside the inflated
+    obstacle, so 'nearest', not 'containing'); -1 when there is none."""
+    if not components:
+        return -1
+    p = Point(float(point[0]), float(point[1]))
+    return int(np.argmin([g.distance(p) for g in components]))
+
+
+def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> QuickPass:
     """Cheap geometric rejection before physics (shapely), per candidate:
 
     1. the pushed movable swept along its reference (``_SWEEP_SAMPLES`` poses, convex hulls of
        consecutive ones per piece) must not intersect a fixed obstacle and must stay in the workspace;
     2. every active robot's start disk (``r + standoff`` behind its contact) must lie in the workspace
        and not overlap any obstacle or another active robot's disk;
-    3. every active robot's swept disk (start to end of its reference) must not meet a fixed obstacle.
+    3. every active robot's swept disk (start to end of its reference) must not meet a fixed obstacle;
+    4. with ``robots`` f[N, 2] (their current positions): every active start point must lie in a
+       piece of the free space (:func:`free_components`, clearance ``r + REACH_MARGIN``, the one that
+       execution's transition paths use) that holds a robot; a start walled off from every robot
+       (behind a bottleneck narrower than a robot) cannot be reached in execution.
     """
     tasks = _check_tasks(world, tasks)
     scene, cfg = world.scene, world.config
@@ -455,6 +479,10 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None) -> QuickPass:
     shapely.prepare(obstacles)
     if fixed is not None:
         shapely.prepare(fixed)
+    reach = None
+    if robots is not None:
+        pieces = free_components(scene, poses, r + REACH_MARGIN)
+        reach = (pieces, {_component_of(pieces, p) for p in np.asarray(robots, np.float64).reshape(-1, 2)})
     ok, reasons = [], []
     for i in range(len(tasks.movable)):
         m = int(tasks.movable[i])
@@ -488,6 +516,11 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None) -> QuickPass:
                     if fixed.intersects(swept) and swept.intersection(fixed).area > 1e-9:
                         reason = f"robot {n} sweep hits a fixed obstacle"
                         break
+            if not reason and reach is not None:
+                pieces, held = reach
+                cut_off = [n for n in act if _component_of(pieces, starts[i, n]) not in held]
+                if cut_off:
+                    reason = f"robot {cut_off[0]} start is walled off from every robot"
         ok.append(not reason)
         reasons.append(reason)
     return QuickPass(np.asarray(ok, bool), reasons)

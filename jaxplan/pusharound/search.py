@@ -695,7 +695,8 @@ class _Search:
             todo = [k for k, c in enumerate(chunk) if not c.passed]
             if cfg.quick_pass and todo:
                 t = time.perf_counter()
-                ok = quick_pass(self.world, stack_tasks([chunk[k].task for k in todo]), poses=node.poses).ok
+                ok = quick_pass(self.world, stack_tasks([chunk[k].task for k in todo]), poses=node.poses,
+                                robots=node.robots).ok
                 self.stats["time_quick_pass_s"] += time.perf_counter() - t
                 self.stats["quick_pass_rejected"] += int(np.sum(~ok))
                 bad = {k for k, o in zip(todo, ok) if not o}
