@@ -3,8 +3,9 @@
 The objective (``soft_efficiency``) is a differentiable stand-in for what an episode achieves: the
 soft **delivered mass per unit driven** over the whole job. Every cell's objects are taken to ride on
 that cell's own route, which costs its length plus the drive back from the target (``d(C, T)``), so
-the job's ratio is the total count over the count-weighted sum of cost per delivered object. For every occupied source C the soft fabric gives the expected raw mass ``R(C)``, length
-``L(C)`` and first-step distribution; the curvature spill idea (``jaxplan.spillage``: a fraction
+the job's ratio is the total count over the count-weighted sum of cost per delivered object. For
+every occupied source C the soft fabric gives the expected raw mass ``R(C)``, length ``L(C)`` and
+first-step distribution; the curvature spill idea (``jaxplan.spillage``: a fraction
 ``spill_lam`` of the load per radian of turning) turns the policy's expected total turning ``Θ(C)``
 into a kept fraction ``exp(-spill_lam Θ(C))``. A root may instead go via a highway (Eq. 12): its
 soft anchor weights give the expected via route (straight approach to the anchor, then the
