@@ -148,3 +148,15 @@ def test_table1_quick_run_writes_json_and_resumes(tmp_path):
     assert len(lines) == 2
     main(argv)                                  # resume: nothing left to run
     assert (tmp_path / "table1_trials.jsonl").read_text().splitlines() == lines
+
+
+def test_table1_replan_column_executes_ours_with_online_replanning(tmp_path):
+    from experiments.table1 import main
+
+    main(["--quick", "--planners", "ours", "--replan", "--out", str(tmp_path), "--no-progress"])
+    rec = json.loads((tmp_path / "table1_trials.jsonl").read_text().splitlines()[0])
+    assert rec["success"] and rec["exec_success"] is not None
+    assert isinstance(rec["replan_exec_success"], bool) and rec["replans"] >= 0
+    row = json.loads((tmp_path / "table1.json").read_text())["rows"][0]
+    assert row["replan_exec_success_pct"] in (0.0, 100.0)
+    assert "+replan" in (tmp_path / "table1.md").read_text()
