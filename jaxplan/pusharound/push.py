@@ -435,6 +435,7 @@ def _outcome(world: PushWorld, tasks: PushTask, traj, poses0, check_every: int) 
 # --------------------------------------------------------------------------------------- quick pass
 
 REACH_MARGIN = 0.03   # m beyond the robot radius; the clearance of execution's transition paths
+WALLED_OFF = "start is walled off from every robot"
 
 
 def free_components(scene, poses, clearance: float) -> list:
@@ -520,7 +521,7 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
                 pieces, held = reach
                 cut_off = [n for n in act if _component_of(pieces, starts[i, n]) not in held]
                 if cut_off:
-                    reason = f"robot {cut_off[0]} start is walled off from every robot"
+                    reason = f"robot {cut_off[0]} {WALLED_OFF}"
         ok.append(not reason)
         reasons.append(reason)
     return QuickPass(np.asarray(ok, bool), reasons)
