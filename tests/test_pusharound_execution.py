@@ -224,6 +224,30 @@ def test_transit_policy_tracks_its_path_jitted_and_not():
     assert np.asarray(u)[1] < 0
 
 
+def test_transition_path_brushes_a_movable_only_when_no_clear_route_exists(scene):
+    """The box leaves 0.3 m each side in the opening below the wall, too little for a robot with its
+    margin: with brushing the path squeezes past the box (never touching the wall); without it, the
+    straight segment through the wall. Where a clear route exists both find it."""
+    from jaxplan.pusharound.execution import _Roadmap
+
+    r = float(scene.robot_radius)
+    a, b = np.array([0.5, 2.0]), np.array([3.5, 2.0])
+    strict = _Roadmap(scene, scene.poses, r + 0.03, 0.05)
+    assert len(strict.path(a, b)) == 2
+    brush = _Roadmap(scene, scene.poses, r + 0.03, 0.05, (), r + 0.01, 10.0)
+    path = brush.path(a, b)
+    assert len(path) > 2 and np.allclose(path[0], a) and np.allclose(path[-1], b)
+    line = LineString(path)
+    assert line.distance(scene.fixed[0].polygon) >= r
+    assert line.distance(scene.movables[0].polygon) < r + 0.03
+    assert scene.workspace_polygon.buffer(-r).covers(line)
+    opened = scene.with_poses([[3.5, 2.6, 0.0]])
+    clear = _Roadmap(opened, opened.poses, r + 0.03, 0.05, (), r + 0.01, 10.0).path(a, b)
+    assert LineString(clear).distance(opened.movables[0].polygon) >= r + 0.03 - 1e-6
+    with pytest.raises(ValueError, match="brush_weight"):
+        execute_schedule(scene, [], config=ExecutionConfig(brush_weight=-1.0))
+
+
 def test_contacts_are_swapped_when_a_late_robot_would_cross_an_early_ones_contact(scene):
     """Two robots come from the left to two start points side by side on a line: the far robot must
     take the nearer point, or it would drive over the near robot's point after that robot arrived

@@ -10,7 +10,11 @@ the two phases of the paper's hybrid controller:
    in the instantaneous free space (workspace shrunk, every obstacle at its current pose and every
    robot that does not take part inflated by ``r + transit_margin``), shortcut by line of sight
    against the same free region; short straight escape / approach segments join the robot and the
-   start point to the nearest free cells (a robot that has just pushed touches its body). Contacts
+   start point to the nearest free cells (a robot that has just pushed touches its body). In clutter
+   with no clear route (a pocket of the robots' free space, a start point between bodies) the grid
+   also holds the cells too close to a movable but clear of fixed obstacles, at a cost growing with
+   the depth (``brush_weight``): the robot brushes past or shoves a light body, and a movable that
+   ends off its predicted pose fails the push, which replanning then absorbs. Contacts
    are assigned to the active robots so that no robot's path crosses another's start point after
    that robot has arrived there (it would shove it off its contact: a deadlock), then by least total
    path length (:func:`_plan_transit`; the paper swaps contacts on colliding paths). Robots track the
@@ -76,7 +80,11 @@ class ExecutionConfig:
     (translation + 0.3 m x yaw change) over the window; min_push_time [s] before a stall counts;
     deviation_tol [m]: a movable whose outline is this far (Hausdorff) from its predicted outline
     fails the push; max_replans: calls of ``replan`` at most; grid [m]: A* cell size; transit_margin [m]: extra
-    clearance of transition paths beyond the robot radius; arrive_tol [m]: a robot within this of its
+    clearance of transition paths beyond the robot radius; brush_weight: where no clear route exists, a
+    transition path may pass closer than that to a movable (brushing or shoving it; never closer than
+    r + 1 cm to a fixed obstacle, the workspace edge or an idle robot), each metre costing
+    ``1 + brush_weight * depth / (r + transit_margin)`` for a path ``depth`` metres too close (inf:
+    never; the straight segment is driven then); arrive_tol [m]: a robot within this of its
     push start point has arrived; transit_slack [s]: added to 1.5 x the path time for the timeout;
     max_pushes: executed pushes at most (guards a replanner that never converges); open_loop: when a
     push fails and no replanning is left (no ``replan``, ``max_replans`` used, or a replan found
@@ -97,6 +105,7 @@ class ExecutionConfig:
     transit_margin: float = 0.03
     arrive_tol: float = 0.03
     transit_slack: float = 4.0
+    brush_weight: float = 10.0
     max_pushes: int = 40
     open_loop: bool = True
     retreat: float = 0.1
@@ -176,9 +185,18 @@ def _free_region(scene: PushScene, poses, clearance: float, extra=()):
 
 
 class _Roadmap:
-    """The free region of :func:`_free_region` and its grid, built once and queried for many paths."""
+    """The free region of :func:`_free_region` and its grid, built once and queried for many paths.
 
-    def __init__(self, scene: PushScene, poses, clearance: float, grid: float, extra=()):
+    With ``brush_weight`` finite, a cell that is within ``clearance`` of a movable but clear of the
+    fixed obstacles, the workspace edge and the ``extra`` polygons by ``hard_clearance`` is passable
+    at a cost (``_cell_costs``): in clutter where no clear route exists the robot brushes past, or
+    shoves, a light movable rather than drive straight into a wall. Clear cells cost 1, so a detour
+    through them is taken while it is cheaper than the brush. ``brush_weight`` inf (the default): clear
+    cells only, and the straight segment when they hold no route.
+    """
+
+    def __init__(self, scene: PushScene, poses, clearance: float, grid: float, extra=(),
+                 hard_clearance: float | None = None, brush_weight: float = math.inf):
         if not grid > 0:
             raise ValueError(f"grid: must be > 0 m; got {grid!r}.")
         self.free = _free_region(scene, poses, clearance, extra)
@@ -188,21 +206,45 @@ class _Roadmap:
         self.xs, self.ys = x0 + (np.arange(nx) + 0.5) * grid, y0 + (np.arange(ny) + 0.5) * grid
         self.cx, self.cy = np.meshgrid(self.xs, self.ys, indexing="ij")           # [nx, ny]
         self.ok = shapely.contains_xy(self.free, self.cx, self.cy)
+        self.passable, self.cost = self.ok, None
+        if math.isfinite(brush_weight) and hard_clearance is not None:
+            self.cost = _cell_costs(scene, poses, self.cx, self.cy, self.ok, clearance, hard_clearance,
+                                    brush_weight, extra)
+            self.passable = np.isfinite(self.cost)
 
-    def _nearest(self, p):
-        d = np.where(self.ok, (self.cx - p[0]) ** 2 + (self.cy - p[1]) ** 2, np.inf)
+    def _nearest(self, p, mask):
+        d = np.where(mask, (self.cx - p[0]) ** 2 + (self.cy - p[1]) ** 2, np.inf)
         return np.unravel_index(int(np.argmin(d)), d.shape)
 
     def path(self, start, goal) -> np.ndarray:
         s, gl = np.asarray(start, np.float64).reshape(2), np.asarray(goal, np.float64).reshape(2)
-        if self.free.covers(LineString([s, gl])) or not self.ok.any():
+        if self.free.covers(LineString([s, gl])) or not self.passable.any():
             return np.stack([s, gl])
-        cells = _astar(self.ok, self._nearest(s), self._nearest(gl))
+        cells = _astar(self.passable, self._nearest(s, self.passable), self._nearest(gl, self.passable), self.cost)
         if cells is None:
             return np.stack([s, gl])
         pts = np.stack([self.xs[[c[0] for c in cells]], self.ys[[c[1] for c in cells]]], -1)
         pts = np.concatenate([s[None], _turning_points(pts), gl[None]])
         return _shortcut(pts, self.free)
+
+
+def _cell_costs(scene: PushScene, poses, cx, cy, ok, clearance: float, hard_clearance: float,
+                brush_weight: float, extra=()) -> np.ndarray:
+    """f[nx, ny] cost per metre of driving through each grid cell (centres ``cx, cy``): 1 on clear
+    cells (``ok``); ``1 + brush_weight * depth / clearance`` where the cell is ``depth`` metres deeper
+    than ``clearance`` towards the nearest movable but at least ``hard_clearance`` from every fixed
+    obstacle, the workspace edge and the ``extra`` polygons; inf elsewhere."""
+    hard = [f.polygon for f in scene.fixed] + list(extra)
+    room = scene.workspace_polygon.buffer(-hard_clearance)
+    if hard:
+        room = room.difference(shapely.union_all([o.buffer(hard_clearance, 8) for o in hard]))
+    cost = np.where(ok, 1.0, np.inf)
+    tight = ~ok & shapely.contains_xy(room, cx, cy)
+    movables = [m.polygon for m in scene.with_poses(poses).movables]
+    if tight.any() and movables:
+        d = shapely.distance(shapely.union_all(movables), shapely.points(cx[tight], cy[tight]))
+        cost[tight] = 1.0 + brush_weight * np.clip(clearance - d, 0.0, None) / clearance
+    return cost
 
 
 def transition_path(scene: PushScene, start, goal, *, poses=None, clearance: float | None = None,
@@ -224,9 +266,10 @@ def transition_path(scene: PushScene, start, goal, *, poses=None, clearance: flo
 _STEPS = [(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
 
 
-def _astar(ok: np.ndarray, a, b):
+def _astar(ok: np.ndarray, a, b, cost: np.ndarray | None = None):
     """Cells (i, j) from ``a`` to ``b`` through ``ok`` (bool[nx, ny]), 8-connected, corners not cut;
-    None when unreachable."""
+    None when unreachable. ``cost`` f[nx, ny] >= 1: per-cell cost per unit length (a step costs its
+    length times the mean of its two cells'; default 1 everywhere, the heuristic stays admissible)."""
     nx, ny = ok.shape
     a, b = (int(a[0]), int(a[1])), (int(b[0]), int(b[1]))
 
@@ -253,7 +296,8 @@ def _astar(ok: np.ndarray, a, b):
                 continue
             if dx and dy and not (ok[c[0] + dx, c[1]] and ok[c[0], c[1] + dy]):
                 continue                      # no corner cutting past a blocked cell
-            ng = gc + (math.sqrt(2) if dx and dy else 1.0)
+            step = math.sqrt(2) if dx and dy else 1.0
+            ng = gc + (step if cost is None else step * 0.5 * (cost[c] + cost[n]))
             if ng < g.get(n, math.inf):
                 g[n] = ng
                 parent[n] = c
@@ -362,6 +406,7 @@ class _State:
                 self.frames.append((self.tick, poses[k], robots[k], self.push_index, phase))
 
 
+_HARD_MARGIN = 0.01  # m: transit paths keep at least r + this from fixed obstacles, walls and idle robots
 _MEET_SLACK = 0.02   # m: robots that start touching (after a joint push) do not count as meeting
 
 
@@ -450,7 +495,7 @@ def _run_transit(state: _State, sim: Simulator, scene: PushScene, task: PushTask
     active = np.asarray(task.active, bool)
     # Inactive robots stay where they are: obstacles for the others.
     idle = [Point(*robots[i]).buffer(r, 8) for i in np.nonzero(~active)[0]]
-    roadmap = _Roadmap(scene, poses, r + cfg.transit_margin, cfg.grid, idle)
+    roadmap = _Roadmap(scene, poses, r + cfg.transit_margin, cfg.grid, idle, r + _HARD_MARGIN, cfg.brush_weight)
     perm, paths = _plan_transit(roadmap, robots, starts, active, float(state.world.config.transit_speed), r)
     task, starts = _swap(task, perm), starts[perm]
     arrived, seconds = _track(state, sim, paths, starts, np.asarray(task.active, bool), "transit")
@@ -587,6 +632,9 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
         cfg = cfg.replace(record_every=int(record_every))
     if cfg.record_every < 1:
         raise ValueError(f"record_every: must be an int >= 1 tick; got {cfg.record_every!r}.")
+    if not cfg.brush_weight >= 0:
+        raise ValueError(f"config.brush_weight: must be >= 0 (inf: transit paths never brush a movable); "
+                         f"got {cfg.brush_weight!r}.")
     if cfg.max_replans < 0:
         raise ValueError(f"config.max_replans: must be >= 0; got {cfg.max_replans!r}.")
     if not isinstance(scene, PushScene):
