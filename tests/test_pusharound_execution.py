@@ -276,3 +276,19 @@ def test_robots_driving_head_on_meet_and_parallel_ones_do_not():
     touching = np.array([[0.0, 0.3], [0.0, 1.0]])                         # start in contact, move apart
     assert not _meet(np.array([[0.0, 0.0], [0.0, -1.0]]), touching, 0.5, 0.15)
     assert not _meet(a[:1], np.array([[1.0, 0.0]]), 0.5, 0.15)            # two robots standing still
+
+
+def test_a_corridor_that_closes_during_the_retreat_does_not_end_the_execution():
+    """Nominal seed 14: the plan's first push opens the corridor just W wide and the body, still
+    sliding after the early stop, closes it again while the robots back off. Execution must judge the
+    corridor after the retreat and carry on (here with the schedule's second push), not end
+    "connected" on a state that fails Eq. 7 (as it did before)."""
+    from jaxplan.pusharound.scenarios import nominal_scene
+    from jaxplan.pusharound.search import SearchConfig, plan_pushes
+
+    scene = nominal_scene(14)
+    res = plan_pushes(scene, SearchConfig(seed=14))
+    out = execute_schedule(scene, res)
+    assert "corridor closed during the retreat" in out.reason
+    assert out.success and out.connectivity and out.reason.startswith("connected")
+    assert len(out.executed) == len(res.schedule) == 2

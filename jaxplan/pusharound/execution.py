@@ -38,8 +38,10 @@ returns to the planner: ``replan(scene_now) -> SearchResult`` from the current s
 ``max_replans`` times. With no replanning left (none given, budget used, or a replan that found
 nothing) the rest of the schedule runs open loop (``open_loop``; a push whose transition timed out is
 skipped), every failure recorded. After every push the WCCG is rebuilt; execution ends as soon as
-Eq. 7 holds.
-Then the robots of the last push back off ``retreat`` (they end pressing on the body).
+Eq. 7 holds
+after the robots of that push have backed off ``retreat`` (they end pressing on the body): a body
+still sliding after the early stop can close a corridor the plan left just W wide, which then counts
+as a failure ("corridor closed during the retreat") like a failed push.
 
 Both phases run in chunks of ``config.horizon`` ticks (one compiled program per policy on MJX);
 the time offset of a chunk enters through the policy parameters. Units: m, s, rad.
@@ -656,7 +658,7 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
     def now() -> PushScene:
         return scene.with_poses(state.poses).replace(robots=state.robots)
 
-    reason, notes, can_replan = "schedule exhausted", [], replan is not None
+    reason, notes, can_replan, retreated = "schedule exhausted", [], replan is not None, False
     connected = _connected(scene)
     if connected:
         reason = "connected"
@@ -669,6 +671,7 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
             break
         else:
             item = queue.pop(0)
+            retreated = False
             planned = np.asarray(item.poses_after, np.float64)
             task = PushTask(*(np.asarray(getattr(item.task, f)) for f in PushTask._fields))
             state.push_index = len(executed)
@@ -692,10 +695,18 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
                                              float(dev.max()), ok, transit_s, push_s, plan_id,
                                              ",".join(k for k, v in flags.items() if v)))
                 connected = _connected(now())
+                if connected and cfg.retreat > 0:
+                    # The corridor the vehicle meets is the one after the robots back off: a body still
+                    # sliding from the early stop can close a corridor the plan left just W wide.
+                    _retreat(state, transit_sim, task)
+                    retreated = True
+                    connected = _connected(now())
+                    if not connected:
+                        failed = "corridor closed during the retreat"
                 if connected:
                     reason = "connected" + (f" (after: {'; '.join(dict.fromkeys(notes))})" if notes else "")
                     break
-                if not ok:
+                if not ok and failed is None:
                     failed = "push failed" if valid else "push invalid in physics"
         if failed is None:
             continue
@@ -717,7 +728,7 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
         if failed == "schedule exhausted" or not cfg.open_loop:
             reason = "; ".join(dict.fromkeys(notes))
             break
-    if executed and cfg.retreat > 0:
+    if executed and cfg.retreat > 0 and not retreated:
         _retreat(state, transit_sim, executed[-1].task)
     final = now()
     g = build_wccg(final)
