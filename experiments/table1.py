@@ -49,8 +49,8 @@ from jaxplan.pusharound.scenarios import corridor_scene, dense_scene, density_sc
 from jaxplan.pusharound.search import SearchConfig, plan_pushes  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-SHARED_NOTE = ("2-core CPU shared with ~6 other agents working in parallel: wall-clock times are noisy and "
-               "pessimistic; compare ratios within this run only.")
+SHARED_NOTE = ("2-core CPU, shared while the trials ran (two harness processes side by side, and other work): "
+               "wall-clock times are noisy and pessimistic; compare ratios within this run only.")
 
 # ---------------------------------------------------------------------------------------- paper data
 # Copied from the seed text (ICRA version, Table I) and the RA-L version's table (MengGuo/push_around_tex,

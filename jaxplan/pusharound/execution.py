@@ -193,8 +193,8 @@ class _Roadmap:
     fixed obstacles, the workspace edge and the ``extra`` polygons by ``hard_clearance`` is passable
     at a cost (``_cell_costs``): in clutter where no clear route exists the robot brushes past, or
     shoves, a light movable rather than drive straight into a wall. Clear cells cost 1, so a detour
-    through them is taken while it is cheaper than the brush. ``brush_weight`` inf (the default): clear
-    cells only, and the straight segment when they hold no route.
+    through them is taken while it is cheaper than the brush. ``brush_weight`` inf (this class's
+    default; ``ExecutionConfig``'s is 10): clear cells only, and the straight segment when they hold no route.
     """
 
     def __init__(self, scene: PushScene, poses, clearance: float, grid: float, extra=(),
