@@ -199,6 +199,11 @@ def test_path_goes_around_an_island():
     assert path is not None and len(path) > 2  # not the straight segment
     assert path_clearance(scene, path) >= 0.5 - 1e-9
     assert np.allclose(path[0], scene.start) and np.allclose(path[-1], scene.goal)
+    # Shortening only cuts the frontier walk's detours: no longer, fewer points, same clearance.
+    walk = w_clear_path(g, scene.start, scene.goal, shorten=False)
+    length = lambda p: float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())  # noqa: E731
+    assert length(path) <= length(walk) + 1e-9 and len(path) < len(walk)
+    assert path_clearance(scene, walk) >= 0.5 - 1e-9
 
 
 # --------------------------------------------------------------------------------------------------

@@ -392,7 +392,7 @@ def _ring_arc(coords: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return fwd if arc_len(fwd) <= arc_len(bwd) else bwd
 
 
-def w_clear_path(g: WCCG, start, goal, delta: float | None = None) -> np.ndarray | None:
+def w_clear_path(g: WCCG, start, goal, delta: float | None = None, shorten: bool = True) -> np.ndarray | None:
     """An explicit W-clear path (Section III-A.3): ``f64[P, 2]`` from start to goal, or None.
 
     The frontier walk of :func:`connectivity`, run over the clusters inflated by
@@ -405,6 +405,7 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None) -> np.ndarray
     then ``1e-2 W/2`` if the first path fails the exact clearance check (GEOS may simplify a buffer).
     The returned path always passes that check (shapely distance >= W/2 to every component, walls
     included). None when Eq. 7 fails or no margin gives a clear path (near-ties only).
+    ``shorten``: then cut the walk's detours by line of sight (:func:`_shorten`; same exact check).
     """
     conn = connectivity(g, start, goal)
     if not conn.connected:
@@ -423,8 +424,23 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None) -> np.ndarray
     for d in deltas:
         path = _inflated_walk(g, s, gl, (r + max(d, 0.0)) / cos)
         if path is not None and float(shapely.distance(pieces, LineString(path)).min()) >= r:
-            return path
+            return _shorten(path, shapely.union_all(pieces), r) if shorten else path
     return None
+
+
+def _shorten(path: np.ndarray, obstacles, r: float) -> np.ndarray:
+    """Greedy line-of-sight shortening of a W-clear polyline ``f64[P, 2]``: from each kept point jump
+    to the farthest later point whose straight segment stays at least ``r`` from ``obstacles`` (the
+    exact check of :func:`w_clear_path`). The frontier walk follows cluster rings, so it loops around
+    a cluster where a straight run would do; every accepted segment is itself W-clear."""
+    out, i, n = [path[0]], 0, len(path)
+    while i < n - 1:
+        later = path[i + 1:]
+        segs = shapely.linestrings(np.stack([np.broadcast_to(path[i], later.shape), later], 1))
+        clear = np.nonzero(shapely.distance(obstacles, segs) >= r)[0]
+        i = i + 1 + (int(clear[-1]) if len(clear) else 0)
+        out.append(path[i])
+    return np.asarray(out)
 
 
 def _inflated_walk(g: WCCG, s: np.ndarray, gl: np.ndarray, rho: float) -> np.ndarray | None:
