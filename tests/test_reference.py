@@ -414,3 +414,16 @@ def test_highway_smoothing_and_nms():
     expected = np.zeros((3, 3), bool)
     np.testing.assert_array_equal(highway_mask(heat, target, 1.5, relative=False), expected)
     np.testing.assert_array_equal(highway_mask(heat, target, 1.0, relative=False), ~target)
+
+
+def test_a_fallback_hop_at_a_direction_tie_is_not_unique():
+    """t(C) at 157.5 degrees aligns equally with the 135 and 180 degree steps: float32 and float64 may
+    break that tie differently, so the reference must not call such a first hop unique (a hypothesis
+    example once failed the psi/heat equality on it)."""
+    from jaxplan.reference.fabric import _fallback_tied
+
+    tie = (math.cos(math.radians(157.5)), math.sin(math.radians(157.5)))
+    clear = (math.cos(math.radians(170.0)), math.sin(math.radians(170.0)))
+    assert _fallback_tied(3, 3, tie, (7, 7))
+    assert not _fallback_tied(3, 3, clear, (7, 7))
+    assert not _fallback_tied(0, 3, (1.0, 0.0), (1, 7)) and not _fallback_tied(0, 0, tie, (1, 1))

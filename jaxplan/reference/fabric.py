@@ -16,13 +16,23 @@ from jaxplan.reference.connectors import anchors as find_anchors
 from jaxplan.reference.connectors import connectors as find_connectors
 from jaxplan.reference.heatmap import heat_map, highway_mask, psi_map
 from jaxplan.reference.search import Graph, reachable_mass_cyclic, reachable_mass_dag, search_kbest
-from jaxplan.reference.visibility import DIRS, cos_tol, fallback_hop, step_unit, successors
+from jaxplan.reference.visibility import DIRS, cos_tol, fallback_hop, in_grid, step_unit, successors
 
 __all__ = ["ReferenceFabric", "reference_fabric"]
 
 # unique_first_hop: candidates this close to the best count as ties of it (objects, cell sizes).
 _NEAR_RAW = 0.5
 _NEAR_LEN = 1e-6
+# A fallback hop whose two best alignments differ by less than this is a tie (float32 rounding decides it).
+_NEAR_DOT = 1e-6
+
+
+def _fallback_tied(r: int, c: int, forward_xy, shape) -> bool:
+    """Whether the fallback hop of cell (r, c) (:func:`fallback_hop`) is a near-tie between two
+    in-grid neighbours: e.g. ``t(C)`` at 157.5 degrees aligns equally with the 135 and 180 degree steps."""
+    dots = sorted(forward_xy[0] * step_unit(k)[0] + forward_xy[1] * step_unit(k)[1]
+                  for k, (dr, dc) in enumerate(DIRS) if in_grid(r + dr, c + dc, shape))
+    return len(dots) > 1 and dots[-1] - dots[-2] < _NEAR_DOT
 
 
 @dataclasses.dataclass
@@ -50,7 +60,8 @@ class ReferenceFabric:
       ``slack_tau`` the entries with raw >= J(C) - slack_tau.
     unique_first_hop: bool[H, W], occupied cells whose optimum's first hop is unambiguous: every
       candidate within 0.5 objects and 1e-6 s of the best has the same first hop, and the list
-      holds a candidate outside that band or has fewer than K entries (so no tie was cut off).
+      holds a candidate outside that band or has fewer than K entries (so no tie was cut off), and a
+      fallback hop among them is not a near-tie of two neighbours (``_fallback_tied``).
     anchor: int[H, W, 2], (row, col) of h*(R) for roots (Eq. 12); -1 where none.
     conn_raw: f64[H, W], objects on the connector except h*; 0 where no anchor.
     conn_len: f64[H, W], connector length, world units; 0 where no anchor.
@@ -213,6 +224,8 @@ def reference_fabric(obj, target_mask, dist, tvec, cell_size, theta_tol_deg, *, 
         near = [x for x in lst
                 if abs(x.raw - best.raw) <= _NEAR_RAW and abs(x.length - best.length) <= _NEAR_LEN * s]
         unique[r, c] = (len({hop_of(x) for x in near}) == 1) and (len(near) < len(lst) or len(lst) < k)
+        if any(x.first_hop is None for x in near) and _fallback_tied(r, c, tuple(tvec[r, c]), (h, w)):
+            unique[r, c] = False
 
     # --- psi (Eqs. 7-8), heatmap (Algorithm 3), highways (Eq. 11).
     psi = psi_map(paths, value)
