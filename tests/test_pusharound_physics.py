@@ -223,6 +223,7 @@ def test_quick_pass_rejects_a_start_walled_off_from_every_robot():
     tasks = stack_tasks([_task(w, (1, 0), (0.3, 0, 0))])
     assert quick_pass(w, tasks).ok[0]                                     # no robots given: not checked
     cut_off = quick_pass(w, tasks, robots=scene.robots)
-    assert not cut_off.ok[0] and "walled off" in cut_off.reason[0]
+    assert not cut_off.ok[0] and "walled off" in cut_off.reason[0] and cut_off.walled_off[0]
+    assert not quick_pass(w, tasks).walled_off[0]
     assert quick_pass(w, tasks, robots=np.array([[3.0, 0.5], [3.0, 1.0]])).ok[0]   # robots on the box's side
     assert len(free_components(scene, scene.poses, 0.18)) == 2

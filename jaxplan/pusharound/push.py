@@ -90,10 +90,12 @@ class PushOutcome(NamedTuple):
 
 
 class QuickPass(NamedTuple):
-    """ok: bool[B] candidates worth simulating; reason: list of B strings ("" when ok)."""
+    """ok: bool[B] candidates worth simulating; reason: list of B strings ("" when ok); walled_off:
+    bool[B] rejected only because a push start is walled off from every robot (check 4)."""
 
     ok: np.ndarray
     reason: list
+    walled_off: np.ndarray
 
 
 # ------------------------------------------------------------------------------------------ tasks
@@ -435,7 +437,6 @@ def _outcome(world: PushWorld, tasks: PushTask, traj, poses0, check_every: int) 
 # --------------------------------------------------------------------------------------- quick pass
 
 REACH_MARGIN = 0.03   # m beyond the robot radius; the clearance of execution's transition paths
-WALLED_OFF = "start is walled off from every robot"
 
 
 def free_components(scene, poses, clearance: float) -> list:
@@ -484,7 +485,7 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
     if robots is not None:
         pieces = free_components(scene, poses, r + REACH_MARGIN)
         reach = (pieces, {_component_of(pieces, p) for p in np.asarray(robots, np.float64).reshape(-1, 2)})
-    ok, reasons = [], []
+    ok, reasons, walled = [], [], []
     for i in range(len(tasks.movable)):
         m = int(tasks.movable[i])
         mov = placed_scene.movables[m]
@@ -493,7 +494,7 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
         placed = [mov.world_pieces(tuple(p)) for p in pose_seq]
         sweep = shapely.union_all([shapely.union_all([a, b]).convex_hull
                                    for k in range(len(placed) - 1) for a, b in zip(placed[k], placed[k + 1])])
-        reason = ""
+        reason, walled_off = "", False
         if fixed is not None and fixed.intersects(sweep) and sweep.intersection(fixed).area > 1e-9:
             reason = "sweep hits a fixed obstacle"
         elif not ws.buffer(1e-9).contains(sweep):
@@ -521,10 +522,12 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
                 pieces, held = reach
                 cut_off = [n for n in act if _component_of(pieces, starts[i, n]) not in held]
                 if cut_off:
-                    reason = f"robot {cut_off[0]} {WALLED_OFF}"
+                    reason = f"robot {cut_off[0]} start is walled off from every robot"
+                    walled_off = True
         ok.append(not reason)
         reasons.append(reason)
-    return QuickPass(np.asarray(ok, bool), reasons)
+        walled.append(walled_off)
+    return QuickPass(np.asarray(ok, bool), reasons, np.asarray(walled, bool))
 
 
 def _robot_reference_np(pose0, tasks, i, n, t, offset):

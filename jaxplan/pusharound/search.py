@@ -55,8 +55,8 @@ from shapely import affinity
 
 from jaxplan.pusharound.modetable import ModeKey, ModeTable
 from jaxplan.pusharound.physics import PushWorld, build_push_world
-from jaxplan.pusharound.push import (MAX_BATCH, WALLED_OFF, PushTask, face_contacts, make_push_simulator, push_cost,
-                                     quick_pass, simulate_pushes, stack_tasks)
+from jaxplan.pusharound.push import (MAX_BATCH, PushTask, face_contacts, make_push_simulator, push_cost, quick_pass,
+                                     simulate_pushes, stack_tasks)
 from jaxplan.pusharound.ranking import (DEAD_END_PENALTY, Gap, RankingParams, candidate_gaps, one_hop_terms,
                                         rank_gaps, validate_ranking_params)
 from jaxplan.pusharound.scene import PushScene
@@ -700,9 +700,10 @@ class _Search:
                                 robots=node.robots)
                 self.stats["time_quick_pass_s"] += time.perf_counter() - t
                 # A start walled off from the robots is not hopeless (in clutter the robots' own pocket
-                # can be small): such candidates go once to the end of the list, behind every reachable one.
-                walled = {k for k, why in zip(todo, qp.reason) if why.endswith(WALLED_OFF)}
-                node.cands += [chunk[k]._replace(deferred=True) for k in sorted(walled) if not chunk[k].deferred]
+                # can be small): such candidates go once to the end of the list, behind every reachable one,
+                # and are simulated when they come round again.
+                walled = [k for k, w in zip(todo, qp.walled_off) if w]
+                node.cands += [chunk[k]._replace(deferred=True) for k in walled if not chunk[k].deferred]
                 self.stats["quick_pass_rejected"] += int(np.sum(~qp.ok)) - len(walled)
                 bad = {k for k, o in zip(todo, qp.ok) if not o and not (k in walled and chunk[k].deferred)}
                 chunk = [c for k, c in enumerate(chunk) if k not in bad]

@@ -16,7 +16,7 @@ from jaxplan.reference.connectors import anchors as find_anchors
 from jaxplan.reference.connectors import connectors as find_connectors
 from jaxplan.reference.heatmap import heat_map, highway_mask, psi_map
 from jaxplan.reference.search import Graph, reachable_mass_cyclic, reachable_mass_dag, search_kbest
-from jaxplan.reference.visibility import DIRS, cos_tol, fallback_hop, in_grid, step_unit, successors
+from jaxplan.reference.visibility import DIRS, cos_tol, fallback_alignments, fallback_hop, step_unit, successors
 
 __all__ = ["ReferenceFabric", "reference_fabric"]
 
@@ -30,8 +30,7 @@ _NEAR_DOT = 1e-6
 def _fallback_tied(r: int, c: int, forward_xy, shape) -> bool:
     """Whether the fallback hop of cell (r, c) (:func:`fallback_hop`) is a near-tie between two
     in-grid neighbours: e.g. ``t(C)`` at 157.5 degrees aligns equally with the 135 and 180 degree steps."""
-    dots = sorted(forward_xy[0] * step_unit(k)[0] + forward_xy[1] * step_unit(k)[1]
-                  for k, (dr, dc) in enumerate(DIRS) if in_grid(r + dr, c + dc, shape))
+    dots = sorted(dot for dot, _, _ in fallback_alignments(r, c, forward_xy, shape))
     return len(dots) > 1 and dots[-1] - dots[-2] < _NEAR_DOT
 
 

@@ -17,7 +17,7 @@ import math
 
 __all__ = [
     "DIRS", "FALLBACK", "CONE_EPS", "MONOTONE_EPS", "GATE_EPS",
-    "step_unit", "step_cells", "in_grid", "cone_ok", "cos_tol", "successors", "fallback_hop",
+    "step_unit", "step_cells", "in_grid", "cone_ok", "cos_tol", "successors", "fallback_alignments", "fallback_hop",
 ]
 
 # The 8 neighbour directions as (dr, dc), in the one order used everywhere (docs/conventions.md).
@@ -97,6 +97,18 @@ def successors(r, c, occupied, target_mask, dist, tvec, cell_size, cos_theta, mo
     return out
 
 
+def fallback_alignments(r, c, forward_xy, shape) -> list:
+    """``[(dot, direction, (row, col)), ...]`` for every in-grid 8-neighbour of (r, c), in direction
+    order: how well each step direction aligns with ``forward_xy``."""
+    out = []
+    for k, (dr, dc) in enumerate(DIRS):
+        nr, nc = r + dr, c + dc
+        if in_grid(nr, nc, shape):
+            ux, uy = step_unit(k)
+            out.append((forward_xy[0] * ux + forward_xy[1] * uy, k, (nr, nc)))
+    return out
+
+
 def fallback_hop(r, c, forward_xy, shape):
     """Heatmap first hop of a fallback cell: ``(direction, (row, col))`` or ``None``.
 
@@ -106,13 +118,8 @@ def fallback_hop(r, c, forward_xy, shape):
     """
     best = None
     best_dot = -math.inf
-    for k, (dr, dc) in enumerate(DIRS):
-        nr, nc = r + dr, c + dc
-        if not in_grid(nr, nc, shape):
-            continue
-        ux, uy = step_unit(k)
-        dot = forward_xy[0] * ux + forward_xy[1] * uy
+    for dot, k, cell in fallback_alignments(r, c, forward_xy, shape):
         if dot > best_dot:
-            best, best_dot = (k, (nr, nc)), dot
+            best, best_dot = (k, cell), dot
     return best
 
