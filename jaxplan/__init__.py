@@ -17,7 +17,7 @@ from jaxplan.pusharound import (PushScene, RankingParams, SearchConfig, build_wc
                                 plan_pushes, rank_gaps)
 from jaxplan.rebuild import Affected, refresh_connectors, selective_rebuild
 from jaxplan.scene import BUILTIN_SCENES, DEFAULT_SCENE, Scene, box, builtin_scene, circle
-from jaxplan.selection import Selection, select_routes
+from jaxplan.selection import Selection, reselect, select_routes
 from jaxplan.soft import SoftFabric
 from jaxplan.spillage import SpillParams
 from jaxplan.teams import (SiteParams, TeamsConfig, paper_scenario, random_sites, run_sites,
@@ -28,7 +28,7 @@ __all__ = [
     "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "SearchConfig", "Route", "Scene", "Selection",
     "SiteParams", "SoftFabric", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
     "circle", "connectivity", "extract_paths", "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes",
-    "random_sites", "rank_gaps", "refresh_connectors", "run_episode", "run_sites", "select_routes", "selective_rebuild",
+    "random_sites", "rank_gaps", "refresh_connectors", "reselect", "run_episode", "run_sites", "select_routes", "selective_rebuild",
     "simulate_site", "sweep", "tune",
 ]
 __version__ = "0.1.0"

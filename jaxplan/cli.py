@@ -258,7 +258,7 @@ def _episode_params(args):
     from jaxplan.episode import EpisodeParams, validate_episode_params
 
     ep = EpisodeParams(rearrange_margin=args.rearrange_margin, stop_fraction=args.stop_fraction,
-                       max_pushes=args.max_pushes, source_rule=args.source_rule)
+                       max_pushes=args.max_pushes, source_rule=args.source_rule, reselect=args.reselect)
     validate_episode_params(ep)
     return ep
 
@@ -337,7 +337,7 @@ def _episode_summary(scene, spec, params, spill, ep, episode) -> dict:
         "spill": {"lam": float(spill.lam), "threshold": float(spill.threshold),
                   "samples_per_step": spill.samples_per_step},
         "episode": {"rearrange_margin": float(ep.rearrange_margin), "stop_fraction": float(ep.stop_fraction),
-                    "max_pushes": ep.max_pushes, "source_rule": ep.source_rule},
+                    "max_pushes": ep.max_pushes, "source_rule": ep.source_rule, "reselect": ep.reselect},
         "notes": ("masses in objects; delivered/spilled/remaining are the final cumulative values; "
                   "spilled mass stays on the grid and may be pushed again; the first tick's "
                   "plan/rebuild times include compilation (medians are robust to it)"),
@@ -836,6 +836,11 @@ def _add_episode_options(p) -> None:
     p.add_argument("--source-rule", default="max_value", choices=("max_value", "nearest"),
                    help="which occupied cell to push from: the one whose route collects most "
                         "(max_value, default) or the one nearest the target")
+    p.add_argument("--reselect", action="store_true",
+                   help="before each push, choose every source's route by delivered mass (Eq. 6) and let "
+                        "headings, psi, the heatmap and highways follow those routes, as the paper does "
+                        "(default: they follow the raw-count optimum, Eq. 5; the pushed route is the Eq. 6 "
+                        "choice either way). Costs a spill evaluation of every table entry per tick")
     p.add_argument("--fps", type=int, default=4, metavar="N", help="animation frames per second; default 4")
     p.add_argument("--no-animation", action="store_true", help="skip the GIF (faster)")
 

@@ -8,11 +8,16 @@ One tick (``docs/conventions.md``, "Episodes"):
 2. **Deliver route**: among the source's slack-tau candidates, the one with the largest delivered mass
    under the spill model, then the shortest (Eq. 6; entry 0 with spillage off).
 3. **Rearrange route**: if the source is a root with a highway anchor h* (Eq. 12), the connector to h*
-   followed by h*'s selected path (Section 3.4).
+   followed by h*'s selected path (Section 3.4; ``Fabric.selected``).
 4. **Choice**: Rearrange when ``via_raw > (1 + rearrange_margin) * raw(Deliver route)``, i.e. when
    going through the highway collects clearly more; otherwise Deliver. ``rearrange_margin`` is a
    traced parameter (``inf`` never rearranges).
 5. Push the route (``execute``), selectively rebuild the fabric (``rebuild``), record the metrics.
+
+With ``reselect`` (and spillage on) every tick first applies Eq. 6 to every source
+(``selection.reselect``), so that headings, psi, the heatmap, highways and anchors follow the routes
+selected by delivered mass, as the paper does; its cost is part of the tick's planning time. The
+rebuild always continues from the entry-0 fabric, so it stays exact.
 
 The loop stops when the mass outside the target is at most ``stop_fraction`` of its initial value,
 when ``max_pushes`` pushes are spent, or when the chosen source has no complete route.
@@ -41,7 +46,9 @@ class EpisodeParams:
 
     Traced: rearrange_margin: f32[] (>= 0), see the choice rule; stop_fraction: f32[] in [0, 1).
     Static: max_pushes (push budget, >= 0); source_rule ("max_value" or "nearest"); rebuild
-    ("selective" or "full": how the fabric is refreshed after a push; both give the same fabric).
+    ("selective" or "full": how the fabric is refreshed after a push; both give the same fabric);
+    reselect (apply Eq. 6 to every source before planning, module docstring; off by default: it
+    costs a spill evaluation of every table entry per tick).
     """
 
     rearrange_margin: Any = 0.1
@@ -49,13 +56,14 @@ class EpisodeParams:
     max_pushes: int = 200
     source_rule: str = "max_value"
     rebuild: str = "selective"
+    reselect: bool = False
 
     def replace(self, **changes) -> "EpisodeParams":
         return dataclasses.replace(self, **changes)
 
 
 jax.tree_util.register_dataclass(EpisodeParams, data_fields=["rearrange_margin", "stop_fraction"],
-                                 meta_fields=["max_pushes", "source_rule", "rebuild"])
+                                 meta_fields=["max_pushes", "source_rule", "rebuild", "reselect"])
 
 
 def validate_episode_params(ep: EpisodeParams) -> None:
@@ -74,6 +82,8 @@ def validate_episode_params(ep: EpisodeParams) -> None:
         raise ValueError(f"EpisodeParams.source_rule: must be one of {SOURCE_RULES}; got {ep.source_rule!r}.")
     if ep.rebuild not in ("selective", "full"):
         raise ValueError(f"EpisodeParams.rebuild: must be 'selective' or 'full'; got {ep.rebuild!r}.")
+    if not isinstance(ep.reselect, (bool, np.bool_)):
+        raise ValueError(f"EpisodeParams.reselect: must be a bool; got {ep.reselect!r}.")
 
 
 # ------------------------------------------------------------------------------------------ one tick
@@ -141,11 +151,12 @@ def plan_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.Sp
     ctable = jax.lax.cond(anchor >= 0, lambda _: connectors.connector_table(scene, fabric, params, safe_anchor),
                           no_connector, None)
     conn = _walk(ctable, source, jnp.int32(0), max_steps)
-    tail = _walk(fabric.table, anchor_rc, jnp.int32(0), max_steps)
+    anchor_entry = fabric.selected[anchor_rc[0], anchor_rc[1]]
+    tail = _walk(fabric.table, anchor_rc, anchor_entry, max_steps)
     # a connector that enters h* lists it last; the tail starts at h*, so drop the duplicate
     conn_cells = jnp.where(conn.fallback, conn.n_cells, conn.n_cells - 1)
     via_cells, via_n = _concat_paths(conn.cells, conn_cells, tail.cells, tail.n_cells)
-    via_raw = conn.raw + fabric.value[anchor_rc[0], anchor_rc[1]]
+    via_raw = conn.raw + fabric.table.raw[anchor_rc[0], anchor_rc[1], anchor_entry]
     can_rearrange = (anchor >= 0) & jnp.isfinite(conn.raw) & conn.complete & tail.complete
     rearrange = can_rearrange & (via_raw > (1.0 + ep.rearrange_margin) * direct.raw)
 
@@ -162,6 +173,14 @@ def plan_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.Sp
 
 
 _plan_tick_jit = jax.jit(plan_tick, static_argnames=("max_steps", "evaluator"))
+
+
+def _plan(scene, params, ep: EpisodeParams, spill, fabric: Fabric, cap: int, evaluator):
+    """One tick's plan and the fabric it was planned on (Eq. 6 applied to every source with
+    ``ep.reselect`` and spillage on)."""
+    if ep.reselect and spill.enabled:
+        fabric = selection.reselect_jit(scene, params, fabric, spill, max_steps=cap, evaluator=evaluator)
+    return _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap, evaluator=evaluator), fabric
 _rebuild_full_jit = jax.jit(lambda scene, params: build_fabric(scene, params))
 
 
@@ -283,13 +302,11 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
                 if ep.max_pushes == 0:
                     message = "the push budget is 0 (EpisodeParams.max_pushes): nothing was pushed"
                 break
-            plan, plan_ms = timed(lambda: _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap,
-                                                          evaluator=evaluator))
+            (plan, planned), plan_ms = timed(lambda: _plan(scene, params, ep, spill, fabric, cap, evaluator))
             if not bool(plan.complete) and cap < scene.shape[0] * scene.shape[1] + 1:
                 # a route longer than the usual walk cap: walk again with room for any simple path
                 cap = scene.shape[0] * scene.shape[1] + 1
-                plan, plan_ms = timed(lambda: _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap,
-                                                              evaluator=evaluator))
+                (plan, planned), plan_ms = timed(lambda: _plan(scene, params, ep, spill, fabric, cap, evaluator))
             if not bool(plan.has_source):
                 stop_reason, message = "done", "no occupied cell left outside the target"
                 break
@@ -298,7 +315,6 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
                                                     "to the target (raise FabricParams.max_hops or use monotone=True)")
                 break
             (new_obj, push), execute_ms = timed(lambda: execute.execute_jit(scene, plan.route, spill, evaluator))
-            before = fabric
             scene = scene.with_obj(new_obj)
             if ep.rebuild == "selective":
                 (fabric, affected), rebuild_ms = timed(lambda: rebuild.selective_rebuild(scene, params, fabric,
@@ -317,7 +333,7 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
                        remaining=remaining)
             rows.append(row)
             if record:
-                frames.append(_frame(before, plan, push))
+                frames.append(_frame(planned, plan, push))
             if on_tick is not None:
                 on_tick(t, row)
             bar.update(1)

@@ -54,6 +54,9 @@ class Fabric(NamedTuple):
     highways: bool[H, W], highway cells (Eq. 11).
     rounds: i32[], solver iterations (wavefront rounds or policy-iteration steps).
     converged: bool[], whether the solver reached its fixed point.
+    selected: i32[H, W], the table entry each source's selected path is (0: Eq. 5; after
+      ``selection.reselect``, the Eq. 6 choice), which first_hop, heading, fallback and psi follow.
+      ``value`` and ``length`` stay those of entry 0, J(C) and L(C).
     """
 
     value: jax.Array
@@ -69,6 +72,7 @@ class Fabric(NamedTuple):
     highways: jax.Array
     rounds: jax.Array
     converged: jax.Array
+    selected: jax.Array
 
 
 # ----------------------------------------------------------------------------------------------
@@ -152,12 +156,12 @@ def _table(raw, length, direction, rank, enters_goal) -> Table:
 # First hops, headings and the fabric
 
 
-def first_hops(table: Table, tvec, cell_size):
-    """From entry 0: ``(first_hop i32[H,W,2], heading f32[H,W,2], hop_len f32[H,W])``.
-
-    A fallback cell's hop is the in-grid neighbour best aligned with t(C) (conventions).
+def first_hops(table: Table, tvec, cell_size, entry=None):
+    """From entry 0 (or ``entry: i32[H, W]`` per cell): ``(first_hop i32[H,W,2], heading f32[H,W,2],
+    hop_len f32[H,W])``. A fallback cell's hop is the in-grid neighbour best aligned with t(C)
+    (conventions).
     """
-    d0 = table.next_dir[..., 0]
+    d0 = _entry_of(table.next_dir, entry)
     hop_dir = jnp.where(d0 == _grid.FALLBACK, visibility.fallback_direction(tvec), d0)
     defined = hop_dir >= 0
     safe = jnp.where(defined, hop_dir, 0)
@@ -167,26 +171,41 @@ def first_hops(table: Table, tvec, cell_size):
     return hop, heading, hop_len
 
 
-def derive(scene, params: FabricParams, table: Table, feasible, rounds, converged) -> Fabric:
+def _entry_of(a, entry):
+    """``a[..., entry]`` per cell for a table field ``a: [H, W, K]`` (entry 0 when None)."""
+    if entry is None:
+        return a[..., 0]
+    return jnp.take_along_axis(a, entry[..., None], axis=-1)[..., 0]
+
+
+def derive(scene, params: FabricParams, table: Table, feasible, rounds, converged, entry=None) -> Fabric:
     """Everything downstream of the continuation table: first hops, psi, heatmap, highways.
 
     table: the K-best ``Table``; feasible: bool[8, H, W] successor mask it was computed on. Shared
-    by the full build and the selective rebuild (``jaxplan.rebuild``), which both end here.
+    by the full build and the selective rebuild (``jaxplan.rebuild``), which both end here. entry:
+    i32[H, W] the selected entry of each source (default 0, Eq. 5; ``selection.reselect`` passes
+    the Eq. 6 choice): first hops, headings, fallbacks and psi follow it.
     """
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
     occupied = ~target & (obj > 0)
-    hop, heading, hop_len = first_hops(table, scene.tvec, scene.cell_size)
+    hop, heading, hop_len = first_hops(table, scene.tvec, scene.cell_size, entry)
     value = jnp.where(occupied, table.raw[..., 0], 0.0)
     length = jnp.where(occupied, table.length[..., 0], 0.0)
-    path_next = jnp.where((table.next_dir[..., 0] >= 0) & (table.next_dir[..., 0] < _grid.FALLBACK),
-                          table.next_dir[..., 0], -1)
-    psi = heatmap.propagated_mass(value, occupied, path_next, params.resolved_max_hops(obj.shape))
+    max_hops = params.resolved_max_hops(obj.shape)
+    if entry is None:
+        first = table.next_dir[..., 0]
+        path_next = jnp.where((first >= 0) & (first < _grid.FALLBACK), first, -1)
+        psi = heatmap.propagated_mass(value, occupied, path_next, max_hops)
+        entry = jnp.zeros(obj.shape, jnp.int32)
+    else:
+        entry = jnp.where(occupied, entry, 0).astype(jnp.int32)
+        psi = heatmap.propagated_mass_of_entries(table, entry, occupied, max_hops)
     heat = heatmap.heat(psi, occupied, heading, hop_len, target, scene.cell_size)
     highways = heatmap.highways(heat, target, params.tau_h, relative=params.highway_relative,
                                 smoothing=params.highway_smoothing, nms=params.highway_nms)
-    return Fabric(value, length, hop, heading, table.next_dir[..., 0] == _grid.FALLBACK, occupied,
-                  jnp.moveaxis(feasible, 0, -1), table, psi, heat, highways, rounds, converged)
+    return Fabric(value, length, hop, heading, _entry_of(table.next_dir, entry) == _grid.FALLBACK, occupied,
+                  jnp.moveaxis(feasible, 0, -1), table, psi, heat, highways, rounds, converged, entry)
 
 
 def full_table(scene, params: FabricParams):

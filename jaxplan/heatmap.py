@@ -21,7 +21,36 @@ def propagated_mass(value, occupied, path_next, max_hops: int):
     h, w = value.shape
     pointer = _grid.tree_pointer(path_next, path_next < 0)       # path ends point at a sink
     mass = jnp.append(jnp.where(occupied, value, 0.0).reshape(-1), 0.0)
-    sink = h * w
+    return _push_max_down(mass, pointer, max_hops)[:-1].reshape(h, w)
+
+
+def propagated_mass_of_entries(table, entry, occupied, max_hops: int):
+    """``psi: f32[H, W]`` (Eqs. 7-8) when each source's selected path is table entry ``entry``.
+
+    table: the K-best ``fabric.Table``; entry: i32[H, W], the selected entry of each source (Eq. 6);
+    occupied: bool[H, W], the sources. Phi(R) = raw of R's selected entry. A path is a chain of
+    (cell, entry) states (``next_dir``, ``next_rank``), so the chains of all states form a forest
+    and the same pointer doubling as ``propagated_mass`` pushes each source's Phi down its chain;
+    psi(U) is the max over U's K states. The goal cell a path steps into is its last state (entry 0
+    of that cell, which no source uses). With ``entry = 0`` everywhere this equals ``propagated_mass``.
+    """
+    h, w, k = table.raw.shape
+    n = h * w * k
+    step = (table.next_dir >= 0) & (table.next_dir < _grid.FALLBACK)
+    nb = _grid.neighbour_index(table.next_dir)
+    state = (nb[..., 0] * w + nb[..., 1]) * k + jnp.maximum(table.next_rank, 0)
+    pointer = jnp.append(jnp.where(step, state, n).reshape(-1), n).astype(jnp.int32)
+    chosen = occupied[..., None] & (jnp.arange(k) == entry[..., None])
+    mass = jnp.append(jnp.where(chosen, table.raw, 0.0).reshape(-1), 0.0)
+    return jnp.max(_push_max_down(mass, pointer, max_hops)[:-1].reshape(h, w, k), axis=-1)
+
+
+def _push_max_down(mass, pointer, max_hops: int):
+    """Every node's max over the masses of the nodes upstream of it (itself included) in the forest
+    ``pointer`` (i32[N + 1], the sink last and pointing to itself), by pointer doubling: after level
+    k every node holds the max over nodes at most 2^k - 1 steps upstream. log2(longest chain)
+    scatter-max passes, capped by ``max_hops``."""
+    sink = pointer.shape[0] - 1
     levels = max(1, int(max_hops).bit_length())
 
     def unfinished(carry):   # stop once every chain has reached the sink (usually far below the cap)
@@ -34,7 +63,7 @@ def propagated_mass(value, occupied, path_next, max_hops: int):
         return mass, pointer[pointer], level + 1
 
     mass, _, _ = jax.lax.while_loop(unfinished, level, (mass, pointer, jnp.int32(0)))
-    return mass[:-1].reshape(h, w)
+    return mass
 
 
 def heat(psi, occupied, heading, hop_len, target, cell_size):

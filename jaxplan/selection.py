@@ -5,6 +5,10 @@ A source's candidate set is every entry of its continuation table whose raw coun
 evaluator and the selected route maximises ``(delivered, -length)``; delivered masses within
 ``DELIVERED_TIE`` objects count as equal, so near-ties go to the shorter route and then to the lower
 table entry. With spillage off the selection is entry 0 (Eq. 5).
+
+``reselect`` applies the selection to every source at once and re-derives what follows the selected
+paths (first hops, headings, psi, heatmap, highways), as the paper does once one route has been
+selected for each source (Section 3.3); ``build_fabric`` alone uses entry 0.
 """
 from __future__ import annotations
 
@@ -13,7 +17,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan import execute, spillage
+from jaxplan import execute, fabric as _fabric, spillage
 from jaxplan.fabric import Fabric, _walk
 
 DELIVERED_TIE = 1e-4   # objects
@@ -72,3 +76,33 @@ def select_routes(scene, fabric: Fabric, sources, slack_tau, spill: spillage.Spi
 
 
 select_routes_jit = jax.jit(select_routes, static_argnames=("max_steps", "evaluator"))
+
+
+def select_all(scene, fabric: Fabric, slack_tau, spill: spillage.SpillParams, *, max_steps: int,
+               evaluator: spillage.Evaluator = spillage.curvature_spill):
+    """``i32[H, W]``: the Eq. 6 entry of every occupied cell (0 elsewhere, and everywhere with
+    spillage off), ``select_routes`` over all cells in one batched call."""
+    h, w = fabric.occupied.shape
+    if not spill.enabled:
+        return jnp.zeros((h, w), jnp.int32)
+    rows, cols = jnp.meshgrid(jnp.arange(h, dtype=jnp.int32), jnp.arange(w, dtype=jnp.int32), indexing="ij")
+    sources = jnp.stack([rows.reshape(-1), cols.reshape(-1)], -1)
+    entry = select_routes(scene, fabric, sources, slack_tau, spill, max_steps=max_steps, evaluator=evaluator).entry
+    return jnp.where(fabric.occupied, entry.reshape(h, w), 0)
+
+
+def reselect(scene, params, fabric: Fabric, spill: spillage.SpillParams, *, max_steps: int,
+             evaluator: spillage.Evaluator = spillage.curvature_spill) -> Fabric:
+    """``fabric`` with every source's path chosen by Eq. 6 (``select_all``): ``selected``, first hops,
+    headings, fallbacks, psi (Phi = the selected route's raw count, Eq. 7), heatmap and highways
+    follow the selected entries; the table, ``value`` and ``length`` (entry 0) are unchanged.
+
+    params: the ``FabricParams`` the fabric was built with (its ``slack_tau``, ``tau_h``, highway
+    options); max_steps: static walk length (``fabric.table_hops`` bounds it).
+    """
+    entry = select_all(scene, fabric, params.slack_tau, spill, max_steps=max_steps, evaluator=evaluator)
+    return _fabric.derive(scene, params, fabric.table, jnp.moveaxis(fabric.feasible, -1, 0), fabric.rounds,
+                          fabric.converged, entry)
+
+
+reselect_jit = jax.jit(reselect, static_argnames=("max_steps", "evaluator"))

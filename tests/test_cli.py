@@ -148,7 +148,7 @@ def test_scenes_lists_builtins(capsys):
 @pytest.mark.parametrize("argv, expected", [
     ([], ["fabric", "demo", "episode", "scenes", "example"]),
     (["episode"], ["--scene", "--out", "--lam", "--max-pushes", "--rearrange-margin", "--stop-fraction",
-                   "--source-rule", "--no-animation", "summary.json", "metrics.csv", "episode.gif", "example"]),
+                   "--source-rule", "--reselect", "--no-animation", "summary.json", "metrics.csv", "episode.gif", "example"]),
     (["fabric"], ["--scene", "--theta-tol", "--tau-h", "--k", "--no-monotone", "--out", "example"]),
     (["demo"], ["--scene", "--out", "--theta-tol", "example", "summary.json", "fabric.png"]),
     (["scenes"], ["example"]),
@@ -226,6 +226,15 @@ def test_episode_writes_summary_metrics_figure_and_animation(tmp_path, capsys):
     assert (out / "episode.png").read_bytes()[:8] == PNG_MAGIC
     assert (out / "episode.gif").read_bytes()[:3] == b"GIF"
     assert not list(out.glob(".*"))   # no temp files left
+
+
+def test_episode_reselect_flag_reaches_the_episode_params():
+    from jaxplan.cli import _build_parser, _episode_params
+
+    args = _build_parser().parse_args(["episode", "--scene", "default", "--out", "o", "--reselect"])
+    assert _episode_params(args).reselect is True
+    args = _build_parser().parse_args(["episode", "--scene", "default", "--out", "o"])
+    assert _episode_params(args).reselect is False
 
 
 def test_episode_with_zero_budget_is_empty_but_valid(tmp_path, capsys):

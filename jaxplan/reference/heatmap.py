@@ -8,9 +8,9 @@ import math
 
 import numpy as np
 
-from jaxplan.reference.visibility import GATE_EPS, in_grid
+from jaxplan.reference.visibility import DIRS, FALLBACK, GATE_EPS, in_grid
 
-__all__ = ["psi_map", "heat_map", "smooth", "ridge", "highway_mask"]
+__all__ = ["psi_map", "table_path", "heat_map", "smooth", "ridge", "highway_mask"]
 
 
 def psi_map(paths: dict, value: np.ndarray) -> np.ndarray:
@@ -26,6 +26,29 @@ def psi_map(paths: dict, value: np.ndarray) -> np.ndarray:
         for cell in cells:
             psi[cell] = max(psi[cell], phi)   # Eq. 8
     return psi
+
+
+def table_path(next_dir, next_rank, source, entry) -> list:
+    """The cells of the path that entry ``entry`` of ``source``'s continuation table describes.
+
+    next_dir, next_rank: int[H, W, K] (``fabric.Table`` fields). A plain walk: from the current
+    (cell, entry) take the step ``next_dir`` and continue with the next cell's entry ``next_rank``;
+    stop at a fallback or an unused entry (no step), or after a step whose ``next_rank`` is -1 (it
+    entered a goal cell, which is listed). Source first.
+    """
+    (r, c), e = source, int(entry)
+    cells = [(r, c)]
+    for _ in range(next_dir.size):   # a path never repeats a (cell, entry) state
+        d = int(next_dir[r, c, e])
+        if d < 0 or d == FALLBACK:
+            return cells
+        rank = int(next_rank[r, c, e])
+        r, c = r + DIRS[d][0], c + DIRS[d][1]
+        cells.append((r, c))
+        if rank < 0:
+            return cells
+        e = rank
+    raise ValueError("table_path: the table's pointers form a cycle")
 
 
 def heat_map(occupied, first_hop, heading, psi, target_mask, cell_size) -> np.ndarray:
