@@ -181,6 +181,8 @@ def _plan(scene, params, ep: EpisodeParams, spill, fabric: Fabric, cap: int, eva
     if ep.reselect and spill.enabled:
         fabric = selection.reselect_jit(scene, params, fabric, spill, max_steps=cap, evaluator=evaluator)
     return _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap, evaluator=evaluator), fabric
+
+
 _rebuild_full_jit = jax.jit(lambda scene, params: build_fabric(scene, params))
 
 
