@@ -1,0 +1,49 @@
+"""Test-session set-up: one JAX compilation cache shared by every process of a test run.
+
+Most of the suite's time is XLA compiling the same programs (the fabric for the shapes of
+``tests/_scenes.SHAPES``, the episode loop, the physics step) in each pytest-xdist worker and in the
+notebook and CLI subprocesses. The controller creates an empty cache directory before the workers
+start; they, and every subprocess they spawn, inherit it through the environment, so a program
+compiled in one process is loaded by the others. The directory is removed when the run ends, so
+every run starts cold (as on CI). A cache directory set by the user is left alone.
+
+The same hook asks XLA for cheap code generation (``_FAST_COMPILE_FLAGS``, appended to any
+``XLA_FLAGS`` of the user's, which win): the tests' grids are tiny, so compiling dominates their
+time, and these flags cut a fabric compile about 4x while the programs compute the same values
+(the optimisation level changes how the code is scheduled, not its IEEE arithmetic). Benchmarks
+and users get XLA's defaults. ``JAXPLAN_TEST_XLA_DEFAULTS=1`` runs the suite with the defaults too.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+
+_CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
+_MIN_COMPILE_SECS = "0.3"   # smaller programs compile faster than they load
+_FAST_COMPILE_FLAGS = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
+
+
+def pytest_configure(config):
+    if hasattr(config, "workerinput"):
+        return   # an xdist worker: it inherited the controller's environment
+    if not os.environ.get("JAXPLAN_TEST_XLA_DEFAULTS"):
+        os.environ["XLA_FLAGS"] = f"{_FAST_COMPILE_FLAGS} {os.environ.get('XLA_FLAGS', '')}".strip()
+    if os.environ.get(_CACHE_ENV):
+        return   # the user's own cache
+    path = tempfile.mkdtemp(prefix="jaxplan-test-jax-cache-")
+    os.environ[_CACHE_ENV] = path
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", _MIN_COMPILE_SECS)
+    config._jaxplan_jax_cache = path
+    if "jax" in sys.modules:   # imported before this hook ran (a plugin): its flags are already read
+        import jax
+
+        jax.config.update("jax_compilation_cache_dir", path)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", float(_MIN_COMPILE_SECS))
+
+
+def pytest_unconfigure(config):
+    path = getattr(config, "_jaxplan_jax_cache", None)
+    if path:
+        shutil.rmtree(path, ignore_errors=True)
