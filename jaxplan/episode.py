@@ -48,7 +48,7 @@ class EpisodeParams:
     Static: max_pushes (push budget, >= 0); source_rule ("max_value" or "nearest"); rebuild
     ("selective" or "full": how the fabric is refreshed after a push; both give the same fabric);
     reselect (apply Eq. 6 to every source before planning, module docstring; off by default: it
-    costs a spill evaluation of every table entry per tick).
+    costs a spill evaluation of every candidate route of every source with two or more per tick).
     """
 
     rearrange_margin: Any = 0.1
@@ -179,7 +179,7 @@ def _plan(scene, params, ep: EpisodeParams, spill, fabric: Fabric, cap: int, eva
     """One tick's plan and the fabric it was planned on (Eq. 6 applied to every source with
     ``ep.reselect`` and spillage on)."""
     if ep.reselect and spill.enabled:
-        fabric = selection.reselect_jit(scene, params, fabric, spill, max_steps=cap, evaluator=evaluator)
+        fabric = selection.reselect(scene, params, fabric, spill, max_steps=cap, evaluator=evaluator)
     return _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap, evaluator=evaluator), fabric
 
 

@@ -225,8 +225,13 @@ def _build(scene, params: FabricParams) -> Fabric:
 _build_jit = jax.jit(_build)
 
 
+def _traced(*trees) -> bool:
+    """Whether any leaf of ``trees`` is a tracer (called under a caller's ``jit``, ``vmap``, ``grad``)."""
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
+
+
 def _is_concrete(scene) -> bool:
-    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(scene))
+    return not _traced(scene)
 
 
 def build_fabric(scene, params: FabricParams | None = None) -> Fabric:

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from jaxplan import _grid, _kbest, connectors, visibility
 from jaxplan.connectors import Connectors
-from jaxplan.fabric import Fabric, Table, _build, derive, full_table
+from jaxplan.fabric import Fabric, Table, _build, _traced, derive, full_table
 from jaxplan.params import FabricParams
 
 
@@ -219,10 +219,6 @@ _rebuild_jit = jax.jit(_rebuild, static_argnums=4)
 _dirty_jit = jax.jit(_graph_and_dirty)
 _finish_jit = jax.jit(_finish, static_argnums=7)
 _full_only_jit = jax.jit(_full_only)
-
-
-def _traced(*trees) -> bool:
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
 
 
 def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, capacity: int | None = None):

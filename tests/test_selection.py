@@ -86,10 +86,10 @@ def test_reselect_uses_the_eq6_choice_of_every_source(bend):
     fabric = build_fabric(bend, PARAMS)
     spill = sp.SpillParams(lam=0.5, threshold=0.0)
     cap = _cap(fabric)
-    eager = selection.reselect(bend, PARAMS, fabric, spill, max_steps=cap)
-    jitted = selection.reselect_jit(bend, PARAMS, fabric, spill, max_steps=cap)
+    eager = selection.reselect(bend, PARAMS, fabric, spill, max_steps=cap)     # compact pairs
+    jitted = selection.reselect_jit(bend, PARAMS, fabric, spill, max_steps=cap)  # every cell, one program
     for a, b in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted)):
-        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     sources = np.argwhere(np.asarray(fabric.occupied))
     sel = selection.select_routes_jit(bend, fabric, sources, PARAMS.slack_tau, spill, max_steps=cap)
     np.testing.assert_array_equal(np.asarray(jitted.selected)[tuple(sources.T)], np.asarray(sel.entry))
@@ -97,6 +97,25 @@ def test_reselect_uses_the_eq6_choice_of_every_source(bend):
     for name in ("psi", "heat", "heading", "highways", "first_hop"):
         assert np.all(np.isfinite(np.asarray(getattr(jitted, name), np.float64))), name
     np.testing.assert_array_equal(np.asarray(jitted.value), np.asarray(fabric.value))   # J stays entry 0
+
+
+_select_every_cell_jit = jax.jit(selection.select_all, static_argnames=("max_steps", "evaluator"))
+
+
+@SETTINGS
+@given(scene=scenes(max_side=13), lam=st.sampled_from((0.05, 0.5, 2.0)), slack=st.sampled_from((0.0, 1.0, 3.0)),
+       short_walk=st.booleans())
+def test_compact_selection_equals_evaluating_every_cell(scene, lam, slack, short_walk):
+    """Only sources with two or more candidates are evaluated, on a shorter walk; the entries are
+    those of evaluating every cell's every entry (also when the caller's walk cuts routes short)."""
+    fabric = build_fabric(scene, PARAMS)
+    spill = sp.SpillParams(lam=lam, threshold=0.0)
+    walk = 3 if short_walk else _cap(fabric)
+    compact = selection.select_all(scene, fabric, slack, spill, max_steps=walk)
+    every = _select_every_cell_jit(scene, fabric, slack, spill, max_steps=walk)
+    np.testing.assert_array_equal(np.asarray(compact), np.asarray(every))
+    single = np.sum(np.asarray(selection.candidate_mask(fabric.table.raw, slack)), -1) < 2
+    assert np.all(np.asarray(compact)[single] == 0)   # one candidate: entry 0, never evaluated
 
 
 def test_episode_with_reselect_conserves_mass_and_records_the_selected_fabric(bend):
