@@ -840,7 +840,7 @@ def _add_episode_options(p) -> None:
                    help="before each push, choose every source's route by delivered mass (Eq. 6) and let "
                         "headings, psi, the heatmap and highways follow those routes, as the paper does "
                         "(default: they follow the raw-count optimum, Eq. 5; the pushed route is the Eq. 6 "
-                        "choice either way). Costs a spill evaluation of every table entry per tick")
+                        "choice either way). Costs a spill evaluation of every source's candidate routes per tick")
     p.add_argument("--fps", type=int, default=4, metavar="N", help="animation frames per second; default 4")
     p.add_argument("--no-animation", action="store_true", help="skip the GIF (faster)")
 
