@@ -51,10 +51,11 @@ def fallback_direction(tvec):
     It is the heatmap's first hop of a boundary-fallback cell; ``-1`` when the grid has no neighbour
     (a 1x1 grid).
     """
-    in_grid = jnp.asarray(_grid.in_grid(tvec.shape[:2]))
-    score = jnp.where(in_grid, cone_alignment(tvec), -jnp.inf)
+    in_grid = _grid.in_grid(tvec.shape[:2])
+    score = jnp.where(jnp.asarray(in_grid), cone_alignment(tvec), -jnp.inf)
     best = jnp.argmax(score, axis=0).astype(jnp.int32)
-    return jnp.where(jnp.any(in_grid, axis=0), best, -1)
+    # on the host: XLA constant-folds a reduction of a constant mask slowly (about 1 s at 256^2)
+    return jnp.where(jnp.asarray(in_grid.any(axis=0)), best, -1)
 
 
 class SuccessorGraph(NamedTuple):
