@@ -187,11 +187,12 @@ def _selective_switch(scene, params: FabricParams, fabric: Fabric, changed, capa
     return rebuilt, Affected(changed, dirty, n_dirty, rounds, branch == len(buckets))
 
 
-def capacity_buckets(capacity: int) -> tuple[int, ...]:
-    """Dirty-buffer sizes for one grid: 64, 128, 256, ... up to ``capacity``. A round's cost grows
-    faster than linearly with the buffer (cache), so the buckets are close together."""
+def capacity_buckets(capacity: int, smallest: int = 64) -> tuple[int, ...]:
+    """Dirty-buffer sizes for one grid: ``smallest`` (64), doubling, up to ``capacity`` (always the
+    last). A round's cost grows faster than linearly with the buffer (cache), so the buckets are
+    close together. ``selection.select_all`` sizes its buffers the same way."""
     sizes = []
-    size = 64
+    size = smallest
     while size < capacity:
         sizes.append(size)
         size *= 2

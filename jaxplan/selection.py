@@ -23,7 +23,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan import execute, fabric as _fabric, spillage
+from jaxplan import execute, fabric as _fabric, rebuild, spillage
 from jaxplan.fabric import Fabric, _walk
 
 DELIVERED_TIE = 1e-4   # objects
@@ -120,11 +120,9 @@ def _select_pairs(scene, fabric: Fabric, slack_tau, spill: spillage.SpillParams,
 _select_pairs_jit = jax.jit(_select_pairs, static_argnames=("capacity", "max_steps", "evaluator"))
 
 
-def _power_of_two_at_least(n: int, smallest: int) -> int:
-    size = smallest
-    while size < n:
-        size *= 2
-    return size
+def _bucket(n: int, largest: int, smallest: int) -> int:
+    """The smallest of ``smallest``, 2 ``smallest``, 4 ``smallest``, ... that is >= n, capped at ``largest``."""
+    return next((size for size in rebuild.capacity_buckets(largest, smallest) if size >= n), largest)
 
 
 def _select_every_cell(scene, fabric: Fabric, slack_tau, spill, *, max_steps: int, evaluator):
@@ -151,9 +149,9 @@ def select_all(scene, fabric: Fabric, slack_tau, spill: spillage.SpillParams, *,
     n_pairs, longest = (int(x) for x in _pair_counts(fabric, slack_tau))
     if n_pairs == 0:
         return jnp.zeros((h, w), jnp.int32)
-    capacity = min(_power_of_two_at_least(n_pairs, 64), fabric.table.raw.size)
+    capacity = _bucket(n_pairs, fabric.table.raw.size, 64)
     # + 1: a final fallback is a walk step; never longer than the caller's walk, which it then equals
-    walk = min(_power_of_two_at_least(longest + 1, 8), int(max_steps))
+    walk = _bucket(longest + 1, int(max_steps), 8)
     return _select_pairs_jit(scene, fabric, slack_tau, spill, capacity=capacity, max_steps=walk, evaluator=evaluator)
 
 
@@ -169,14 +167,13 @@ def reselect(scene, params, fabric: Fabric, spill: spillage.SpillParams, *, max_
     whole of it as one program.
     """
     entry = select_all(scene, fabric, params.slack_tau, spill, max_steps=max_steps, evaluator=evaluator)
-    derive = _rederive if _fabric._traced(scene, params, fabric, spill) else _rederive_jit
-    return derive(scene, params, fabric, entry)
+    return _rederive_jit(scene, params, fabric, entry)   # under a caller's jit this is inlined
 
 
-def _rederive(scene, params, fabric: Fabric, entry):
+@jax.jit
+def _rederive_jit(scene, params, fabric: Fabric, entry):
     return _fabric.derive(scene, params, fabric.table, jnp.moveaxis(fabric.feasible, -1, 0), fabric.rounds,
                           fabric.converged, entry)
 
 
-_rederive_jit = jax.jit(_rederive)
 reselect_jit = jax.jit(reselect, static_argnames=("max_steps", "evaluator"))
