@@ -84,7 +84,7 @@ def _wavefront_dp(graph: visibility.SuccessorGraph, cell_size, k: int, max_hops:
 
     Returns ``(raw, length, direction, rank)`` as ``[K, H, W]``, rounds and whether it converged.
     """
-    shape = (k,) + graph.obj.shape
+    plane = graph.obj.shape
 
     def cond(carry):
         return carry[-1] & (carry[-2] < max_hops)
@@ -92,16 +92,16 @@ def _wavefront_dp(graph: visibility.SuccessorGraph, cell_size, k: int, max_hops:
     def body(carry):
         raw, length, idx, rounds, _ = carry
         cand_raw, cand_len = _kbest.step_candidates(raw, length, graph)
-        tol = _kbest.length_tolerance(jnp.min(cand_len, axis=0), cell_size)
+        tol = _kbest.length_tolerance(_grid.lead_min(cand_len), cell_size)
         # candidates come in (direction, rank) order, which is the tie-break
         new_raw, new_len, _, new_idx = _kbest.select_top_k(cand_raw, cand_len, None, k, tol)
-        changed = ~(jnp.array_equal(new_raw, raw) & jnp.array_equal(new_len, length)
-                    & jnp.array_equal(new_idx, idx))
-        return new_raw, new_len, new_idx, rounds + 1, changed
+        changed = ~_grid.all_equal((new_raw, new_len, new_idx), (raw, length, idx))
+        return tuple(new_raw), tuple(new_len), tuple(new_idx), rounds + 1, changed
 
-    start = (jnp.full(shape, -jnp.inf), jnp.full(shape, jnp.inf), jnp.zeros(shape, jnp.int32),
+    start = ((jnp.full(plane, -jnp.inf),) * k, (jnp.full(plane, jnp.inf),) * k, (jnp.zeros(plane, jnp.int32),) * k,
              jnp.int32(0), jnp.bool_(True))
     raw, length, idx, rounds, changed = jax.lax.while_loop(cond, body, start)
+    raw, length, idx = jnp.stack(raw), jnp.stack(length), jnp.stack(idx)
     direction = jnp.where(idx == _grid.N_DIRS * k, _grid.FALLBACK, idx // k)
     return raw, length, direction, idx % k, rounds, ~changed
 

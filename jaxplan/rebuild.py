@@ -113,23 +113,24 @@ def _compact_dp(graph: visibility.SuccessorGraph, table: Table, dirty, capacity:
     safe_pos = jnp.minimum(nb_pos, capacity - 1)
 
     def body(carry):
-        raw, length, best_idx, rounds, _ = carry                        # [K, cap] each
-        nb_raw = jnp.where(nb_dirty, jnp.moveaxis(raw[:, safe_pos], 0, 1), clean_raw)
-        nb_len = jnp.where(nb_dirty, jnp.moveaxis(length[:, safe_pos], 0, 1), clean_len)
+        raw, length, best_idx, rounds, _ = carry                        # K planes [cap] each
+        raw_k, len_k = jnp.stack(raw), jnp.stack(length)
+        nb_raw = jnp.where(nb_dirty, jnp.moveaxis(raw_k[:, safe_pos], 0, 1), clean_raw)
+        nb_len = jnp.where(nb_dirty, jnp.moveaxis(len_k[:, safe_pos], 0, 1), clean_len)
         cand_raw = jnp.where(via_cell, obj + nb_raw, jnp.where(via_goal, obj, -jnp.inf))
         cand_len = step_len + jnp.where(via_goal, 0.0, nb_len)
-        cand_raw = jnp.concatenate([cand_raw.reshape(8 * k, -1), jnp.where(fallback, obj, -jnp.inf)[None]])
-        cand_len = jnp.concatenate([cand_len.reshape(8 * k, -1), fallback_len[None]])
-        tol = _kbest.length_tolerance(jnp.min(cand_len, axis=0), cell_size)
+        cand_raw = [*cand_raw.reshape(8 * k, -1), jnp.where(fallback, obj, -jnp.inf)]
+        cand_len = [*cand_len.reshape(8 * k, -1), fallback_len]
+        tol = _kbest.length_tolerance(_grid.lead_min(cand_len), cell_size)
         new_raw, new_len, _, new_idx = _kbest.select_top_k(cand_raw, cand_len, None, k, tol)
-        changed = ~(jnp.array_equal(new_raw, raw) & jnp.array_equal(new_len, length)
-                    & jnp.array_equal(new_idx, best_idx))
-        return new_raw, new_len, new_idx, rounds + 1, changed
+        changed = ~_grid.all_equal((new_raw, new_len, new_idx), (raw, length, best_idx))
+        return tuple(new_raw), tuple(new_len), tuple(new_idx), rounds + 1, changed
 
     # warm start: the old rows (any start converges on a DAG; a good one converges sooner)
-    start = (rows(table.raw, -jnp.inf)[idx].T, rows(table.length, jnp.inf)[idx].T,
-             jnp.full((k, capacity), -1, jnp.int32), jnp.int32(0), jnp.bool_(True))
+    start = (tuple(rows(table.raw, -jnp.inf)[idx].T), tuple(rows(table.length, jnp.inf)[idx].T),
+             (jnp.full(capacity, -1, jnp.int32),) * k, jnp.int32(0), jnp.bool_(True))
     raw, length, best_idx, rounds, _ = jax.lax.while_loop(lambda c: c[-1] & (c[-2] < max_rounds), body, start)
+    raw, length, best_idx = jnp.stack(raw), jnp.stack(length), jnp.stack(best_idx)
 
     used = raw > -jnp.inf
     direction = jnp.where(best_idx == 8 * k, _grid.FALLBACK, best_idx // k)
