@@ -56,8 +56,10 @@ def materialize(index):
     """``index`` (non-negative i32) unchanged, computed once and stored rather than re-fused.
 
     XLA's CPU fusion copies cheap elementwise producers into every consumer; a selection round
-    consumed by many planes would then be recomputed per plane (and per later round). A remainder
-    is an op XLA will not duplicate, and by a modulus above any index it changes nothing.
+    consumed by many planes would then be recomputed per plane (and per later round). XLA counts a
+    remainder as expensive and does not duplicate it (seen in the compiled HLO: the largest fusion
+    of the K-best table at 65^2 went from 979 to 369 instructions); by a modulus above any index it
+    changes nothing.
     """
     return jax.lax.rem(index, jnp.int32(2**31 - 1))
 
