@@ -180,6 +180,17 @@ def test_narrow_opening_disconnects_and_widening_connects():
     assert connectivity(g, narrow.start, narrow.goal, removed=[(0, 1)]).same_face
 
 
+def test_path_through_an_opening_a_hair_wider_than_w():
+    """An opening 2e-4 W wider than W: Eq. 7 holds and a path exists, though the 32-segment buffers of
+    the inflated walk close the opening (the finer fallback finds it)."""
+    scene = PushScene.from_dict(_bar_scene(1.0002))
+    g = build_wccg(scene)
+    assert connectivity(g, scene.start, scene.goal).connected and reference_connected(scene)
+    path = w_clear_path(g, scene.start, scene.goal)
+    assert path is not None and path_clearance(scene, path) >= 0.5 - 1e-9
+    assert np.allclose(path[0], scene.start) and np.allclose(path[-1], scene.goal)
+
+
 def test_endpoint_disk_condition_of_eq7():
     d = _bar_scene(1.2)
     d["start"] = [0.3, 2.0]  # closer than W/2 to the left wall: same face, but the disk is not free

@@ -50,8 +50,10 @@ MOVABLE, FIXED, WALL = 0, 1, 2
 # Half-width of a bridge segment when it is made a polygon for the union [m, relative to W]: the
 # skeleton's bridges have zero width; a thin strip keeps the cluster one connected polygon.
 _BRIDGE_EPS = 1e-7
-# Buffer resolution of the inflated clusters used for paths (segments per quarter circle).
+# Buffer resolution of the inflated clusters used for paths (segments per quarter circle), and the
+# finer one tried when a passage is within ~3e-4 W of W (the coarse polygon closes it).
 _QUAD_SEGS = 32
+_FINE_QUAD_SEGS = 512
 
 
 class WCCG(NamedTuple):
@@ -209,13 +211,13 @@ def _skeleton(g: WCCG, removed=()) -> _Skeleton:
     return _Skeleton(_clusters(len(g.pieces), g.bridge_uv[act]), act, {})
 
 
-def _cluster_region(g: WCCG, sk: _Skeleton, c: int, inflate: float = 0.0):
+def _cluster_region(g: WCCG, sk: _Skeleton, c: int, inflate: float = 0.0, quad_segs: int = _QUAD_SEGS):
     """K_c (inflate = 0) or K_c inflated by ``inflate`` (the bridges are inside it then)."""
-    key = (c, inflate)
+    key = (c, inflate, quad_segs)
     if key not in sk.regions:
         comps = np.nonzero(sk.labels == c)[0]
         if inflate > 0:
-            geoms = [shapely.buffer(g.pieces[i], inflate, quad_segs=_QUAD_SEGS) for i in comps]
+            geoms = [shapely.buffer(g.pieces[i], inflate, quad_segs=quad_segs) for i in comps]
         else:
             eps = _BRIDGE_EPS * g.width
             bridges = np.nonzero(sk.active & np.isin(g.bridge_uv[:, 0], comps))[0]
@@ -402,8 +404,9 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None, shorten: bool
     ``W/2 + delta`` from its own cluster and at least ``gap - rho >= W/2`` from the others when the
     non-bottleneck gaps exceed ``W + (rho - W/2)`` (~1e-4 W): the exactness limit of this construction.
     ``delta`` defaults to ``1e-4 W`` (shrunk so that the endpoint disks stay outside the inflation),
-    then ``1e-2 W/2`` if the first path fails the exact clearance check (GEOS may simplify a buffer).
-    The returned path always passes that check (shapely distance >= W/2 to every component, walls
+    then ``1e-2 W/2`` if the first path fails the exact clearance check (GEOS may simplify a buffer),
+    then ``1e-6 W`` over buffers of 512 segments per quarter circle (a passage within ~3e-4 W of W,
+    which the 32-segment polygons close; slower, so only when the others fail). The returned path always passes that check (shapely distance >= W/2 to every component, walls
     included). None when Eq. 7 fails or no margin gives a clear path (near-ties only).
     ``shorten``: then cut the walk's detours by line of sight (:func:`_shorten`; same exact check).
     """
@@ -412,46 +415,53 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None, shorten: bool
         return None
     r = 0.5 * g.width
     s, gl = np.asarray(start, np.float64), np.asarray(goal, np.float64)
-    cos = math.cos(math.pi / (4 * _QUAD_SEGS))
     clr = float(clearance(g, np.stack([s, gl])).min())
-    # GEOS may simplify a buffer's input by ~1% of the distance, so a path along it can dip a little:
-    # every candidate is checked exactly and the next, wider margin is tried when it dips.
-    # Every margin stays below half the endpoints' spare clearance, so start and goal stay outside
-    # the inflated obstacles whatever the margin.
-    room = 0.5 * (clr * cos - r)
-    deltas = [delta] if delta is not None else [min(1e-4 * g.width, room), min(1e-2 * r, room)]
     pieces = np.asarray(g.pieces, dtype=object)
-    for d in deltas:
-        path = _inflated_walk(g, s, gl, (r + max(d, 0.0)) / cos)
-        if path is not None and float(shapely.distance(pieces, LineString(path)).min()) >= r:
-            return _shorten(path, shapely.union_all(pieces), r) if shorten else path
+    for quad_segs, margins in ((_QUAD_SEGS, (1e-4 * g.width, 1e-2 * r)), (_FINE_QUAD_SEGS, (1e-6 * g.width,))):
+        cos = math.cos(math.pi / (4 * quad_segs))
+        # GEOS may simplify a buffer's input by ~1% of the distance, so a path along it can dip a
+        # little: every candidate is checked exactly and the next, wider margin is tried when it dips.
+        # Every margin stays below half the endpoints' spare clearance, so start and goal stay
+        # outside the inflated obstacles whatever the margin.
+        room = 0.5 * (clr * cos - r)
+        for d in [delta] if delta is not None else [min(m, room) for m in margins]:
+            path = _inflated_walk(g, s, gl, (r + max(d, 0.0)) / cos, quad_segs)
+            if path is not None and float(shapely.distance(pieces, LineString(path)).min()) >= r:
+                return _shorten(path, shapely.union_all(pieces), r) if shorten else path
+        if delta is not None:
+            break
     return None
 
 
-def _shorten(path: np.ndarray, obstacles, r: float) -> np.ndarray:
+def _shorten(path: np.ndarray, obstacles, r: float, max_tries: int = 128) -> np.ndarray:
     """Greedy line-of-sight shortening of a W-clear polyline ``f64[P, 2]``: from each kept point jump
     to the farthest later point whose straight segment stays at least ``r`` from ``obstacles`` (the
     exact check of :func:`w_clear_path`). The frontier walk follows cluster rings, so it loops around
-    a cluster where a straight run would do; every accepted segment is itself W-clear."""
+    a cluster where a straight run would do; every accepted segment is itself W-clear. At most
+    ``max_tries`` later points are tried per jump (evenly spaced, the next one always among them), so
+    that a walk along finely resolved arcs (thousands of points) stays cheap."""
     out, i, n = [path[0]], 0, len(path)
     while i < n - 1:
-        later = path[i + 1:]
-        segs = shapely.linestrings(np.stack([np.broadcast_to(path[i], later.shape), later], 1))
+        later = np.arange(i + 1, n)
+        if len(later) > max_tries:
+            later = np.unique(np.r_[i + 1, later[np.linspace(0, len(later) - 1, max_tries - 1).astype(int)]])
+        segs = shapely.linestrings(np.stack([np.broadcast_to(path[i], (len(later), 2)), path[later]], 1))
         clear = np.nonzero(shapely.distance(obstacles, segs) >= r)[0]
-        i = i + 1 + (int(clear[-1]) if len(clear) else 0)
+        i = int(later[clear[-1]]) if len(clear) else i + 1
         out.append(path[i])
     return np.asarray(out)
 
 
-def _inflated_walk(g: WCCG, s: np.ndarray, gl: np.ndarray, rho: float) -> np.ndarray | None:
-    """The frontier walk over the clusters inflated by ``rho``: the polyline f64[P, 2] or None."""
+def _inflated_walk(g: WCCG, s: np.ndarray, gl: np.ndarray, rho: float, quad_segs: int = _QUAD_SEGS) -> np.ndarray | None:
+    """The frontier walk over the clusters inflated by ``rho`` (buffers of ``quad_segs`` segments per
+    quarter circle): the polyline f64[P, 2] or None."""
     sk = _skeleton(g)
     seg = LineString([s, gl])
     # The inflated clusters the segment meets: those with a component within rho of it.
     near = np.nonzero(shapely.distance(np.asarray(g.pieces, dtype=object), seg) < rho)[0]
     rings = []
     for c in np.unique(sk.labels[near]):
-        rings += _rings(_cluster_region(g, sk, int(c), inflate=rho), int(c))
+        rings += _rings(_cluster_region(g, sk, int(c), inflate=rho, quad_segs=quad_segs), int(c))
     separates = [bool(shapely.contains_xy(rg.region, *s)) != bool(shapely.contains_xy(rg.region, *gl))
                  for rg in rings]
     pieces, blocking = _trace(s, gl, rings, separates)
