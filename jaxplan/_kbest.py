@@ -92,13 +92,18 @@ def step_candidates(raw, length, g):
     return cand_raw, cand_len
 
 
-def _best_step(best_raw, best_len, g, cell_size):
-    raw, length = step_candidates([best_raw], [best_len], g)
+def best_candidate(raw, length, cell_size):
+    """The best of M candidate planes by ``(raw, -length)``, near-tied lengths to the lower index:
+    ``(raw, length, index)``, each a plane."""
     top_raw = _grid.lead_max(raw)
     is_top = [r == top_raw for r in raw]
     top_len = _grid.lead_min([jnp.where(t, ln, jnp.inf) for t, ln in zip(is_top, length)])
     tol = length_tolerance(top_len, cell_size)
     return top_raw, top_len, _grid.first_true([t & (ln <= top_len + tol) for t, ln in zip(is_top, length)])
+
+
+def _best_step(best_raw, best_len, g, cell_size):
+    return best_candidate(*step_candidates([best_raw], [best_len], g), cell_size)
 
 
 def _policy_pointer(policy, g, occupied):

@@ -106,7 +106,7 @@ def _wavefront_dp(graph: visibility.SuccessorGraph, cell_size, k: int, max_hops:
     return raw, length, direction, idx % k, rounds, ~changed
 
 
-def _ranks_from_directions(direction):
+def ranks_from_directions(direction):
     """``i32[K, H, W]``: entry j continues with the neighbour's entry equal to the number of better
     entries that start with the same step (C's paths through N are N's paths, in N's order)."""
     k = direction.shape[0]
@@ -134,7 +134,7 @@ def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *
     if use_policy:
         best_raw, best_len, policy, rounds = _kbest.best_paths(graph, occupied, cell_size, max_hops)
         raw, length, direction = _kbest.kbest_tables(best_raw, best_len, policy, graph, occupied, k, cell_size)
-        rank = _ranks_from_directions(direction)
+        rank = ranks_from_directions(direction)
         converged = rounds < max_hops
     else:
         raw, length, direction, rank, rounds, converged = _wavefront_dp(graph, cell_size, k, max_hops)

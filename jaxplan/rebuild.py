@@ -7,10 +7,10 @@ cells that can *reach* ``A_exec`` through a successor step of the old or the new
 closure of ``A_exec`` (``Affected.dirty``). The rebuild
 
 1. computes ``dirty`` by dilating ``A_exec`` backwards along successor steps until it stops growing;
-2. gathers the dirty cells into a compact buffer of static ``capacity`` and runs the K-best
-   recursion on that buffer only, warm-started from the old table, reading the unchanged tables of
-   all other cells, until nothing changes (on a DAG the fixed point is unique, so this equals the
-   from-scratch table exactly, ties included);
+2. gathers the dirty cells into a compact buffer of static ``capacity`` and solves for their
+   tables there, reading the unchanged tables of all other cells (``jaxplan._compact``: policy
+   iteration warm-started from the old first steps, then the sidetrack levels, as in the full
+   build; the result equals the from-scratch table, ties included);
 3. recomputes the global quantities once (first hops, psi, heatmap, highways, occupied set),
    as Algorithm 5 does.
 
@@ -29,9 +29,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan import _grid, _kbest, connectors, visibility
+from jaxplan import _compact, _grid, connectors, visibility
 from jaxplan.connectors import Connectors
-from jaxplan.fabric import Fabric, Table, _build, _traced, derive, full_table
+from jaxplan.fabric import Fabric, Table, _build, _traced, derive, full_table, ranks_from_directions
 from jaxplan.params import FabricParams
 
 
@@ -40,7 +40,8 @@ class Affected(NamedTuple):
 
     exec: bool[H, W], A_exec: non-target cells whose count changed.
     dirty: bool[H, W], cells whose table was recomputed (upstream closure of A_exec).
-    n_dirty: i32[], number of dirty cells.  rounds: i32[], recursion rounds on the dirty buffer.
+    n_dirty: i32[], number of dirty cells.  rounds: i32[], policy iterations on the dirty buffer (of
+    the full build when ``full``).
     full: bool[], the dirty set overflowed ``capacity`` (or monotone is off): a full build ran.
     """
 
@@ -74,73 +75,28 @@ def upstream_closure(seed, feasible_old, feasible_new):
     return mask
 
 
-def _flat_neighbours(h: int, w: int):
-    """``i32[H*W, 8]`` flat index of each neighbour, ``H*W`` (the sink row) off the grid."""
-    rc = _grid.neighbour_index(jnp.broadcast_to(jnp.arange(_grid.N_DIRS), (h, w, _grid.N_DIRS)))
-    inside = jnp.moveaxis(jnp.asarray(_grid.in_grid((h, w))), 0, -1)
-    return jnp.where(inside, rc[..., 0] * w + rc[..., 1], h * w).reshape(h * w, _grid.N_DIRS).astype(jnp.int32)
-
-
 def _compact_dp(graph: visibility.SuccessorGraph, table: Table, dirty, capacity: int, cell_size,
                 max_rounds: int):
     """Recompute the table rows of the ``dirty`` cells (at most ``capacity``): ``(table, rounds)``.
 
-    The dirty rows live in a compact ``[K, capacity]`` buffer; a neighbour's table is read from the
-    buffer when it is dirty and from the old table (gathered once, before the loop) when it is not,
-    so a round costs O(capacity), not O(H W).
+    ``jaxplan._compact``: policy iteration and sidetracks on a compact buffer of the dirty cells,
+    reading the unchanged tables of the others, warm-started from the old first steps; a round
+    (policy iteration) costs O(capacity log(path length)), not O(H W). rounds: policy iterations.
     """
     h, w, k = table.raw.shape
     n = h * w
-    idx = jnp.nonzero(dirty.reshape(-1), size=capacity, fill_value=n)[0].astype(jnp.int32)
-    valid = idx < n
-    safe = jnp.minimum(idx, n - 1)
-    cols = lambda a: a.reshape(a.shape[0], -1)[:, safe]  # noqa: E731  [8, H, W] -> [8, cap]
-    into_goal = cols(graph.enters_goal) & valid
-    via_cell = (cols(graph.feasible) & valid & ~into_goal)[:, None]      # [8, 1, cap]
-    via_goal = (into_goal[:, None] & (jnp.arange(k) == 0)[None, :, None])
-    obj = graph.obj.reshape(-1)[safe]
-    fallback = graph.fallback.reshape(-1)[safe] & valid
-    fallback_len = graph.fallback_len.reshape(-1)[safe]
-    step_len = graph.step_len[:, None, None]
-
-    nb = _flat_neighbours(h, w)[safe].T                                  # [8, cap], n = off grid
-    position = jnp.full(n + 1, capacity, jnp.int32).at[idx].set(jnp.arange(capacity, dtype=jnp.int32))
-    nb_pos = position[nb]                                                # [8, cap], capacity = clean
-    nb_dirty = (nb_pos < capacity)[:, None]                              # [8, 1, cap]
-    rows = lambda a, fill: jnp.concatenate([a.reshape(n, k), jnp.full((1, k), fill, a.dtype)])  # noqa: E731
-    clean_raw = jnp.moveaxis(rows(table.raw, -jnp.inf)[nb], -1, 1)      # [8, K, cap]
-    clean_len = jnp.moveaxis(rows(table.length, jnp.inf)[nb], -1, 1)
-    safe_pos = jnp.minimum(nb_pos, capacity - 1)
-
-    def body(carry):
-        raw, length, best_idx, rounds, _ = carry                        # K planes [cap] each
-        raw_k, len_k = jnp.stack(raw), jnp.stack(length)
-        nb_raw = jnp.where(nb_dirty, jnp.moveaxis(raw_k[:, safe_pos], 0, 1), clean_raw)
-        nb_len = jnp.where(nb_dirty, jnp.moveaxis(len_k[:, safe_pos], 0, 1), clean_len)
-        cand_raw = jnp.where(via_cell, obj + nb_raw, jnp.where(via_goal, obj, -jnp.inf))
-        cand_len = step_len + jnp.where(via_goal, 0.0, nb_len)
-        cand_raw = [*cand_raw.reshape(8 * k, -1), jnp.where(fallback, obj, -jnp.inf)]
-        cand_len = [*cand_len.reshape(8 * k, -1), fallback_len]
-        tol = _kbest.length_tolerance(_grid.lead_min(cand_len), cell_size)
-        new_raw, new_len, _, new_idx = _kbest.select_top_k(cand_raw, cand_len, None, k, tol)
-        changed = ~_grid.all_equal((new_raw, new_len, new_idx), (raw, length, best_idx))
-        return tuple(new_raw), tuple(new_len), tuple(new_idx), rounds + 1, changed
-
-    # warm start: the old rows (any start converges on a DAG; a good one converges sooner)
-    start = (tuple(rows(table.raw, -jnp.inf)[idx].T), tuple(rows(table.length, jnp.inf)[idx].T),
-             (jnp.full(capacity, -1, jnp.int32),) * k, jnp.int32(0), jnp.bool_(True))
-    raw, length, best_idx, rounds, _ = jax.lax.while_loop(lambda c: c[-1] & (c[-2] < max_rounds), body, start)
-    raw, length, best_idx = jnp.stack(raw), jnp.stack(length), jnp.stack(best_idx)
-
+    b = _compact.gather(graph, table.raw, table.length, dirty, capacity)
+    warm = table.next_dir.reshape(n, k)[jnp.minimum(b.idx, n - 1), 0]
+    best_raw, best_len, policy, rounds = _compact.best_paths(b, warm, cell_size, max_rounds)
+    raw, length, direction = _compact.kbest_rows(b, best_raw, best_len, policy, k, cell_size)
     used = raw > -jnp.inf
-    direction = jnp.where(best_idx == 8 * k, _grid.FALLBACK, best_idx // k)
-    entered_goal = jnp.take_along_axis(into_goal, jnp.clip(direction, 0, 7), axis=0)
-    steps = used & (direction < _grid.FALLBACK)
+    entered_goal = jnp.take_along_axis(b.into_goal, jnp.clip(direction, 0, 7), axis=0)
+    steps = used & (direction >= 0) & (direction < _grid.FALLBACK)
     next_dir = jnp.where(used, direction, -1)
-    next_rank = jnp.where(steps & ~entered_goal, best_idx % k, -1)
-    scatter = lambda a, new: a.reshape(n, k).at[idx].set(new.T, mode="drop").reshape(h, w, k)  # noqa: E731
-    return Table(scatter(table.raw, raw), scatter(table.length, length), scatter(table.next_dir, next_dir),
-                 scatter(table.next_rank, next_rank)), rounds
+    next_rank = jnp.where(steps & ~entered_goal, ranks_from_directions(direction[..., None])[..., 0], -1)
+    scatter = lambda a, new: a.reshape(n, k).at[b.idx].set(new.T, mode="drop").reshape(h, w, k)  # noqa: E731
+    return Table(scatter(table.raw, raw), scatter(table.length, jnp.where(used, length, jnp.inf)),
+                 scatter(table.next_dir, next_dir), scatter(table.next_rank, next_rank)), rounds
 
 
 def _graph_and_dirty(scene, params: FabricParams, fabric: Fabric, changed):
@@ -154,7 +110,7 @@ def _graph_and_dirty(scene, params: FabricParams, fabric: Fabric, changed):
 
 
 def _finish(scene, params, fabric, changed, graph, dirty, n_dirty, capacity: int | None):
-    """Steps 2-3: the compact recursion (or, with ``capacity=None``, the full table), then the
+    """Steps 2-3: the compact solver (or, with ``capacity=None``, the full table), then the
     global refresh."""
     max_hops = params.resolved_max_hops(scene.shape)
     if capacity is None:
@@ -239,7 +195,7 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
     (default ``default_capacity``); a larger dirty set triggers a full build.
 
     Called with concrete arrays, it computes the dirty set (jitted), reads its size on the host and
-    runs the jitted recursion for the smallest buffer of 64, 128, 256, ... cells that holds it; each
+    runs the jitted compact solver for the smallest buffer of 64, 128, 256, ... cells that holds it; each
     size is compiled the first time it is needed. Inside a caller's ``jit`` (traced arguments) it
     runs one program with every size compiled behind a ``lax.switch``. Both give the same result.
     """
@@ -301,7 +257,7 @@ def refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_fabric: 
     scene, fabric: after the push (``selective_rebuild``'s output); old_fabric, old: before it;
     changed: bool[H, W], A_exec. Anchors (Eq. 12) are re-chosen over the new heatmap. An anchor that
     was planned before keeps its connector table, updated on the cells that can reach a changed cell
-    in its graph (compact recursion, buffer ``capacity``); a new anchor, or one whose dirty set
+    in its graph (the compact solver, buffer ``capacity``); a new anchor, or one whose dirty set
     overflows, is planned from scratch. Returns ``(Connectors, reused: bool[A])``; the connectors
     equal ``plan_connectors(scene, params, fabric)`` with the same ``max_anchors`` (lengths up to
     rounding). Monotone rule only (raises otherwise).

@@ -420,9 +420,12 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
         d[touch] = g.centroids[uv[:, 1]] - g.centroids[uv[:, 0]]
     n = np.stack([-d[:, 1], d[:, 0]], 1) / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
     tau = np.where(touch, 0.05 * w, 3.0 * _BRIDGE_EPS * w)[:, None]
-    # Both sides at a few points along the bridge, not only its middle: a bridge between two pieces
-    # of multi-piece bodies may run through a third piece there (every side point found counts).
-    side = locate(np.concatenate([p + s * tau * n for p in along for s in (1, -1)])).reshape(-1, len(edges))
+    # Both sides of the bridge's middle; where a side point lies inside an obstacle (a bridge between
+    # pieces of multi-piece bodies may run through a third piece there), the next point along it.
+    found = locate(np.concatenate([p + s * tau * n for p in along for s in (1, -1)]))
+    found = found.reshape(len(_SIDE_SAMPLES), 2, len(edges))
+    first = np.argmax(found >= -1, axis=0)                      # [2, E] first sample in a face
+    side = np.take_along_axis(found, first[None], axis=0)[0]
     goal_face = int(locate(goal[None])[0])
     faces, where, cp = {}, {}, {}
     for k, e in enumerate(edges):

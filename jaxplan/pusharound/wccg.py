@@ -406,7 +406,8 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None, shorten: bool
     ``delta`` defaults to ``1e-4 W`` (shrunk so that the endpoint disks stay outside the inflation),
     then ``1e-2 W/2`` if the first path fails the exact clearance check (GEOS may simplify a buffer),
     then ``1e-6 W`` over buffers of 512 segments per quarter circle (a passage within ~3e-4 W of W,
-    which the 32-segment polygons close; slower, so only when the others fail). The returned path always passes that check (shapely distance >= W/2 to every component, walls
+    which the 32-segment polygons close; slower, so only when the others fail). The returned path
+    always passes that check (shapely distance >= W/2 to every component, walls
     included). None when Eq. 7 fails or no margin gives a clear path (near-ties only).
     ``shorten``: then cut the walk's detours by line of sight (:func:`_shorten`; same exact check).
     """
@@ -452,7 +453,8 @@ def _shorten(path: np.ndarray, obstacles, r: float, max_tries: int = 128) -> np.
     return np.asarray(out)
 
 
-def _inflated_walk(g: WCCG, s: np.ndarray, gl: np.ndarray, rho: float, quad_segs: int = _QUAD_SEGS) -> np.ndarray | None:
+def _inflated_walk(g: WCCG, s: np.ndarray, gl: np.ndarray, rho: float,
+                   quad_segs: int = _QUAD_SEGS) -> np.ndarray | None:
     """The frontier walk over the clusters inflated by ``rho`` (buffers of ``quad_segs`` segments per
     quarter circle): the polyline f64[P, 2] or None."""
     sk = _skeleton(g)

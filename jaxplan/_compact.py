@@ -1,0 +1,205 @@
+"""The K-best table of a few cells, the others' tables known: the solver of the selective rebuild.
+
+With the monotone rule a cell's table depends only on its own count, its successor steps and its
+successors' tables. After a push only the *dirty* cells (``rebuild.upstream_closure``) can change;
+the others keep their old, exact tables. This module recomputes the dirty rows on a compact buffer of
+``capacity`` cells with the same two steps as the full build (``jaxplan._kbest``), so that its cost
+grows with log(path length) passes over the buffer rather than one pass per hop:
+
+1. **Policy iteration** for P* on the dirty cells. A step into a clean cell ends the chain there
+   with that cell's old J and L, so pointer doubling runs over the buffer only. It starts from the
+   old first steps, which are mostly still optimal.
+2. **Sidetracks** for the other entries, level by level: the best non-tree steps of each dirty cell
+   (into dirty neighbours' new entries or clean neighbours' old ones), merged along the dirty part
+   of its tree path; where that path enters a clean cell X, X's own entries 1..m (as losses against
+   its J) stand for every exit further down, since X's table already ranks them.
+
+The result equals the full build's rows (tests hold rebuild and full build equal).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan import _grid, _kbest
+
+
+class Buffer(NamedTuple):
+    """The dirty cells' inputs, gathered once. C = capacity, K = table entries.
+
+    idx: i32[C] flat cell index, H*W for padding. occupied: bool[C]. obj: f32[C] objects.
+    fallback: bool[C]; fallback_len: f32[C] world units. feasible, into_goal: bool[8, C] (into_goal
+    implies feasible). step_len: f32[8] world units. nb_dirty: bool[8, C] the neighbour is in the
+    buffer, at nb_pos: i32[8, C] (clipped to the buffer). clean_raw, clean_len: f32[8, K, C] the old
+    table of a clean neighbour (-inf / +inf where the neighbour is dirty or off the grid).
+    """
+
+    idx: jax.Array
+    occupied: jax.Array
+    obj: jax.Array
+    fallback: jax.Array
+    fallback_len: jax.Array
+    feasible: jax.Array
+    into_goal: jax.Array
+    step_len: jax.Array
+    nb_dirty: jax.Array
+    nb_pos: jax.Array
+    clean_raw: jax.Array
+    clean_len: jax.Array
+
+
+def _flat_neighbours(h: int, w: int):
+    """``i32[H*W, 8]`` flat index of each neighbour, ``H*W`` (the sink row) off the grid."""
+    rc = _grid.neighbour_index(jnp.broadcast_to(jnp.arange(_grid.N_DIRS), (h, w, _grid.N_DIRS)))
+    inside = jnp.moveaxis(jnp.asarray(_grid.in_grid((h, w))), 0, -1)
+    return jnp.where(inside, rc[..., 0] * w + rc[..., 1], h * w).reshape(h * w, _grid.N_DIRS).astype(jnp.int32)
+
+
+def gather(graph, table_raw, table_len, dirty, capacity: int) -> Buffer:
+    """The ``Buffer`` of the (at most ``capacity``) ``dirty: bool[H, W]`` cells.
+
+    graph: the new ``visibility.SuccessorGraph``; table_raw, table_len: f32[H, W, K] the old table.
+    """
+    h, w, k = table_raw.shape
+    n = h * w
+    idx = jnp.nonzero(dirty.reshape(-1), size=capacity, fill_value=n)[0].astype(jnp.int32)
+    valid = idx < n
+    safe = jnp.minimum(idx, n - 1)
+    cols = lambda a: a.reshape(a.shape[0], -1)[:, safe]  # noqa: E731  [8, H, W] -> [8, C]
+    feasible = cols(graph.feasible) & valid
+    fallback = graph.fallback.reshape(-1)[safe] & valid
+    nb = _flat_neighbours(h, w)[safe].T                                  # [8, C], n = off grid
+    position = jnp.full(n + 1, capacity, jnp.int32).at[idx].set(jnp.arange(capacity, dtype=jnp.int32))
+    nb_pos = position[nb]                                                # capacity = clean or off grid
+    rows = lambda a, fill: jnp.concatenate([a.reshape(n, k), jnp.full((1, k), fill, a.dtype)])  # noqa: E731
+    nb_dirty = nb_pos < capacity
+    clean = lambda a, fill: jnp.where(nb_dirty[:, None], fill, jnp.moveaxis(rows(a, fill)[nb], -1, 1))  # noqa: E731
+    return Buffer(idx, jnp.any(feasible, axis=0) | fallback, graph.obj.reshape(-1)[safe], fallback,
+                  graph.fallback_len.reshape(-1)[safe], feasible, cols(graph.enters_goal) & feasible,
+                  jnp.asarray(graph.step_len), nb_dirty, jnp.minimum(nb_pos, capacity - 1),
+                  clean(table_raw, -jnp.inf), clean(table_len, jnp.inf))
+
+
+def _neighbour_entry(b: Buffer, d: int, r: int, raw, length):
+    """Entry ``r`` of the direction-``d`` neighbour's table: ``(raw, len)`` f32[C] each, from the
+    buffer's ``raw, length`` (planes [C]) when it is dirty, from its old table when not."""
+    pos = b.nb_pos[d]
+    return (jnp.where(b.nb_dirty[d], raw[pos], b.clean_raw[d, r]),
+            jnp.where(b.nb_dirty[d], length[pos], b.clean_len[d, r]))
+
+
+def _step_candidates(b: Buffer, raw, length):
+    """The 8 one-step candidates (then the fallback) of every buffer cell, continuing with the
+    neighbour's entry 0 (``raw, length``: the buffer's current J and L)."""
+    cand_raw, cand_len = [], []
+    for d in range(_grid.N_DIRS):
+        nb_raw, nb_len = _neighbour_entry(b, d, 0, raw, length)
+        via_cell = b.feasible[d] & ~b.into_goal[d]
+        cand_raw.append(jnp.where(via_cell, b.obj + nb_raw, jnp.where(b.into_goal[d], b.obj, -jnp.inf)))
+        cand_len.append(b.step_len[d] + jnp.where(b.into_goal[d], 0.0, nb_len))
+    cand_raw.append(jnp.where(b.fallback, b.obj, -jnp.inf))
+    cand_len.append(b.fallback_len)
+    return cand_raw, cand_len
+
+
+def _along(a, policy):
+    """``a[policy]`` per cell for ``a: [8, C]`` (policy clipped to 0-7)."""
+    return jnp.take_along_axis(a, jnp.clip(policy, 0, 7)[None], axis=0)[0]
+
+
+def _chain(b: Buffer, policy):
+    """Where the policy's step leads: ``(pointer i32[C + 1], ends_clean bool[C])``. The pointer is
+    the next buffer cell, the sink (C) where the path ends (fallback, goal, a clean cell, or none)."""
+    capacity = policy.shape[0]
+    step = b.occupied & (policy >= 0) & (policy < _grid.FALLBACK) & ~_along(b.into_goal, policy)
+    dirty_next = step & _along(b.nb_dirty, policy)
+    pointer = jnp.append(jnp.where(dirty_next, _along(b.nb_pos, policy), capacity), capacity)
+    return pointer.astype(jnp.int32), step & ~dirty_next
+
+
+def _evaluate(b: Buffer, policy):
+    """J and L ``f32[C]`` of following ``policy`` (0-7 step, 8 fallback) from every buffer cell."""
+    pointer, ends_clean = _chain(b, policy)
+    step_len = jnp.where(policy == _grid.FALLBACK, b.fallback_len, b.step_len[jnp.clip(policy, 0, 7)])
+    tail_raw = jnp.where(ends_clean, _along(b.clean_raw[:, 0], policy), 0.0)
+    tail_len = jnp.where(ends_clean, _along(b.clean_len[:, 0], policy), 0.0)
+    raw = jnp.append(jnp.where(b.occupied, b.obj + tail_raw, 0.0), 0.0)
+    length = jnp.append(jnp.where(b.occupied, step_len + tail_len, 0.0), 0.0)
+    raw, length = _grid.sum_to_sink((raw, length), pointer)
+    return jnp.where(b.occupied, raw[:-1], -jnp.inf), jnp.where(b.occupied, length[:-1], jnp.inf)
+
+
+def best_paths(b: Buffer, warm_policy, cell_size, max_iterations: int):
+    """Policy iteration on the buffer: ``(J f32[C], L f32[C], policy i32[C], iterations i32[])``.
+
+    warm_policy: i32[C] a first guess (the old first steps); a step that is no longer allowed is
+    replaced by the best step against the old values.
+    """
+    still_ok = (warm_policy >= 0) & jnp.where(warm_policy == _grid.FALLBACK, b.fallback,
+                                               _along(b.feasible, warm_policy))
+    _, _, guess = _kbest.best_candidate(*_step_candidates(b, *_evaluate(b, jnp.full_like(warm_policy, _grid.FALLBACK))),
+                                        cell_size)
+    start = jnp.where(b.occupied, jnp.where(still_ok, warm_policy, guess), -1)
+
+    def improving(carry):
+        return carry[2] & (carry[1] < max_iterations)
+
+    def improve(carry):
+        policy, it, _ = carry
+        raw, length = _evaluate(b, policy)
+        top_raw, top_len, step = _kbest.best_candidate(*_step_candidates(b, raw, length), cell_size)
+        better = (top_raw > raw) | ((top_raw == raw) & (top_len < length - _kbest.length_tolerance(length, cell_size)))
+        new = jnp.where(b.occupied & better, step, policy)
+        return new, it + 1, jnp.any(new != policy)
+
+    policy, iterations, _ = jax.lax.while_loop(improving, improve, (start, jnp.int32(0), jnp.bool_(True)))
+    raw, length = _evaluate(b, policy)
+    _, _, policy = _kbest.best_candidate(*_step_candidates(b, raw, length), cell_size)   # lowest among ties
+    return raw, length, jnp.where(b.occupied, policy, -1), iterations
+
+
+def _sidetrack_losses(b: Buffer, table_raw, table_len, best_raw, best_len, policy, m: int, tol):
+    """The m best non-tree first steps of every buffer cell, as losses against its own best path:
+    lists of m planes (raw, length, direction). table_*: the buffer's first m entries."""
+    base_raw = jnp.where(b.occupied, best_raw, 0.0)
+    base_len = jnp.where(b.occupied, best_len, 0.0)
+    raw, length = [], []
+    for d in range(_grid.N_DIRS):
+        off_tree = b.feasible[d] & (policy != d)
+        via_cell = off_tree & ~b.into_goal[d]
+        for r in range(m):
+            nb_raw, nb_len = _neighbour_entry(b, d, r, table_raw[r], table_len[r])
+            via_goal = (off_tree & b.into_goal[d]) if r == 0 else False
+            raw.append(jnp.where(via_cell, b.obj + nb_raw, jnp.where(via_goal, b.obj, -jnp.inf)) - base_raw)
+            length.append(b.step_len[d] + (jnp.where(via_goal, 0.0, nb_len) if r == 0 else nb_len) - base_len)
+    loss_raw, loss_len, _, index = _kbest.select_top_k(raw, length, None, m, tol)
+    return loss_raw, loss_len, [jnp.where(r > -jnp.inf, i // m, -1) for r, i in zip(loss_raw, index)]
+
+
+def kbest_rows(b: Buffer, best_raw, best_len, policy, k: int, cell_size):
+    """The K-best rows of the buffer ``(raw, length, first_dir)``, each ``[K, C]``."""
+    pointer, ends_clean = _chain(b, policy)
+    tol = _kbest.length_tolerance(best_len, cell_size)
+    own = jnp.where(b.occupied, policy, -1)
+    table_raw, table_len, table_dir = [best_raw], [best_len], [own]
+    zero = jnp.zeros_like(best_raw)
+    # a clean cell X entered by the policy: its entries 1.. as losses against J(X)
+    x_raw = [jnp.where(ends_clean, _along(b.clean_raw[:, r] - b.clean_raw[:, 0], policy), -jnp.inf)
+             for r in range(1, k)]
+    x_len = [jnp.where(ends_clean, _along(b.clean_len[:, r] - b.clean_len[:, 0], policy), jnp.inf) for r in range(1, k)]
+    as_grid = lambda planes: [p[None] for p in planes]  # noqa: E731  [C] -> [1, C] for _best_along_tree
+    for m in range(1, k):
+        loss_raw, loss_len, loss_dir = _sidetrack_losses(b, table_raw, table_len, best_raw, best_len, policy, m, tol)
+        loss_raw, loss_len, loss_dir, _ = _kbest.select_top_k(
+            [*loss_raw, *x_raw[:m]], [*loss_len, *x_len[:m]], [*loss_dir, *([own] * m)], m, tol)
+        loss_raw, loss_len, loss_dir = _kbest._best_along_tree(
+            as_grid(loss_raw), as_grid(loss_len), as_grid(loss_dir), pointer, own[None], tol[None], m)
+        loss_raw, loss_len, loss_dir, _ = _kbest.select_top_k(
+            [zero, *(p[0] for p in loss_raw)], [zero, *(p[0] for p in loss_len)], [own, *(p[0] for p in loss_dir)],
+            m + 1, tol)
+        table_raw = [jnp.where(b.occupied, best_raw + r, -jnp.inf) for r in loss_raw]
+        table_len = [jnp.where(r > -jnp.inf, best_len + ln, jnp.inf) for r, ln in zip(table_raw, loss_len)]
+        table_dir = [jnp.where(r > -jnp.inf, d, -1) for r, d in zip(table_raw, loss_dir)]
+    return jnp.stack(table_raw), jnp.stack(table_len), jnp.stack(table_dir)
