@@ -65,8 +65,7 @@ from jaxplan.pusharound.wccg import (_BRIDGE_EPS, MOVABLE, WCCG, _cluster_region
 
 __all__ = ["SEARCH_RANKING", "FaceGraph", "ScheduledPush", "face_graph", "SearchConfig", "SearchResult", "SearchStats", "plan_pushes"]
 
-_BUCKETS = (16, 64)
-_SIDE_SAMPLES = (0.5, 0.25, 0.75)   # where along a bridge face_graph looks for the faces it borders   # physics batch sizes (the C engine's policy is jitted once per size and scene)
+_BUCKETS = (16, 64)   # physics batch sizes (the C engine's policy is jitted once per size and scene)
 
 # The search's default ranking: Eq. 8-9 weights as RankingParams(), a smaller presearch (beam 2,
 # depth 2: the same first three gaps as beam 4, depth 3 on nominal seeds 0-3 at about half the time).
@@ -412,7 +411,6 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
     edges = np.nonzero(ok)[0]
     pu, pv = g.bridge_pts[edges, 0], g.bridge_pts[edges, 1]
     mid = 0.5 * (pu + pv)
-    along = [pu + t * (pv - pu) for t in _SIDE_SAMPLES]
     d = pv - pu
     touch = np.linalg.norm(d, axis=1) < 10 * _BRIDGE_EPS * w
     if np.any(touch):   # touching bodies: across the line of their components' centroids
@@ -420,12 +418,7 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
         d[touch] = g.centroids[uv[:, 1]] - g.centroids[uv[:, 0]]
     n = np.stack([-d[:, 1], d[:, 0]], 1) / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
     tau = np.where(touch, 0.05 * w, 3.0 * _BRIDGE_EPS * w)[:, None]
-    # Both sides of the bridge's middle; where a side point lies inside an obstacle (a bridge between
-    # pieces of multi-piece bodies may run through a third piece there), the next point along it.
-    found = locate(np.concatenate([p + s * tau * n for p in along for s in (1, -1)]))
-    found = found.reshape(len(_SIDE_SAMPLES), 2, len(edges))
-    first = np.argmax(found >= -1, axis=0)                      # [2, E] first sample in a face
-    side = np.take_along_axis(found, first[None], axis=0)[0]
+    side = locate(np.concatenate([mid + tau * n, mid - tau * n])).reshape(2, -1)
     goal_face = int(locate(goal[None])[0])
     faces, where, cp = {}, {}, {}
     for k, e in enumerate(edges):
