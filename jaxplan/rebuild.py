@@ -164,10 +164,12 @@ def _full_only(scene, params, changed):
 def default_capacity(shape) -> int:
     """Dirty-buffer size: 1/64 of the grid, at least 256 cells, at most half the grid.
 
-    The compact recursion costs about (dirty cells) x (rounds), the full build about H W log(H W);
+    The compact solver costs about (dirty cells) x (rounds), the full build about H W log(H W);
     measured on the 2-core CPU, the full build was already faster at 329 dirty cells on 65^2 (7.6 vs
     8.6 ms) and at 2,471 on 256^2 (131 vs 392 ms), while 632 dirty cells on 512^2 took 45-97 ms
-    against 280-512 ms. Larger dirty sets therefore take the full build.
+    against 280-512 ms. Larger dirty sets therefore take the full build. Those figures are of the
+    previous solver (one Bellman round per hop); the bound has not been re-measured for the compact
+    policy iteration (``jaxplan._compact``), which needs far fewer rounds.
     """
     h, w = shape
     n = h * w
