@@ -30,10 +30,11 @@ class Buffer(NamedTuple):
     """The dirty cells' inputs, gathered once. C = capacity, K = table entries.
 
     idx: i32[C] flat cell index, H*W for padding. occupied: bool[C]. obj: f32[C] objects.
-    fallback: bool[C]; fallback_len: f32[C] world units. feasible, into_goal: bool[8, C] (into_goal
-    implies feasible). step_len: f32[8] world units. nb_dirty: bool[8, C] the neighbour is in the
-    buffer, at nb_pos: i32[8, C] (clipped to the buffer). clean_raw, clean_len: f32[8, K, C] the old
-    table of a clean neighbour (-inf / +inf where the neighbour is dirty or off the grid).
+    fallback: bool[C]; fallback_len: f32[C] world units. feasible, enters_goal: bool[8, C]
+    (enters_goal implies feasible). step_len: f32[8] world units. nb_dirty: bool[8, C] the neighbour
+    is in the buffer, at nb_pos: i32[8, C] (clipped to the buffer). clean_raw, clean_len: f32[8, K, C]
+    the old table of a clean neighbour (-inf / +inf where the neighbour is dirty or off the grid).
+    Fields a ``visibility.SuccessorGraph`` also has carry its names, so ``jaxplan._kbest`` reads both.
     """
 
     idx: jax.Array
@@ -42,7 +43,7 @@ class Buffer(NamedTuple):
     fallback: jax.Array
     fallback_len: jax.Array
     feasible: jax.Array
-    into_goal: jax.Array
+    enters_goal: jax.Array
     step_len: jax.Array
     nb_dirty: jax.Array
     nb_pos: jax.Array
@@ -82,26 +83,23 @@ def gather(graph, table_raw, table_len, dirty, capacity: int) -> Buffer:
                   clean(table_raw, -jnp.inf), clean(table_len, jnp.inf))
 
 
-def _neighbour_entry(b: Buffer, d: int, r: int, raw, length):
-    """Entry ``r`` of the direction-``d`` neighbour's table: ``(raw, len)`` f32[C] each, from the
-    buffer's ``raw, length`` (planes [C]) when it is dirty, from its old table when not."""
-    pos = b.nb_pos[d]
-    return (jnp.where(b.nb_dirty[d], raw[pos], b.clean_raw[d, r]),
-            jnp.where(b.nb_dirty[d], length[pos], b.clean_len[d, r]))
+def _neighbours(b: Buffer):
+    """``(raw, length) -> neighbour(d, r)``: entry r of each buffer cell's direction-d neighbour, from
+    the buffer's planes ``f32[C]`` when that neighbour is dirty, from its old table when not (the
+    buffer's counterpart of ``_kbest.grid_neighbours``)."""
+    def reader(raw, length):
+        def neighbour(d, r):
+            pos = b.nb_pos[d]
+            return (jnp.where(b.nb_dirty[d], raw[r][pos], b.clean_raw[d, r]),
+                    jnp.where(b.nb_dirty[d], length[r][pos], b.clean_len[d, r]))
+        return neighbour
+    return reader
 
 
-def _step_candidates(b: Buffer, raw, length):
-    """The 8 one-step candidates (then the fallback) of every buffer cell, continuing with the
-    neighbour's entry 0 (``raw, length``: the buffer's current J and L)."""
-    cand_raw, cand_len = [], []
-    for d in range(_grid.N_DIRS):
-        nb_raw, nb_len = _neighbour_entry(b, d, 0, raw, length)
-        via_cell = b.feasible[d] & ~b.into_goal[d]
-        cand_raw.append(jnp.where(via_cell, b.obj + nb_raw, jnp.where(b.into_goal[d], b.obj, -jnp.inf)))
-        cand_len.append(b.step_len[d] + jnp.where(b.into_goal[d], 0.0, nb_len))
-    cand_raw.append(jnp.where(b.fallback, b.obj, -jnp.inf))
-    cand_len.append(b.fallback_len)
-    return cand_raw, cand_len
+def _best_step(b: Buffer, raw, length, cell_size):
+    """The best first step of every buffer cell given the current J and L ``f32[C]``."""
+    return _kbest.best_candidate(*_kbest.step_candidates([raw], [length], b, _neighbours(b)([raw], [length])),
+                                 cell_size)
 
 
 def _along(a, policy):
@@ -113,7 +111,7 @@ def _chain(b: Buffer, policy):
     """Where the policy's step leads: ``(pointer i32[C + 1], ends_clean bool[C])``. The pointer is
     the next buffer cell, the sink (C) where the path ends (fallback, goal, a clean cell, or none)."""
     capacity = policy.shape[0]
-    step = b.occupied & (policy >= 0) & (policy < _grid.FALLBACK) & ~_along(b.into_goal, policy)
+    step = b.occupied & (policy >= 0) & (policy < _grid.FALLBACK) & ~_along(b.enters_goal, policy)
     dirty_next = step & _along(b.nb_dirty, policy)
     pointer = jnp.append(jnp.where(dirty_next, _along(b.nb_pos, policy), capacity), capacity)
     return pointer.astype(jnp.int32), step & ~dirty_next
@@ -135,71 +133,25 @@ def best_paths(b: Buffer, warm_policy, cell_size, max_iterations: int):
     """Policy iteration on the buffer: ``(J f32[C], L f32[C], policy i32[C], iterations i32[])``.
 
     warm_policy: i32[C] a first guess (the old first steps); a step that is no longer allowed is
-    replaced by the best step against the old values.
+    replaced by the best step against the values of falling back everywhere (any valid policy will do).
     """
     still_ok = (warm_policy >= 0) & jnp.where(warm_policy == _grid.FALLBACK, b.fallback,
                                                _along(b.feasible, warm_policy))
-    _, _, guess = _kbest.best_candidate(*_step_candidates(b, *_evaluate(b, jnp.full_like(warm_policy, _grid.FALLBACK))),
-                                        cell_size)
+    _, _, guess = _best_step(b, *_evaluate(b, jnp.full_like(warm_policy, _grid.FALLBACK)), cell_size)
     start = jnp.where(b.occupied, jnp.where(still_ok, warm_policy, guess), -1)
-
-    def improving(carry):
-        return carry[2] & (carry[1] < max_iterations)
-
-    def improve(carry):
-        policy, it, _ = carry
-        raw, length = _evaluate(b, policy)
-        top_raw, top_len, step = _kbest.best_candidate(*_step_candidates(b, raw, length), cell_size)
-        better = (top_raw > raw) | ((top_raw == raw) & (top_len < length - _kbest.length_tolerance(length, cell_size)))
-        new = jnp.where(b.occupied & better, step, policy)
-        return new, it + 1, jnp.any(new != policy)
-
-    policy, iterations, _ = jax.lax.while_loop(improving, improve, (start, jnp.int32(0), jnp.bool_(True)))
-    raw, length = _evaluate(b, policy)
-    _, _, policy = _kbest.best_candidate(*_step_candidates(b, raw, length), cell_size)   # lowest among ties
-    return raw, length, jnp.where(b.occupied, policy, -1), iterations
-
-
-def _sidetrack_losses(b: Buffer, table_raw, table_len, best_raw, best_len, policy, m: int, tol):
-    """The m best non-tree first steps of every buffer cell, as losses against its own best path:
-    lists of m planes (raw, length, direction). table_*: the buffer's first m entries."""
-    base_raw = jnp.where(b.occupied, best_raw, 0.0)
-    base_len = jnp.where(b.occupied, best_len, 0.0)
-    raw, length = [], []
-    for d in range(_grid.N_DIRS):
-        off_tree = b.feasible[d] & (policy != d)
-        via_cell = off_tree & ~b.into_goal[d]
-        for r in range(m):
-            nb_raw, nb_len = _neighbour_entry(b, d, r, table_raw[r], table_len[r])
-            via_goal = (off_tree & b.into_goal[d]) if r == 0 else False
-            raw.append(jnp.where(via_cell, b.obj + nb_raw, jnp.where(via_goal, b.obj, -jnp.inf)) - base_raw)
-            length.append(b.step_len[d] + (jnp.where(via_goal, 0.0, nb_len) if r == 0 else nb_len) - base_len)
-    loss_raw, loss_len, _, index = _kbest.select_top_k(raw, length, None, m, tol)
-    return loss_raw, loss_len, [jnp.where(r > -jnp.inf, i // m, -1) for r, i in zip(loss_raw, index)]
+    return _kbest.improve_policy(start, lambda policy: _evaluate(b, policy),
+                                 lambda raw, length: _best_step(b, raw, length, cell_size), b.occupied, cell_size,
+                                 max_iterations)
 
 
 def kbest_rows(b: Buffer, best_raw, best_len, policy, k: int, cell_size):
-    """The K-best rows of the buffer ``(raw, length, first_dir)``, each ``[K, C]``."""
+    """The K-best rows of the buffer ``(raw, length, first_dir)``, each ``[K, C]``: the full build's
+    levels, with a clean cell X entered by the tree path standing in, by its entries 1.. as losses
+    against J(X), for every exit beyond it."""
     pointer, ends_clean = _chain(b, policy)
-    tol = _kbest.length_tolerance(best_len, cell_size)
-    own = jnp.where(b.occupied, policy, -1)
-    table_raw, table_len, table_dir = [best_raw], [best_len], [own]
-    zero = jnp.zeros_like(best_raw)
-    # a clean cell X entered by the policy: its entries 1.. as losses against J(X)
-    x_raw = [jnp.where(ends_clean, _along(b.clean_raw[:, r] - b.clean_raw[:, 0], policy), -jnp.inf)
-             for r in range(1, k)]
-    x_len = [jnp.where(ends_clean, _along(b.clean_len[:, r] - b.clean_len[:, 0], policy), jnp.inf) for r in range(1, k)]
-    as_grid = lambda planes: [p[None] for p in planes]  # noqa: E731  [C] -> [1, C] for _best_along_tree
-    for m in range(1, k):
-        loss_raw, loss_len, loss_dir = _sidetrack_losses(b, table_raw, table_len, best_raw, best_len, policy, m, tol)
-        loss_raw, loss_len, loss_dir, _ = _kbest.select_top_k(
-            [*loss_raw, *x_raw[:m]], [*loss_len, *x_len[:m]], [*loss_dir, *([own] * m)], m, tol)
-        loss_raw, loss_len, loss_dir = _kbest._best_along_tree(
-            as_grid(loss_raw), as_grid(loss_len), as_grid(loss_dir), pointer, own[None], tol[None], m)
-        loss_raw, loss_len, loss_dir, _ = _kbest.select_top_k(
-            [zero, *(p[0] for p in loss_raw)], [zero, *(p[0] for p in loss_len)], [own, *(p[0] for p in loss_dir)],
-            m + 1, tol)
-        table_raw = [jnp.where(b.occupied, best_raw + r, -jnp.inf) for r in loss_raw]
-        table_len = [jnp.where(r > -jnp.inf, best_len + ln, jnp.inf) for r, ln in zip(table_raw, loss_len)]
-        table_dir = [jnp.where(r > -jnp.inf, d, -1) for r, d in zip(table_raw, loss_dir)]
-    return jnp.stack(table_raw), jnp.stack(table_len), jnp.stack(table_dir)
+    beyond_raw = [jnp.where(ends_clean, _along(b.clean_raw[:, r] - b.clean_raw[:, 0], policy), -jnp.inf)
+                  for r in range(1, k)]
+    beyond_len = [jnp.where(ends_clean, _along(b.clean_len[:, r] - b.clean_len[:, 0], policy), jnp.inf)
+                  for r in range(1, k)]
+    return _kbest.kbest_levels(best_raw, best_len, policy, b, b.occupied, pointer, _neighbours(b), k, cell_size,
+                               downstream=(beyond_raw, beyond_len))

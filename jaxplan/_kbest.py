@@ -72,18 +72,28 @@ def length_tolerance(length, cell_size):
 
 # ------------------------------------------------------------------------------------ policy iteration
 
-def step_candidates(raw, length, g):
+def grid_neighbours(raw, length):
+    """``neighbour(d, r) -> (raw, len)``: entry r of every cell's direction-d neighbour, read from K
+    planes ``f32[H, W]`` of the whole grid by a shift (-inf / +inf off the grid)."""
+    def neighbour(d, r):
+        dr, dc = _grid.DIRS[d]
+        return _grid.shift(raw[r], dr, dc, -jnp.inf), _grid.shift(length[r], dr, dc, jnp.inf)
+    return neighbour
+
+
+def step_candidates(raw, length, g, neighbour=None):
     """Every cell's 8*K + 1 candidate paths as two lists of ``f32[H, W]`` planes: a first step in
     each direction followed by each of the neighbour's K table entries (direction-major, then rank),
     then the fallback. raw, length: the table, K planes ``f32[H, W]`` each (list or ``[K, H, W]``);
-    g: a ``visibility.SuccessorGraph``."""
+    g: a ``visibility.SuccessorGraph`` (or anything with its fields, per cell); neighbour: how a
+    neighbour's entry is read (default ``grid_neighbours(raw, length)``)."""
     raw, length = _grid.planes(raw), _grid.planes(length)
+    neighbour = grid_neighbours(raw, length) if neighbour is None else neighbour
     cand_raw, cand_len = [], []
-    for d, (dr, dc) in enumerate(_grid.DIRS):
+    for d in range(_grid.N_DIRS):
         via_cell = g.feasible[d] & ~g.enters_goal[d]
-        for r, (table_raw, table_len) in enumerate(zip(raw, length)):
-            nb_raw = _grid.shift(table_raw, dr, dc, -jnp.inf)
-            nb_len = _grid.shift(table_len, dr, dc, jnp.inf)
+        for r in range(len(raw)):
+            nb_raw, nb_len = neighbour(d, r)
             via_goal = g.enters_goal[d] if r == 0 else False
             cand_raw.append(jnp.where(via_cell, g.obj + nb_raw, jnp.where(via_goal, g.obj, -jnp.inf)))
             cand_len.append(g.step_len[d] + (jnp.where(via_goal, 0.0, nb_len) if r == 0 else nb_len))
@@ -124,6 +134,30 @@ def _evaluate(policy, g, occupied):
     return raw, jnp.where(occupied, length[:-1].reshape(h, w), jnp.inf)
 
 
+def improve_policy(start, evaluate, best_step, occupied, cell_size, max_iterations: int):
+    """Policy iteration from ``start``: ``(J, L, policy, iterations)``.
+
+    evaluate(policy) -> (raw, length) of following it; best_step(raw, length) -> (top raw, top
+    length, step) against those values (``best_candidate`` of the step candidates). A final pass
+    re-picks the lowest-index step among exact ties, as the wavefront does.
+    """
+    def improving(carry):
+        return carry[2] & (carry[1] < max_iterations)
+
+    def improve(carry):
+        policy, it, _ = carry
+        raw, length = evaluate(policy)
+        top_raw, top_len, step = best_step(raw, length)
+        better = (top_raw > raw) | ((top_raw == raw) & (top_len < length - length_tolerance(length, cell_size)))
+        new = jnp.where(occupied & better, step, policy)
+        return new, it + 1, jnp.any(new != policy)
+
+    policy, iterations, _ = jax.lax.while_loop(improving, improve, (start, jnp.int32(0), jnp.bool_(True)))
+    raw, length = evaluate(policy)
+    _, _, policy = best_step(raw, length)
+    return raw, length, jnp.where(occupied, policy, -1), iterations
+
+
 def best_paths(g, occupied, cell_size, max_iterations: int):
     """Policy iteration: ``(J f32[H,W], L f32[H,W], policy i32[H,W], iterations i32[])``.
 
@@ -131,46 +165,31 @@ def best_paths(g, occupied, cell_size, max_iterations: int):
     """
     empty = jnp.where(occupied, 0.0, -jnp.inf), jnp.where(occupied, 0.0, jnp.inf)
     _, _, start = _best_step(*empty, g, cell_size)   # any successor ends somewhere: a valid policy
-
-    def improving(carry):
-        return carry[2] & (carry[1] < max_iterations)
-
-    def improve(carry):
-        policy, it, _ = carry
-        raw, length = _evaluate(policy, g, occupied)
-        top_raw, top_len, step = _best_step(raw, length, g, cell_size)
-        better = (top_raw > raw) | ((top_raw == raw) & (top_len < length - length_tolerance(length, cell_size)))
-        new = jnp.where(occupied & better, step, policy)
-        return new, it + 1, jnp.any(new != policy)
-
-    policy, iterations, _ = jax.lax.while_loop(improving, improve, (start, jnp.int32(0), jnp.bool_(True)))
-    raw, length = _evaluate(policy, g, occupied)
-    _, _, policy = _best_step(raw, length, g, cell_size)   # lowest direction among exact ties
-    return raw, length, jnp.where(occupied, policy, -1), iterations
+    return improve_policy(start, lambda policy: _evaluate(policy, g, occupied),
+                          lambda raw, length: _best_step(raw, length, g, cell_size), occupied, cell_size,
+                          max_iterations)
 
 
 # ------------------------------------------------------------------------------------ K-best table
 
-def _sidetrack_losses(table_raw, table_len, best_raw, best_len, policy, g, k: int, cell_size):
+def _sidetrack_losses(neighbour, best_raw, best_len, policy, g, k: int, tol):
     """The k best non-tree first steps at every cell, as losses against its own best path.
 
-    table_raw, table_len: k planes ``f32[H, W]``, the neighbours' first k entries (exact at level k).
+    neighbour(d, r): the neighbours' entry r (r < k; exact at level k, as ``grid_neighbours``).
     Returns loss raw / length and first-step direction, lists of k planes.
     """
     raw, length = [], []
     # off the occupied set J = -inf; keep the subtraction finite there (nothing is feasible anyway)
     occupied = best_raw > -jnp.inf
     base_raw, base_len = jnp.where(occupied, best_raw, 0.0), jnp.where(occupied, best_len, 0.0)
-    for d, (dr, dc) in enumerate(_grid.DIRS):
+    for d in range(_grid.N_DIRS):
         off_tree = g.feasible[d] & (policy != d)
         via_cell = off_tree & ~g.enters_goal[d]
         for r in range(k):
-            nb_raw = _grid.shift(table_raw[r], dr, dc, -jnp.inf)
-            nb_len = _grid.shift(table_len[r], dr, dc, jnp.inf)
+            nb_raw, nb_len = neighbour(d, r)
             via_goal = (off_tree & g.enters_goal[d]) if r == 0 else False
             raw.append(jnp.where(via_cell, g.obj + nb_raw, jnp.where(via_goal, g.obj, -jnp.inf)) - base_raw)
             length.append(g.step_len[d] + (jnp.where(via_goal, 0.0, nb_len) if r == 0 else nb_len) - base_len)
-    tol = length_tolerance(best_len, cell_size)
     # candidates are direction-major, so index order is the direction tie-break
     loss_raw, loss_len, _, index = select_top_k(raw, length, None, k, tol)
     return loss_raw, loss_len, [jnp.where(r > -jnp.inf, i // k, -1) for r, i in zip(loss_raw, index)]
@@ -179,12 +198,12 @@ def _sidetrack_losses(table_raw, table_len, best_raw, best_len, policy, g, k: in
 def _best_along_tree(loss_raw, loss_len, loss_dir, pointer, tree_dir, tol, k: int):
     """Top-k losses over each cell's tree path (itself, its successor, ...), by pointer doubling.
 
-    loss_*: k planes ``[H, W]``; pointer: i32[H*W + 1] (sink last); tree_dir: i32[H, W] the first
-    step of P*, which is the first step of any path that leaves the tree further down. Returns lists
-    of k planes ``[H, W]``.
+    loss_*: k planes ``[H, W]`` (any plane shape); pointer: i32[H*W + 1] (sink last); tree_dir:
+    i32[H, W] the first step of P*, which is the first step of any path that leaves the tree further
+    down. Returns lists of k planes ``[H, W]``.
     """
-    h, w = tree_dir.shape
-    sink = h * w
+    shape = tree_dir.shape
+    sink = tree_dir.size
     flat = lambda planes: tuple(p.reshape(-1) for p in planes)  # noqa: E731
     raw, length, direction = flat(loss_raw), flat(loss_len), flat(loss_dir)
     own_dir = [tree_dir.reshape(-1)] * k
@@ -206,27 +225,41 @@ def _best_along_tree(loss_raw, loss_len, loss_dir, pointer, tree_dir, tol, k: in
         return tuple(raw), tuple(length), tuple(direction), jnp.take(pointer, pointer, mode="fill", fill_value=sink)
 
     raw, length, direction, _ = jax.lax.while_loop(unfinished, merge, (raw, length, direction, pointer))
-    unflat = lambda planes: [p.reshape(h, w) for p in planes]  # noqa: E731
+    unflat = lambda planes: [p.reshape(shape) for p in planes]  # noqa: E731
     return unflat(raw), unflat(length), unflat(direction)
 
 
-def kbest_tables(best_raw, best_len, policy, g, occupied, k: int, cell_size):
-    """The exact K-best table ``(raw, length, first_dir)``, each ``[k, H, W]``, from P*.
+def kbest_levels(best_raw, best_len, policy, g, occupied, pointer, neighbours, k: int, cell_size,
+                 downstream=None):
+    """The exact K-best ``(raw, length, first_dir)``, each ``[k, ...]``, from P* (module docstring).
 
     Level m makes entries 0..m exact: the r-th best path has at most r sidetracks, and its sidetrack
     continues with one of the neighbour's r best paths, so level m needs only the neighbours' first m
     entries and keeps m losses per cell. That makes level m cost O(m^2) per cell, not O(K^2).
+    pointer: i32[N + 1] each cell's tree successor (sink last); neighbours(raw, length) -> a
+    ``neighbour(d, r)`` reader of the current table (``grid_neighbours``); downstream: optional k - 1
+    planes of raw and of length losses beyond the pointer's chain (entered after P*'s first step).
     """
-    pointer = _policy_pointer(policy, g, occupied)
     tol = length_tolerance(best_len, cell_size)
     table_raw, table_len, table_dir = [best_raw], [best_len], [jnp.where(occupied, policy, -1)]
     zero = jnp.zeros(policy.shape)
     for m in range(1, k):
-        losses = _sidetrack_losses(table_raw, table_len, best_raw, best_len, policy, g, m, cell_size)
-        loss_raw, loss_len, loss_dir = _best_along_tree(*losses, pointer, policy, tol, m)
+        loss_raw, loss_len, loss_dir = _sidetrack_losses(neighbours(table_raw, table_len), best_raw, best_len,
+                                                         policy, g, m, tol)
+        if downstream is not None:
+            beyond_raw, beyond_len = downstream[0][:m], downstream[1][:m]
+            loss_raw, loss_len, loss_dir, _ = select_top_k([*loss_raw, *beyond_raw], [*loss_len, *beyond_len],
+                                                           [*loss_dir, *([policy] * m)], m, tol)
+        loss_raw, loss_len, loss_dir = _best_along_tree(loss_raw, loss_len, loss_dir, pointer, policy, tol, m)
         loss_raw, loss_len, loss_dir, _ = select_top_k(
             [zero, *loss_raw], [zero, *loss_len], [policy, *loss_dir], m + 1, tol)
         table_raw = [jnp.where(occupied, best_raw + r, -jnp.inf) for r in loss_raw]
         table_len = [jnp.where(r > -jnp.inf, best_len + ln, jnp.inf) for r, ln in zip(table_raw, loss_len)]
         table_dir = [jnp.where(r > -jnp.inf, d, -1) for r, d in zip(table_raw, loss_dir)]
     return jnp.stack(table_raw), jnp.stack(table_len), jnp.stack(table_dir)
+
+
+def kbest_tables(best_raw, best_len, policy, g, occupied, k: int, cell_size):
+    """The exact K-best table ``(raw, length, first_dir)``, each ``[k, H, W]``, from P*."""
+    return kbest_levels(best_raw, best_len, policy, g, occupied, _policy_pointer(policy, g, occupied),
+                        grid_neighbours, k, cell_size)

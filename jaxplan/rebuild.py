@@ -90,7 +90,7 @@ def _compact_dp(graph: visibility.SuccessorGraph, table: Table, dirty, capacity:
     best_raw, best_len, policy, rounds = _compact.best_paths(b, warm, cell_size, max_rounds)
     raw, length, direction = _compact.kbest_rows(b, best_raw, best_len, policy, k, cell_size)
     used = raw > -jnp.inf
-    entered_goal = jnp.take_along_axis(b.into_goal, jnp.clip(direction, 0, 7), axis=0)
+    entered_goal = jnp.take_along_axis(b.enters_goal, jnp.clip(direction, 0, 7), axis=0)
     steps = used & (direction >= 0) & (direction < _grid.FALLBACK)
     next_dir = jnp.where(used, direction, -1)
     next_rank = jnp.where(steps & ~entered_goal, ranks_from_directions(direction[..., None])[..., 0], -1)
