@@ -11,7 +11,7 @@ rounded to ``execute.QUANTUM``):
   with the curvature spill model (lam 0.05). On the grid after the push, in the same run and in
   alternating order, ``--repeats`` timed calls each of the **full build** (``build_fabric``) and the
   **selective update** (``rebuild.selective_rebuild`` from the previous fabric; the affected sets,
-  compact recursion and global heat/highways refresh). Each call ends with ``block_until_ready``.
+  compact recursion and the psi/heat/highways refresh). Each call ends with ``block_until_ready``.
   The paired speedup of a tick is full / selective (medians of the repeats); the instance's value is
   the median over ticks. A check that the two fabrics agree is recorded per tick.
 - host memory (RSS from /proc) before and after each first timed call: the per-operation delta.
@@ -308,9 +308,11 @@ def markdown(result) -> str:
                   if e["mem_delta_mb"]["mean"] is not None) + " (paper: mean 1.48, range [-7.4, 14.7]).", "",
               "Targets: " + "; ".join(f"{c['target']}: {c['measured']} -> {'met' if c['met'] else 'NOT met'}"
                                       for c in result["targets"]), "",
-              "Selective update = affected sets + compact warm-started K-best recursion over the upstream "
-              "closure of the changed cells + one global refresh of first hops, psi, heatmap and highways "
-              "(docs/conventions.md). Connectors are not part of either column (timed separately below).", ""]
+              "Selective update = the upstream closure of the changed cells, listed breadth-first + their "
+              "tables by the compact warm-started policy iteration and sidetracks + psi and heatmap "
+              "refreshed along their old and new paths (grids from 128^2; the whole grid below) and the "
+              "highways (docs/conventions.md). Connectors are not part of either column (timed separately "
+              "below).", ""]
     if result.get("connectors"):
         lines.append("Connector planning (plan_connectors, all roots, up to 32 anchors), ms: " + "; ".join(
             f"{c['n']}^2 {c['ms']:.1f}" for c in result["connectors"]))

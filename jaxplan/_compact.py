@@ -51,35 +51,23 @@ class Buffer(NamedTuple):
     clean_len: jax.Array
 
 
-def _flat_neighbours(h: int, w: int):
-    """``i32[H*W, 8]`` flat index of each neighbour, ``H*W`` (the sink row) off the grid."""
-    rc = _grid.neighbour_index(jnp.broadcast_to(jnp.arange(_grid.N_DIRS), (h, w, _grid.N_DIRS)))
-    inside = jnp.moveaxis(jnp.asarray(_grid.in_grid((h, w))), 0, -1)
-    return jnp.where(inside, rc[..., 0] * w + rc[..., 1], h * w).reshape(h * w, _grid.N_DIRS).astype(jnp.int32)
+def gather(g, cells, table_raw, table_len) -> Buffer:
+    """The ``Buffer`` of the dirty cells ``cells: i32[C]`` (flat indices, ``H*W`` for padding).
 
-
-def gather(graph, table_raw, table_len, dirty, capacity: int) -> Buffer:
-    """The ``Buffer`` of the (at most ``capacity``) ``dirty: bool[H, W]`` cells.
-
-    graph: the new ``visibility.SuccessorGraph``; table_raw, table_len: f32[H, W, K] the old table.
+    g: their rows of the new successor graph (``visibility.successor_lanes`` or ``graph_at``, fields
+    ``[C]`` / ``[8, C]``); table_raw, table_len: f32[H, W, K] the old table.
     """
     h, w, k = table_raw.shape
     n = h * w
-    idx = jnp.nonzero(dirty.reshape(-1), size=capacity, fill_value=n)[0].astype(jnp.int32)
-    valid = idx < n
-    safe = jnp.minimum(idx, n - 1)
-    cols = lambda a: a.reshape(a.shape[0], -1)[:, safe]  # noqa: E731  [8, H, W] -> [8, C]
-    feasible = cols(graph.feasible) & valid
-    fallback = graph.fallback.reshape(-1)[safe] & valid
-    nb = _flat_neighbours(h, w)[safe].T                                  # [8, C], n = off grid
-    position = jnp.full(n + 1, capacity, jnp.int32).at[idx].set(jnp.arange(capacity, dtype=jnp.int32))
+    capacity = cells.shape[0]
+    nb = _grid.lane_neighbours(cells, (h, w))                            # [8, C], n = off grid
+    position = _grid.positions(cells, n, capacity)
     nb_pos = position[nb]                                                # capacity = clean or off grid
-    rows = lambda a, fill: jnp.concatenate([a.reshape(n, k), jnp.full((1, k), fill, a.dtype)])  # noqa: E731
     nb_dirty = nb_pos < capacity
-    clean = lambda a, fill: jnp.where(nb_dirty[:, None], fill, jnp.moveaxis(rows(a, fill)[nb], -1, 1))  # noqa: E731
-    return Buffer(idx, jnp.any(feasible, axis=0) | fallback, graph.obj.reshape(-1)[safe], fallback,
-                  graph.fallback_len.reshape(-1)[safe], feasible, cols(graph.enters_goal) & feasible,
-                  jnp.asarray(graph.step_len), nb_dirty, jnp.minimum(nb_pos, capacity - 1),
+    clean = lambda a, fill: jnp.where(nb_dirty[:, None], fill,            # noqa: E731
+                                      jnp.moveaxis(_grid.take_cells(a, nb, fill), -1, 1))
+    return Buffer(cells, jnp.any(g.feasible, axis=0) | g.fallback, g.obj, g.fallback, g.fallback_len, g.feasible,
+                  g.enters_goal, jnp.asarray(g.step_len), nb_dirty, jnp.minimum(nb_pos, capacity - 1),
                   clean(table_raw, -jnp.inf), clean(table_len, jnp.inf))
 
 

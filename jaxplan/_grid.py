@@ -128,6 +128,56 @@ def neighbour_index(direction):
     return jnp.stack([rows + step[..., 0], cols + step[..., 1]], -1).astype(jnp.int32)
 
 
+def lane_neighbours(cells, shape):
+    """``i32[8, C]`` flat index of each listed cell's neighbour in every direction; ``H*W`` off the
+    grid and for padding cells (``cells: i32[C]`` flat indices, ``H*W`` for padding)."""
+    h, w = shape
+    rows, cols = cells // w, cells % w
+    step = jnp.asarray(DIRS_ARRAY)
+    nr, nc = rows[None] + step[:, 0:1], cols[None] + step[:, 1:2]
+    inside = (cells[None] < h * w) & (nr >= 0) & (nr < h) & (nc >= 0) & (nc < w)
+    return jnp.where(inside, nr * w + nc, h * w).astype(jnp.int32)
+
+
+def positions(cells, n: int, missing: int):
+    """``i32[n + 1]``: where each flat cell index sits in the list ``cells: i32[C]`` (``n`` marks
+    padding), ``missing`` for cells not listed and for the padding index ``n`` itself."""
+    listed = jnp.where(cells < n, cells, n + 1)           # padding would overwrite index n: drop it
+    return jnp.full(n + 1, missing, jnp.int32).at[listed].set(jnp.arange(cells.shape[0], dtype=jnp.int32),
+                                                              mode="drop")
+
+
+def take_cells(a, cells, fill):
+    """``a``'s entries at flat cell indices (``a: [H, W, ...]``, ``cells: i32[...]``), ``fill`` for
+    the index ``H*W`` (padding, off the grid): ``[*cells.shape, ...]``."""
+    h, w = a.shape[:2]
+    return jnp.take(a.reshape((h * w,) + a.shape[2:]), cells, axis=0, mode="fill", fill_value=fill)
+
+
+def true_indices(mask, size: int):
+    """``i32[size]``: the indices of the first ``size`` true entries of ``mask: bool[N]``, in order,
+    ``N`` where there are fewer (``jnp.nonzero(mask, size=size, fill_value=N)``).
+
+    For sparse masks of large grids: ``jnp.nonzero`` runs a prefix sum over all N entries, which
+    XLA's CPU backend makes slow (about 1 ms at N = 65,536, measured); here the prefix sum runs
+    over N / 32 bit-packed words, and each output finds its word by binary search and its bit
+    by counting set bits below it.
+    """
+    n = mask.shape[0]
+    bits = jnp.arange(32, dtype=jnp.uint32)
+    words = jnp.sum(jnp.pad(mask, (0, (-n) % 32)).reshape(-1, 32).astype(jnp.uint32) << bits, axis=1,
+                    dtype=jnp.uint32)
+    count = jax.lax.population_count(words).astype(jnp.int32)
+    ends = jnp.cumsum(count)                                         # true entries up to each word's end
+    rank = jnp.arange(size, dtype=jnp.int32)
+    word = jnp.minimum(jnp.searchsorted(ends, rank, side="right"), words.shape[0] - 1)
+    within = rank - (ends[word] - count[word])                       # rank among the word's set bits
+    w = words[word][:, None]
+    below = jax.lax.population_count(w & ((jnp.uint32(1) << bits) - 1)).astype(jnp.int32)
+    bit = jnp.argmax((((w >> bits) & 1) == 1) & (below == within[:, None]), axis=1).astype(jnp.int32)
+    return jnp.where(rank < ends[-1], word.astype(jnp.int32) * 32 + bit, n)
+
+
 def tree_pointer(direction, stops):
     """``i32[H*W + 1]`` flat index of each cell's successor; ``H*W`` (a sink) where ``stops``.
 

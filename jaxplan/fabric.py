@@ -161,14 +161,33 @@ def first_hops(table: Table, tvec, cell_size, entry=None):
     hop_len f32[H,W])``. A fallback cell's hop is the in-grid neighbour best aligned with t(C)
     (conventions).
     """
-    d0 = _entry_of(table.next_dir, entry)
-    hop_dir = jnp.where(d0 == _grid.FALLBACK, visibility.fallback_direction(tvec), d0)
+    h, w = tvec.shape[:2]
+    rows, cols = jnp.meshgrid(jnp.arange(h, dtype=jnp.int32), jnp.arange(w, dtype=jnp.int32), indexing="ij")
+    return hops_from_steps(_entry_of(table.next_dir, entry), visibility.fallback_direction(tvec), rows, cols,
+                           cell_size)
+
+
+def hops_from_steps(step, fallback_dir, rows, cols, cell_size):
+    """``(first_hop i32[..., 2], heading f32[..., 2], hop_len f32[...])`` of cells at ``rows, cols``
+    whose selected path starts with ``step`` (0-7, ``FALLBACK``, -1 none); ``fallback_dir``: their
+    ``visibility.fallback_direction``. Elementwise, for the grid or a list of cells."""
+    hop_dir = jnp.where(step == _grid.FALLBACK, fallback_dir, step)
     defined = hop_dir >= 0
     safe = jnp.where(defined, hop_dir, 0)
-    hop = jnp.where(defined[..., None], _grid.neighbour_index(safe), -1)
+    offset = jnp.asarray(_grid.DIRS_ARRAY)[safe]
+    hop = jnp.where(defined[..., None], jnp.stack([rows + offset[..., 0], cols + offset[..., 1]], -1), -1)
     heading = jnp.where(defined[..., None], jnp.asarray(_grid.STEP_UNIT)[safe], 0.0)
     hop_len = jnp.where(defined, jnp.asarray(_grid.STEP_CELLS)[safe] * cell_size, 0.0)
-    return hop, heading, hop_len
+    return hop.astype(jnp.int32), heading, hop_len
+
+
+def hop_lengths(first_hop, cell_size):
+    """``f32[H, W]`` world length of each cell's first hop (0 where undefined), from ``first_hop``."""
+    h, w = first_hop.shape[:2]
+    rows, cols = jnp.meshgrid(jnp.arange(h, dtype=jnp.int32), jnp.arange(w, dtype=jnp.int32), indexing="ij")
+    diagonal = (first_hop[..., 0] != rows) & (first_hop[..., 1] != cols)
+    cells = jnp.where(diagonal, _grid.STEP_CELLS[0], _grid.STEP_CELLS[1])
+    return jnp.where(first_hop[..., 0] >= 0, cells * cell_size, 0.0)
 
 
 def _entry_of(a, entry):
@@ -186,26 +205,46 @@ def derive(scene, params: FabricParams, table: Table, feasible, rounds, converge
     i32[H, W] the selected entry of each source (default 0, Eq. 5; ``selection.reselect`` passes
     the Eq. 6 choice): first hops, headings, fallbacks and psi follow it.
     """
+    return with_flow(scene, params, *own_fields(scene, table, feasible, rounds, converged, entry), entry is not None)
+
+
+def own_fields(scene, table: Table, feasible, rounds, converged, entry=None):
+    """``(fabric, hop_len)``: the fields of each cell that follow from its own table row alone
+    (value, length, first hop, heading, fallback, occupied, feasible, selected); psi, heat and
+    highways are None (``with_flow`` adds them). hop_len: f32[H, W] world units. Arguments as in
+    ``derive``."""
     obj = jnp.asarray(scene.obj, jnp.float32)
-    target = jnp.asarray(scene.target_mask, bool)
-    occupied = ~target & (obj > 0)
+    occupied = ~jnp.asarray(scene.target_mask, bool) & (obj > 0)
     hop, heading, hop_len = first_hops(table, scene.tvec, scene.cell_size, entry)
     value = jnp.where(occupied, table.raw[..., 0], 0.0)
     length = jnp.where(occupied, table.length[..., 0], 0.0)
-    max_hops = params.resolved_max_hops(obj.shape)
-    if entry is None:
+    selected = jnp.zeros(obj.shape, jnp.int32) if entry is None else jnp.where(occupied, entry, 0).astype(jnp.int32)
+    return Fabric(value, length, hop, heading, _entry_of(table.next_dir, entry) == _grid.FALLBACK, occupied,
+                  jnp.moveaxis(feasible, 0, -1), table, None, None, None, rounds, converged, selected), hop_len
+
+
+def with_flow(scene, params: FabricParams, fabric: Fabric, hop_len, reselected: bool = False) -> Fabric:
+    """``fabric`` with psi, heat and highways computed from its per-cell fields (the quantities that
+    depend on other cells' paths). hop_len: f32[H, W] world length of each first hop; reselected
+    (static): psi follows ``fabric.selected`` (Eq. 6) rather than entry 0."""
+    target = jnp.asarray(scene.target_mask, bool)
+    table, occupied = fabric.table, fabric.occupied
+    max_hops = params.resolved_max_hops(occupied.shape)
+    if reselected:
+        psi = heatmap.propagated_mass_of_entries(table, fabric.selected, occupied, max_hops)
+    else:
         first = table.next_dir[..., 0]
         path_next = jnp.where((first >= 0) & (first < _grid.FALLBACK), first, -1)
-        psi = heatmap.propagated_mass(value, occupied, path_next, max_hops)
-        entry = jnp.zeros(obj.shape, jnp.int32)
-    else:
-        entry = jnp.where(occupied, entry, 0).astype(jnp.int32)
-        psi = heatmap.propagated_mass_of_entries(table, entry, occupied, max_hops)
-    heat = heatmap.heat(psi, occupied, heading, hop_len, target, scene.cell_size)
-    highways = heatmap.highways(heat, target, params.tau_h, relative=params.highway_relative,
-                                smoothing=params.highway_smoothing, nms=params.highway_nms)
-    return Fabric(value, length, hop, heading, _entry_of(table.next_dir, entry) == _grid.FALLBACK, occupied,
-                  jnp.moveaxis(feasible, 0, -1), table, psi, heat, highways, rounds, converged, entry)
+        psi = heatmap.propagated_mass(fabric.value, occupied, path_next, max_hops)
+    heat = heatmap.heat(psi, occupied, fabric.heading, hop_len, target, scene.cell_size)
+    return fabric._replace(psi=psi, heat=heat, highways=highways_of(scene, params, heat))
+
+
+def highways_of(scene, params: FabricParams, heat):
+    """``bool[H, W]`` highways (Eq. 11) of a heatmap ``f32[H, W]`` with ``params``' settings."""
+    return heatmap.highways(heat, jnp.asarray(scene.target_mask, bool), params.tau_h,
+                            relative=params.highway_relative, smoothing=params.highway_smoothing,
+                            nms=params.highway_nms)
 
 
 def full_table(scene, params: FabricParams):

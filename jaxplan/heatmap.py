@@ -45,6 +45,63 @@ def propagated_mass_of_entries(table, entry, occupied, max_hops: int):
     return jnp.max(_push_max_down(mass, pointer, max_hops)[:-1].reshape(h, w, k), axis=-1)
 
 
+def repropagated_mass(psi, value, old_pointer, new_pointer, changed, cells, size: int, max_hops: int):
+    """psi after the selected paths of some cells changed, recomputed only where it can change.
+
+    psi: f32[H, W] before; value: f32[H, W] J after (0 off the occupied set); old_pointer,
+    new_pointer: i32[H*W] each cell's next cell on its selected path before and after (``H*W`` where
+    the path ends), equal outside ``changed``; changed: bool[H, W], the cells whose path or value
+    changed, listed in ``cells: i32[C]`` (``H*W`` padding). Returns ``(psi f32[H, W], touched
+    i32[C + size], count i32[])``: the cells recomputed (``H*W`` padding) and how many; count >
+    C + size means ``size`` was too small and psi is not valid.
+
+    psi changes only on the old and new paths of the changed cells: the changed cells themselves and
+    the unchanged cells downstream of them, found by walking the (shared) pointers until the walks
+    merge. On that set S the max-propagation runs again by pointer doubling, each cell of S starting
+    from its own J and from the old psi of its predecessors outside S (their subtrees did not change).
+    """
+    h, w = psi.shape
+    n = h * w
+    lanes = cells.shape[0]
+    start = jnp.concatenate([jnp.take(old_pointer, cells, mode="fill", fill_value=n),
+                             jnp.take(new_pointer, cells, mode="fill", fill_value=n)])
+    walker = jnp.arange(start.shape[0], dtype=jnp.int32)
+
+    def walking(carry):
+        pos, _, count, _, _, _ = carry
+        return jnp.any(pos < n) & (count <= size)
+
+    def step(carry):
+        pos, walked, count, in_s, owner, it = carry
+        fresh = (pos < n) & ~in_s[pos]
+        # walks reaching one cell together continue as one: the highest id wins
+        ids = it * walker.shape[0] + walker
+        owner = owner.at[jnp.where(fresh, pos, n)].max(ids)
+        won = fresh & (owner[pos] == ids)
+        slot = count + jnp.cumsum(won, dtype=jnp.int32) - 1
+        walked = walked.at[jnp.where(won, slot, size)].set(pos, mode="drop")
+        in_s = in_s.at[jnp.where(won, pos, n)].set(True)
+        nxt = jnp.where(won, jnp.take(new_pointer, pos, mode="fill", fill_value=n), n)
+        return nxt, walked, count + jnp.sum(won, dtype=jnp.int32), in_s, owner, it + 1
+
+    carry = (start, jnp.full(size, n, jnp.int32), jnp.int32(0), jnp.append(changed.reshape(-1), True),
+             jnp.full(n + 1, -1, jnp.int32), jnp.int32(0))
+    _, walked, count, _, _, _ = jax.lax.while_loop(walking, step, carry)
+    touched = jnp.concatenate([cells, walked])
+    total = touched.shape[0]
+    position = _grid.positions(touched, n, total)
+    inside = position < total
+    pointer = position[jnp.take(new_pointer, touched, mode="fill", fill_value=n)]
+    # a predecessor outside S keeps its subtree, hence its old psi
+    pred = _grid.lane_neighbours(touched, (h, w))
+    feeds = (jnp.take(new_pointer, pred, mode="fill", fill_value=n) == touched[None]) & ~inside[pred]
+    inflow = jnp.max(jnp.where(feeds, _grid.take_cells(psi, pred, 0.0), 0.0), axis=0)
+    mass = jnp.maximum(_grid.take_cells(value, touched, 0.0), inflow)
+    new = _push_max_down(jnp.append(mass, 0.0), jnp.append(pointer, total).astype(jnp.int32), max_hops)[:-1]
+    psi = psi.reshape(-1).at[touched].set(new, mode="drop").reshape(h, w)
+    return psi, touched, lanes + count
+
+
 def _push_max_down(mass, pointer, max_hops: int):
     """Every node's max over the masses of the nodes upstream of it (itself included) in the forest
     ``pointer`` (i32[N + 1], the sink last and pointing to itself), by pointer doubling: after level
@@ -74,19 +131,38 @@ def heat(psi, occupied, heading, hop_len, target, cell_size):
     The near-field gate |x - c| <= |c1 - c| <= s*sqrt(2) means only the 8 neighbours of X can
     contribute, so each X looks back along the 8 directions at the source C = X - step.
     """
-    eps = _grid.GATE_EPS * cell_size
-    hx, hy = heading[..., 0], heading[..., 1]
-    source_ok = occupied & (hop_len > 0)
     best = jnp.zeros_like(psi)
     # per direction: score every source C for the neighbour X = C + step, then shift the plane onto X
     # (one scalar plane per direction instead of gathering [8, H, W, 2] headings)
-    for (dr, dc), (ux, uy), cells in zip(_grid.DIRS, _grid.STEP_UNIT, _grid.STEP_CELLS):
-        step = float(cells) * cell_size                                     # |x - c|
-        align = hx * float(ux) + hy * float(uy)                             # v(C) . unit(x - c)
-        gate = source_ok & (step <= hop_len + eps) & (align * step > eps)   # forward-facing
-        score = jnp.where(gate, align * psi, 0.0)
+    for d, (dr, dc) in enumerate(_grid.DIRS):
+        score = _look_back(d, psi, occupied, heading, hop_len, cell_size)
         best = jnp.maximum(best, _grid.shift(score, -dr, -dc, 0.0))
     return jnp.where(target, 0.0, best)
+
+
+def heat_at(cells, psi, occupied, heading, hop_len, target, cell_size):
+    """``heat`` at a list of cells (``cells: i32[C]`` flat, ``H*W`` for padding): ``f32[C]``, the
+    same values, each reading only its 8 neighbours."""
+    h, w = psi.shape
+    # DIRS is symmetric: the source stepping by DIRS[d] onto X is X's neighbour 7 - d
+    source = _grid.lane_neighbours(cells, (h, w))[::-1]
+    best = jnp.zeros(cells.shape, psi.dtype)
+    for d in range(_grid.N_DIRS):
+        at = lambda a, fill: _grid.take_cells(a, source[d], fill)  # noqa: E731, B023
+        score = _look_back(d, at(psi, 0.0), at(occupied, False), at(heading, 0.0), at(hop_len, 0.0), cell_size)
+        best = jnp.maximum(best, score)
+    return jnp.where(_grid.take_cells(target, cells, True), 0.0, best)
+
+
+def _look_back(d: int, psi, occupied, heading, hop_len, cell_size):
+    """What a source C (fields elementwise) gives the neighbour it steps onto by ``DIRS[d]``:
+    align * psi(C) when that neighbour is within its first hop and ahead of it (Eq. 10), else 0."""
+    eps = _grid.GATE_EPS * cell_size
+    ux, uy = (float(u) for u in _grid.STEP_UNIT[d])
+    step = float(_grid.STEP_CELLS[d]) * cell_size                       # |x - c|
+    align = heading[..., 0] * ux + heading[..., 1] * uy                 # v(C) . unit(x - c)
+    gate = occupied & (hop_len > 0) & (step <= hop_len + eps) & (align * step > eps)   # forward-facing
+    return jnp.where(gate, align * psi, 0.0)
 
 
 def _smooth(h):

@@ -6,13 +6,16 @@ occupied, and on its successors' tables. So the tables that can change are exact
 cells that can *reach* ``A_exec`` through a successor step of the old or the new graph: the upstream
 closure of ``A_exec`` (``Affected.dirty``). The rebuild
 
-1. computes ``dirty`` by dilating ``A_exec`` backwards along successor steps until it stops growing;
+1. lists the dirty cells breadth-first from ``A_exec`` against the successor steps (the old graph's,
+   plus the new steps into each listed cell, tested on the spot), in work proportional to the set;
 2. gathers the dirty cells into a compact buffer of static ``capacity`` and solves for their
    tables there, reading the unchanged tables of all other cells (``jaxplan._compact``: policy
    iteration warm-started from the old first steps, then the sidetrack levels, as in the full
-   build; the result equals the from-scratch table, ties included);
-3. recomputes the global quantities once (first hops, psi, heatmap, highways, occupied set),
-   as Algorithm 5 does.
+   build; the result equals the from-scratch table, ties included), and rewrites the dirty cells'
+   own fields (first hop, heading, fallback, successors; no other cell's can change);
+3. refreshes psi, the heatmap and the highways, as Algorithm 5 does: for the whole grid, or
+   (``local_flow``, the default from 128^2) only where they can change: psi along the dirty
+   cells' old and new paths, the heatmap around them; the highways' threshold is global.
 
 When the dirty set does not fit in ``capacity`` (or without the monotone rule, where the graph may
 have cycles) the rebuild falls back to the full build; ``Affected.full`` says so. The buffer size is
@@ -29,9 +32,10 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan import _compact, _grid, connectors, visibility
+from jaxplan import _compact, _grid, connectors, heatmap, visibility
 from jaxplan.connectors import Connectors
-from jaxplan.fabric import Fabric, Table, _build, _traced, derive, full_table, ranks_from_directions
+from jaxplan.fabric import (Fabric, Table, _build, _table, _traced, full_table, highways_of, hop_lengths,
+                            hops_from_steps, own_fields, ranks_from_directions, with_flow)
 from jaxplan.params import FabricParams
 
 
@@ -75,73 +79,226 @@ def upstream_closure(seed, feasible_old, feasible_new):
     return mask
 
 
-def _compact_dp(graph: visibility.SuccessorGraph, table: Table, dirty, capacity: int, cell_size,
-                max_rounds: int):
-    """Recompute the table rows of the ``dirty`` cells (at most ``capacity``): ``(table, rounds)``.
+def _upstream_queue(changed, old_feasible, occupied, goal, dist, tvec, cos_t, monotone: bool, cell_size,
+                    capacity: int, window: int = 64):
+    """The upstream closure of ``changed`` as a list: ``(cells i32[capacity], count i32[], dirty
+    bool[H, W])``, breadth-first from the changed cells, ``window`` queued cells at a time.
 
-    ``jaxplan._compact``: policy iteration and sidetracks on a compact buffer of the dirty cells,
-    reading the unchanged tables of the others, warm-started from the old first steps; a round
-    (policy iteration) costs O(capacity log(path length)), not O(H W). rounds: policy iterations.
+    Edges between unchanged cells are the same in the old and the new graph, and edges out of a
+    changed cell do not matter (it is in the set already), so the old graph (old_feasible:
+    bool[H, W, 8]) and the new steps *into* each queued cell, tested on the spot, are all it needs:
+    work in proportion to the closure, not to the grid. count > capacity: the closure overflowed
+    (cells and dirty are then partial, and the caller runs the full build).
+    """
+    h, w = changed.shape
+    n = h * w
+    flat = changed.reshape(-1)
+    old_edges = old_feasible.reshape(n, _grid.N_DIRS)
+    into = jnp.arange(_grid.N_DIRS)[None]                             # a predecessor's step onto the cell
+    seeds = _grid.true_indices(flat, capacity + window)
+    lane = jnp.arange(window * _grid.N_DIRS, dtype=jnp.int32).reshape(window, _grid.N_DIRS)
+
+    def more(carry):
+        _, count, start, _, _, _ = carry
+        return (start < count) & (count <= capacity)
+
+    def visit(carry):
+        cells, count, start, in_set, owner, it = carry
+        head = jax.lax.dynamic_slice(cells, (start,), (window,))
+        head = jnp.where(start + jnp.arange(window) < count, head, n)
+        # DIRS is symmetric: the predecessor stepping by DIRS[d] onto a cell is its neighbour 7 - d
+        pred = _grid.lane_neighbours(head, (h, w))[::-1].T               # [window, 8]
+        new_edge = visibility.step_feasible(
+            _grid.take_cells(occupied, pred, False), _grid.take_cells(occupied | goal, head, False)[:, None],
+            jnp.stack([visibility.step_alignment(_grid.take_cells(tvec, pred[:, d], 0.0), d)
+                       for d in range(_grid.N_DIRS)], -1),
+            _grid.take_cells(dist, pred, 0.0), _grid.take_cells(dist, head, jnp.inf)[:, None], cos_t, monotone,
+            cell_size)
+        old_edge = old_edges.at[pred, into].get(mode="fill", fill_value=False)
+        fresh = (pred < n) & (old_edge | new_edge) & ~in_set[pred]
+        # one queue slot per new cell: of the lanes that found it, the highest id this visit wins
+        ids = it * lane.size + lane
+        owner = owner.at[jnp.where(fresh, pred, n)].max(ids)
+        won = (fresh & (owner[pred] == ids)).reshape(-1)
+        slot = count + jnp.cumsum(won, dtype=jnp.int32) - 1
+        cells = cells.at[jnp.where(won, slot, cells.shape[0])].set(pred.reshape(-1), mode="drop")
+        in_set = in_set.at[jnp.where(won, pred.reshape(-1), n)].set(True)
+        # the head was the queue up to the old count; what this visit appended comes next
+        return cells, count + jnp.sum(won, dtype=jnp.int32), jnp.minimum(start + window, count), in_set, owner, it + 1
+
+    start = (seeds, jnp.sum(flat, dtype=jnp.int32), jnp.int32(0), jnp.append(flat, True),
+             jnp.full(n + 1, -1, jnp.int32), jnp.int32(0))
+    cells, count, _, in_set, _, _ = jax.lax.while_loop(more, visit, start)
+    return jnp.where(jnp.arange(capacity) < count, cells[:capacity], n), count, in_set[:-1].reshape(h, w)
+
+
+def _compact_dp(g: visibility.SuccessorGraph, table: Table, cells, cell_size, max_rounds: int):
+    """Recompute the table rows of the cells ``cells: i32[C]`` (flat, ``H*W`` padding): ``(table, rounds)``.
+
+    g: their rows of the new successor graph (``visibility.successor_lanes``). ``jaxplan._compact``:
+    policy iteration and sidetracks on a compact buffer of these cells, reading the unchanged tables
+    of the others, warm-started from the old first steps; a round (policy iteration) costs
+    O(C log(path length)), not O(H W). rounds: policy iterations.
     """
     h, w, k = table.raw.shape
     n = h * w
-    b = _compact.gather(graph, table.raw, table.length, dirty, capacity)
-    warm = table.next_dir.reshape(n, k)[jnp.minimum(b.idx, n - 1), 0]
+    b = _compact.gather(g, cells, table.raw, table.length)
+    warm = _grid.take_cells(table.next_dir[..., 0], cells, -1)
     best_raw, best_len, policy, rounds = _compact.best_paths(b, warm, cell_size, max_rounds)
     raw, length, direction = _compact.kbest_rows(b, best_raw, best_len, policy, k, cell_size)
-    used = raw > -jnp.inf
-    entered_goal = jnp.take_along_axis(b.enters_goal, jnp.clip(direction, 0, 7), axis=0)
-    steps = used & (direction >= 0) & (direction < _grid.FALLBACK)
-    next_dir = jnp.where(used, direction, -1)
-    next_rank = jnp.where(steps & ~entered_goal, ranks_from_directions(direction[..., None])[..., 0], -1)
-    scatter = lambda a, new: a.reshape(n, k).at[b.idx].set(new.T, mode="drop").reshape(h, w, k)  # noqa: E731
-    return Table(scatter(table.raw, raw), scatter(table.length, jnp.where(used, length, jnp.inf)),
-                 scatter(table.next_dir, next_dir), scatter(table.next_rank, next_rank)), rounds
+    rank = ranks_from_directions(direction[..., None])[..., 0]
+    rows = _table(raw, length, direction, rank, b.enters_goal)    # fields [C, K]
+    scatter = lambda a, new: a.reshape(n, k).at[cells].set(new, mode="drop").reshape(h, w, k)  # noqa: E731
+    return Table(*(scatter(a, new) for a, new in zip(table, rows))), rounds
 
 
-def _graph_and_dirty(scene, params: FabricParams, fabric: Fabric, changed):
-    """The new successor graph, the dirty mask and its size (step 1 of the module docstring)."""
+def _lanes(scene, params: FabricParams, cells):
+    """The new successor graph's rows of ``cells`` (``visibility.successor_lanes``)."""
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
-    graph = visibility.successor_graph(obj, ~target & (obj > 0), target, scene.dist, scene.tvec,
-                                       params.theta_tol_deg, scene.cell_size, params.monotone)
-    dirty = upstream_closure(changed, jnp.moveaxis(fabric.feasible, -1, 0), graph.feasible)
-    return graph, dirty, jnp.sum(dirty, dtype=jnp.int32)
+    return visibility.successor_lanes(cells, obj, ~target & (obj > 0), target, scene.dist, scene.tvec,
+                                      params.theta_tol_deg, scene.cell_size, params.monotone)
 
 
-def _finish(scene, params, fabric, changed, graph, dirty, n_dirty, capacity: int | None):
-    """Steps 2-3: the compact solver (or, with ``capacity=None``, the full table), then the
-    global refresh."""
-    max_hops = params.resolved_max_hops(scene.shape)
-    if capacity is None:
-        table, _, rounds, converged = full_table(scene, params)
+def _patch_own_fields(scene, fabric: Fabric, table: Table, g, cells, rounds, converged):
+    """``(fabric, hop_len)`` as ``fabric.own_fields`` gives them for the new ``table``, rewriting only
+    the rows of ``cells`` (every other cell's table row, occupancy and successors are unchanged).
+    Valid when ``fabric`` follows entry 0 everywhere (``selected`` all 0)."""
+    h, w, k = table.raw.shape
+    n = h * w
+    row = lambda a, fill: _grid.take_cells(a, cells, fill)  # noqa: E731
+    step = row(table.next_dir[..., 0], -1)
+    occupied = jnp.any(g.feasible, axis=0) | g.fallback
+    hop, heading, _ = hops_from_steps(step, visibility.fallback_direction_at(scene.tvec, cells), cells // w,
+                                      cells % w, scene.cell_size)
+
+    def put(a, new):
+        return a.reshape((n,) + a.shape[2:]).at[cells].set(new, mode="drop").reshape(a.shape)
+
+    patched = fabric._replace(
+        value=put(fabric.value, jnp.where(occupied, row(table.raw[..., 0], 0.0), 0.0)),
+        length=put(fabric.length, jnp.where(occupied, row(table.length[..., 0], 0.0), 0.0)),
+        first_hop=put(fabric.first_hop, hop), heading=put(fabric.heading, heading),
+        fallback=put(fabric.fallback, step == _grid.FALLBACK), occupied=put(fabric.occupied, occupied),
+        feasible=put(fabric.feasible, g.feasible.T), table=table, psi=None, heat=None, highways=None,
+        rounds=rounds, converged=converged)
+    return patched, hop_lengths(patched.first_hop, scene.cell_size)
+
+
+def _own_fields_after(scene, params, fabric: Fabric, table: Table, g, cells, rounds):
+    """The new fabric's own fields: patched at ``cells``, or recomputed for the whole grid when the
+    old fabric followed Eq. 6 entries (``selection.reselect``) somewhere."""
+    converged = rounds < params.resolved_max_hops(scene.shape)
+
+    def whole(_):
+        feasible = jnp.moveaxis(put_feasible(fabric.feasible, g, cells), -1, 0)
+        return own_fields(scene, table, feasible, rounds, converged)
+
+    return jax.lax.cond(jnp.any(fabric.selected != 0), whole,
+                        lambda _: _patch_own_fields(scene, fabric, table, g, cells, rounds, converged), None)
+
+
+def put_feasible(feasible, g, cells):
+    """``feasible: bool[H, W, 8]`` with the rows of ``cells`` replaced by ``g.feasible: bool[8, C]``."""
+    h, w, d = feasible.shape
+    return feasible.reshape(h * w, d).at[cells].set(g.feasible.T, mode="drop").reshape(h, w, d)
+
+
+WALK_FACTOR = 4   # room for the cells downstream of the dirty ones, in dirty buffers
+
+
+def _path_pointer(table: Table):
+    """``i32[H*W]``: the next cell of each cell's selected path (entry 0), ``H*W`` where it ends."""
+    first = table.next_dir[..., 0]
+    return _grid.tree_pointer(first, (first < 0) | (first >= _grid.FALLBACK))[:-1]
+
+
+def local_flow_default(shape) -> bool:
+    """Whether ``selective_rebuild`` refreshes psi and the heatmap near the changed paths only: on
+    grids of 128^2 cells and more. On smaller grids the whole-grid kernels are cheaper than the walk
+    and its bookkeeping (ad hoc A/B on the 2-core CPU: 0.78 vs 1.39 ms at 65^2, 2.08 vs 1.88 ms at
+    128^2); above, the local refresh wins by more the larger the grid."""
+    return shape[0] * shape[1] >= 128 * 128
+
+
+def _flow(scene, params: FabricParams, old: Fabric, own: Fabric, hop_len, cells, dirty, local: bool,
+          everywhere=False):
+    """``own`` with psi, heat and highways. With ``local`` (static), recomputed only where the dirty
+    cells' old or new paths run, and around them (``heatmap.repropagated_mass``,
+    ``heatmap.heat_at``); for the whole grid when those cells overflow ``WALK_FACTOR`` buffers, the
+    old fabric followed Eq. 6 entries, or ``everywhere`` (bool[]) holds."""
+    if not local:
+        return with_flow(scene, params, own, hop_len)
+    target = jnp.asarray(scene.target_mask, bool)
+    psi, touched, count = heatmap.repropagated_mass(
+        old.psi, own.value, _path_pointer(old.table), _path_pointer(own.table), dirty, cells,
+        WALK_FACTOR * cells.shape[0], params.resolved_max_hops(scene.shape))
+
+    def nearby(_):
+        around = jnp.concatenate([touched, _grid.lane_neighbours(touched, scene.shape).reshape(-1)])
+        fresh = heatmap.heat_at(around, psi, own.occupied, own.heading, hop_len, target, scene.cell_size)
+        heat = old.heat.reshape(-1).at[around].set(fresh, mode="drop").reshape(scene.shape)
+        return own._replace(psi=psi, heat=heat, highways=highways_of(scene, params, heat))
+
+    everywhere = everywhere | jnp.any(old.selected != 0) | (count > touched.shape[0])
+    return jax.lax.cond(everywhere, lambda _: with_flow(scene, params, own, hop_len), nearby, None)
+
+
+def _dirty_cells(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
+    """Step 1 of the module docstring: ``(cells i32[capacity], count, dirty bool[H, W])``."""
+    obj = jnp.asarray(scene.obj, jnp.float32)
+    target = jnp.asarray(scene.target_mask, bool)
+    return _upstream_queue(changed, fabric.feasible, ~target & (obj > 0), target, scene.dist, scene.tvec,
+                           visibility.cone_cos(params.theta_tol_deg), params.monotone, scene.cell_size, capacity)
+
+
+def _exact_dirty(scene, params: FabricParams, fabric: Fabric, changed, new_feasible):
+    """The whole upstream closure (when the queue overflowed): ``(dirty, n_dirty)``."""
+    dirty = upstream_closure(changed, jnp.moveaxis(fabric.feasible, -1, 0), new_feasible)
+    return dirty, jnp.sum(dirty, dtype=jnp.int32)
+
+
+def _partial(scene, params: FabricParams, fabric: Fabric, cells):
+    """Steps 2-3 on the buffer ``cells``: ``(own-field fabric, hop_len)``."""
+    g = _lanes(scene, params, cells)
+    table, rounds = _compact_dp(g, fabric.table, cells, scene.cell_size, params.resolved_max_hops(scene.shape))
+    return _own_fields_after(scene, params, fabric, table, g, cells, rounds)
+
+
+def _finish(scene, params, fabric, changed, cells, count, dirty, bucket: int | None, local: bool):
+    """Steps 2-3 with the buffer of ``bucket`` cells (``None``: the full build), then psi, heat and
+    highways (``local``: ``_flow``)."""
+    if bucket is None:
+        table, feasible, rounds, converged = full_table(scene, params)
+        own, hop_len = own_fields(scene, table, feasible, rounds, converged)
+        dirty, count = _exact_dirty(scene, params, fabric, changed, feasible)
+        rebuilt = with_flow(scene, params, own, hop_len)
     else:
-        table, rounds = _compact_dp(graph, fabric.table, dirty, capacity, scene.cell_size, max_hops)
-        converged = rounds < max_hops
-    rebuilt = derive(scene, params, table, graph.feasible, rounds, converged)
-    return rebuilt, Affected(changed, dirty, n_dirty, rounds, jnp.bool_(capacity is None))
+        own, hop_len = _partial(scene, params, fabric, cells[:bucket])
+        rebuilt = _flow(scene, params, fabric, own, hop_len, cells[:bucket], dirty, local)
+    return rebuilt, Affected(changed, dirty, count, rebuilt.rounds, jnp.bool_(bucket is None))
 
 
-def _selective_switch(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
+def _selective_switch(scene, params: FabricParams, fabric: Fabric, changed, capacity: int, local: bool):
     """All of it in one traced program: every buffer size is compiled and ``lax.switch`` picks the
     smallest that holds the dirty set (usable inside a caller's ``jit``)."""
-    graph, dirty, n_dirty = _graph_and_dirty(scene, params, fabric, changed)
-    max_hops = params.resolved_max_hops(scene.shape)
+    cells, count, dirty = _dirty_cells(scene, params, fabric, changed, capacity)
     buckets = capacity_buckets(capacity)
 
-    def partial_with(cap):
-        return lambda _: _compact_dp(graph, fabric.table, dirty, cap, scene.cell_size, max_hops)
+    def partial_with(size):
+        return lambda _: (*_partial(scene, params, fabric, cells[:size]), dirty, count)
 
-    fits = jnp.asarray(buckets) >= n_dirty
-    branch = jnp.where(jnp.any(fits), jnp.argmax(fits), len(buckets))
-    # only the table goes through the switch; the global refresh runs once, after it
     def full(_):
-        table, _, rounds, _ = full_table(scene, params)
-        return table, rounds
+        table, feasible, rounds, converged = full_table(scene, params)
+        return (*own_fields(scene, table, feasible, rounds, converged),
+                *_exact_dirty(scene, params, fabric, changed, feasible))
 
-    table, rounds = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [full], None)
-    rebuilt = derive(scene, params, table, graph.feasible, rounds, rounds < max_hops)
-    return rebuilt, Affected(changed, dirty, n_dirty, rounds, branch == len(buckets))
+    fits = jnp.asarray(buckets) >= count
+    branch = jnp.where(jnp.any(fits), jnp.argmax(fits), len(buckets))
+    # only the tables and own fields go through the switch; the global refresh runs once, after it
+    own, hop_len, dirty, count = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [full], None)
+    rebuilt = _flow(scene, params, fabric, own, hop_len, cells, dirty, local, everywhere=branch == len(buckets))
+    return rebuilt, Affected(changed, dirty, count, rebuilt.rounds, branch == len(buckets))
 
 
 def capacity_buckets(capacity: int, smallest: int = 64) -> tuple[int, ...]:
@@ -176,40 +333,44 @@ def default_capacity(shape) -> int:
     return max(1, min(n // 2, max(256, n // 64)))
 
 
-def _rebuild(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
+def _rebuild(scene, params: FabricParams, fabric: Fabric, changed, capacity: int, local: bool):
     if not params.monotone:
         return _full_only(scene, params, changed)
-    return _selective_switch(scene, params, fabric, changed, capacity)
+    return _selective_switch(scene, params, fabric, changed, capacity, local)
 
 
-_rebuild_jit = jax.jit(_rebuild, static_argnums=4)
-_dirty_jit = jax.jit(_graph_and_dirty)
-_finish_jit = jax.jit(_finish, static_argnums=7)
+_dirty_jit = jax.jit(_dirty_cells, static_argnums=4)
+_finish_jit = jax.jit(_finish, static_argnums=(7, 8))
 _full_only_jit = jax.jit(_full_only)
 
 
-def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, capacity: int | None = None):
+def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, capacity: int | None = None,
+                      local_flow: bool | None = None):
     """Update ``fabric`` (built for the counts before a push) to ``scene``'s counts after it.
 
     scene: the scene after the push; fabric: the fabric before it; changed: bool[H, W], A_exec
     (``changed_cells`` or ``Push.changed``). Returns ``(fabric, Affected)``; the fabric equals
     ``build_fabric(scene, params)`` (``rounds`` aside). capacity: the largest dirty-buffer size
-    (default ``default_capacity``); a larger dirty set triggers a full build.
+    (default ``default_capacity``); a larger dirty set triggers a full build. local_flow: refresh
+    psi and the heatmap only along the changed paths (default ``local_flow_default``: on grids of
+    128^2 and more); the result is the same either way.
 
-    Called with concrete arrays, it computes the dirty set (jitted), reads its size on the host and
-    runs the jitted compact solver for the smallest buffer of 64, 128, 256, ... cells that holds it; each
-    size is compiled the first time it is needed. Inside a caller's ``jit`` (traced arguments) it
-    runs one program with every size compiled behind a ``lax.switch``. Both give the same result.
+    Called with concrete arrays, it lists the dirty cells (jitted), reads their number on the host
+    and runs the jitted compact solver for the smallest buffer of 64, 128, 256, ... cells that holds
+    them; each size is compiled the first time it is needed. Inside a caller's ``jit`` (traced
+    arguments) it runs one program with every size compiled behind a ``lax.switch``. Both give the
+    same result.
     """
     capacity = default_capacity(scene.shape) if capacity is None else int(capacity)
     changed = jnp.asarray(changed, bool)
+    local = local_flow_default(scene.shape) if local_flow is None else bool(local_flow)
     if _traced(scene, params, fabric, changed):
-        return _rebuild(scene, params, fabric, changed, capacity)
+        return _rebuild(scene, params, fabric, changed, capacity, local)
     if not params.monotone:
         return _full_only_jit(scene, params, changed)
-    graph, dirty, n_dirty = _dirty_jit(scene, params, fabric, changed)
-    fitting = [c for c in capacity_buckets(capacity) if c >= int(n_dirty)]
-    return _finish_jit(scene, params, fabric, changed, graph, dirty, n_dirty, fitting[0] if fitting else None)
+    cells, count, dirty = _dirty_jit(scene, params, fabric, changed, capacity)
+    fitting = [c for c in capacity_buckets(capacity) if c >= int(count)]
+    return _finish_jit(scene, params, fabric, changed, cells, count, dirty, fitting[0] if fitting else None, local)
 
 
 # ----------------------------------------------------------------------------------- connectors
@@ -237,7 +398,8 @@ def _refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_occupie
         reuse = jnp.any(match) & (jnp.sum(dirty) <= capacity)
 
         def selective(_):
-            return _compact_dp(graph, old_table, dirty, capacity, scene.cell_size, max_hops)[0]
+            cells = _grid.true_indices(dirty.reshape(-1), capacity)
+            return _compact_dp(visibility.graph_at(graph, cells), old_table, cells, scene.cell_size, max_hops)[0]
 
         def fresh(_):
             return connectors.connector_table(scene, fabric, params, jnp.maximum(anchor, 0))

@@ -22,8 +22,25 @@ def cone_alignment(tvec):
 
     tvec: f32[H, W, 2], unit (x, y) vector toward the goal per cell.
     """
-    unit = jnp.asarray(_grid.STEP_UNIT)                      # [8, 2]
-    return jnp.einsum("hwx,dx->dhw", tvec, unit)
+    return jnp.stack([step_alignment(tvec, d) for d in range(_grid.N_DIRS)])
+
+
+def step_alignment(tvec, d: int):
+    """``t . step_unit[d]`` for ``tvec: f32[..., 2]``: one elementwise expression, so that the grid
+    kernel and the selective rebuild's per-cell lanes round alike."""
+    ux, uy = (float(u) for u in _grid.STEP_UNIT[d])
+    return tvec[..., 0] * ux + tvec[..., 1] * uy
+
+
+def step_feasible(occupied, enterable, alignment, dist, nb_dist, cos_t, monotone: bool, cell_size):
+    """Eq. 1 and the monotone rule for single steps, elementwise (broadcasting): the step from a cell
+    (``occupied``, ``dist``) to a neighbour (``enterable``: occupied or goal, at ``nb_dist``) whose
+    direction has ``alignment`` t . step_unit. cos_t: ``cone_cos(theta_tol)``. The caller masks
+    steps off the grid."""
+    ok = occupied & enterable & (alignment >= cos_t)
+    if monotone:
+        ok = ok & (nb_dist < dist - _grid.MONOTONE_EPS * cell_size)
+    return ok
 
 
 def feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone: bool, cell_size):
@@ -38,11 +55,9 @@ def feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone: boo
     """
     in_grid = jnp.asarray(_grid.in_grid(occupied.shape))
     enterable = _grid.neighbours(occupied | goal, False)
-    ok = occupied[None] & in_grid & enterable & (cone_alignment(tvec) >= cone_cos(theta_tol_deg))
-    if monotone:
-        nb_dist = _grid.neighbours(dist, jnp.inf)
-        ok = ok & (nb_dist < dist[None] - _grid.MONOTONE_EPS * cell_size)
-    return ok
+    nb_dist = _grid.neighbours(dist, jnp.inf) if monotone else None
+    return in_grid & step_feasible(occupied[None], enterable, cone_alignment(tvec), dist[None], nb_dist,
+                                   cone_cos(theta_tol_deg), monotone, cell_size)
 
 
 def fallback_direction(tvec):
@@ -52,10 +67,21 @@ def fallback_direction(tvec):
     (a 1x1 grid).
     """
     in_grid = _grid.in_grid(tvec.shape[:2])
-    score = jnp.where(jnp.asarray(in_grid), cone_alignment(tvec), -jnp.inf)
-    best = jnp.argmax(score, axis=0).astype(jnp.int32)
     # on the host: XLA constant-folds a reduction of a constant mask slowly (about 1 s at 256^2)
-    return jnp.where(jnp.asarray(in_grid.any(axis=0)), best, -1)
+    return _best_aligned(cone_alignment(tvec), jnp.asarray(in_grid), jnp.asarray(in_grid.any(axis=0)))
+
+
+def fallback_direction_at(tvec, cells):
+    """``fallback_direction`` at a list of cells (``cells: i32[C]``, ``H*W`` for padding): ``i32[C]``."""
+    inside = _grid.lane_neighbours(cells, tvec.shape[:2]) < tvec.shape[0] * tvec.shape[1]
+    own_t = _grid.take_cells(tvec, cells, 0.0)
+    alignment = jnp.stack([step_alignment(own_t, d) for d in range(_grid.N_DIRS)])
+    return _best_aligned(alignment, inside, jnp.any(inside, axis=0))
+
+
+def _best_aligned(alignment, inside, has_neighbour):
+    best = jnp.argmax(jnp.where(inside, alignment, -jnp.inf), axis=0).astype(jnp.int32)
+    return jnp.where(has_neighbour, best, -1)
 
 
 class SuccessorGraph(NamedTuple):
@@ -86,3 +112,37 @@ def successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, m
         fallback_len=jnp.asarray(dist, jnp.float32),
         step_len=jnp.asarray(_grid.STEP_CELLS) * cell_size,
     )
+
+
+def successor_lanes(cells, obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone: bool) -> SuccessorGraph:
+    """``successor_graph`` of a list of cells only: fields ``[C]`` and ``[8, C]`` instead of ``[H, W]``
+    and ``[8, H, W]`` (the same values). cells: i32[C] flat indices, ``H*W`` for padding (no
+    successors); the grids as in ``successor_graph``. Costs O(C), not O(H W)."""
+    nb = _grid.lane_neighbours(cells, obj.shape)
+    at = lambda a, where, fill: _grid.take_cells(a, where, fill)  # noqa: E731
+    occ = at(occupied, cells, False)
+    enterable = at(occupied, nb, False) | at(goal, nb, False)
+    own_t = at(tvec, cells, 0.0)
+    alignment = jnp.stack([step_alignment(own_t, d) for d in range(_grid.N_DIRS)])
+    own_dist = at(dist, cells, 0.0)
+    nb_dist = at(dist, nb, jnp.inf) if monotone else None
+    feasible = (nb < obj.size) & step_feasible(
+        occ[None], enterable, alignment, own_dist[None], nb_dist, cone_cos(theta_tol_deg), monotone, cell_size)
+    return SuccessorGraph(
+        obj=at(jnp.asarray(obj, jnp.float32), cells, 0.0),
+        feasible=feasible,
+        enters_goal=feasible & at(goal, nb, False),
+        fallback=occ & ~jnp.any(feasible, axis=0),
+        fallback_len=own_dist,
+        step_len=jnp.asarray(_grid.STEP_CELLS) * cell_size,
+    )
+
+
+def graph_at(graph: SuccessorGraph, cells) -> SuccessorGraph:
+    """A grid's ``SuccessorGraph`` read at a list of cells (``cells: i32[C]``, ``H*W`` for padding):
+    fields ``[C]`` and ``[8, C]``, as ``successor_lanes`` computes them."""
+    per_dir = lambda a: jnp.take(a.reshape(a.shape[0], -1), cells, axis=1, mode="fill", fill_value=False)  # noqa: E731
+    return SuccessorGraph(obj=_grid.take_cells(graph.obj, cells, 0.0), feasible=per_dir(graph.feasible),
+                          enters_goal=per_dir(graph.enters_goal),
+                          fallback=_grid.take_cells(graph.fallback, cells, False),
+                          fallback_len=_grid.take_cells(graph.fallback_len, cells, 0.0), step_len=graph.step_len)

@@ -8,10 +8,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from jaxplan import FabricParams, build_fabric, builtin_scene, extract_paths
+from jaxplan import FabricParams, build_fabric, builtin_scene, extract_paths, heatmap, visibility
 from jaxplan import execute as ex
 from jaxplan import rebuild as rb
 from jaxplan import spillage as sp
+from jaxplan.fabric import first_hops, hop_lengths
 from jaxplan.reference import rebuild as ref_rb
 from tests._scenes import ANGLES, scenes
 
@@ -47,8 +48,8 @@ def _push(scene, fabric, source, rank, spill):
 @SETTINGS
 @given(scene=scenes(max_side=13, integer_counts=False), theta=st.sampled_from(ANGLES),
        lam=st.sampled_from((0.0, 0.05, 0.5)), pushes=st.lists(st.tuples(st.integers(0, 2**16), st.integers(0, 3)),
-                                                              min_size=1, max_size=4))
-def test_selective_rebuild_equals_full_build_after_random_pushes(scene, theta, lam, pushes):
+                                                              min_size=1, max_size=4), local=st.booleans())
+def test_selective_rebuild_equals_full_build_after_random_pushes(scene, theta, lam, pushes, local):
     scene = scene.with_obj(ex.quantize(scene.obj))   # exact sums: see execute.QUANTUM
     params = FabricParams(theta_tol_deg=theta)
     spill = sp.SpillParams(lam=lam, threshold=0.01)
@@ -62,7 +63,7 @@ def test_selective_rebuild_equals_full_build_after_random_pushes(scene, theta, l
         new_obj, push = _push(scene, fabric, source, rank, spill)
         old_feasible = fabric.feasible
         scene = scene.with_obj(new_obj)
-        fabric, affected = rb.selective_rebuild(scene, params, fabric, push.changed)
+        fabric, affected = rb.selective_rebuild(scene, params, fabric, push.changed, local_flow=local)
         assert_same_fabric(fabric, build_fabric(scene, params))
         want_dirty = ref_rb.upstream_closure(np.asarray(push.changed), np.asarray(old_feasible),
                                              np.asarray(fabric.feasible))
@@ -90,6 +91,60 @@ def test_overflowing_capacity_falls_back_to_a_full_build(pushed):
     roomy, affected = rb.selective_rebuild(scene, params, fabric, push.changed)
     assert not bool(affected.full)
     assert_same_fabric(roomy, small)
+
+
+def test_rebuilding_a_reselected_fabric_gives_the_entry_0_fabric(pushed):
+    # an Eq. 6 fabric's first hops and psi follow other entries: the rebuild must not patch them
+    from jaxplan import reselect
+
+    scene, params, fabric, push = pushed
+    before = builtin_scene().with_obj(ex.quantize(builtin_scene().obj))
+    spill = sp.SpillParams(lam=0.5, threshold=0.0)
+    chosen = reselect(before, params.replace(slack_tau=5.0), fabric, spill, max_steps=before.obj.size + 1)
+    assert bool(jnp.any(chosen.selected != 0))
+    for local in (False, True):
+        rebuilt, _ = rb.selective_rebuild(scene, params, chosen, push.changed, local_flow=local)
+        assert_same_fabric(rebuilt, build_fabric(scene, params))
+
+
+def test_local_refresh_of_psi_flags_a_walk_that_overflows(pushed):
+    scene, params, fabric, push = pushed
+    full = build_fabric(scene, params)
+    dirty = ref_rb.upstream_closure(np.asarray(push.changed), np.asarray(fabric.feasible), np.asarray(full.feasible))
+    cells = jnp.asarray(np.flatnonzero(dirty), jnp.int32)
+    args = (fabric.psi, full.value, rb._path_pointer(fabric.table), rb._path_pointer(full.table), jnp.asarray(dirty),
+            cells)
+    psi, touched, count = heatmap.repropagated_mass(*args, 4 * cells.size, 10_000)
+    assert cells.size < int(count) <= touched.shape[0]     # the walk left the dirty set and fitted
+    np.testing.assert_array_equal(np.asarray(psi), np.asarray(full.psi))
+    _, touched, count = heatmap.repropagated_mass(*args, 0, 10_000)
+    assert int(count) > touched.shape[0]
+
+
+@SETTINGS
+@given(scene=scenes(max_side=16), theta=st.sampled_from(ANGLES))
+def test_cell_lists_give_the_grid_kernels_values(scene, theta):
+    # the selective rebuild's per-cell kernels against the whole-grid ones they stand in for
+    params = FabricParams(theta_tol_deg=theta)
+    fabric = build_fabric(scene, params)
+    h, w = scene.shape
+    cells = jnp.arange(h * w + 3, dtype=jnp.int32).at[-3:].set(h * w)        # every cell, then padding
+    obj = jnp.asarray(scene.obj)
+    target = jnp.asarray(scene.target_mask)
+    occupied = ~target & (obj > 0)
+    args = (obj, occupied, target, scene.dist, scene.tvec, theta, scene.cell_size, True)
+    grid = visibility.successor_graph(*args)
+    lanes = visibility.successor_lanes(cells, *args)
+    for name in ("obj", "feasible", "enters_goal", "fallback", "fallback_len"):
+        got, want = np.asarray(getattr(lanes, name)), np.asarray(getattr(grid, name))
+        np.testing.assert_array_equal(got[..., : h * w], want.reshape(want.shape[:-2] + (-1,)), err_msg=name)
+    assert not np.asarray(lanes.feasible)[:, h * w:].any()
+    np.testing.assert_array_equal(np.asarray(visibility.fallback_direction_at(scene.tvec, cells))[: h * w],
+                                  np.asarray(visibility.fallback_direction(scene.tvec)).reshape(-1))
+    _, _, hop_len = first_hops(fabric.table, scene.tvec, scene.cell_size)
+    heat = heatmap.heat_at(cells, fabric.psi, fabric.occupied, fabric.heading, hop_len, target, scene.cell_size)
+    np.testing.assert_array_equal(np.asarray(heat)[: h * w], np.asarray(fabric.heat).reshape(-1))
+    np.testing.assert_array_equal(np.asarray(hop_lengths(fabric.first_hop, scene.cell_size)), np.asarray(hop_len))
 
 
 def test_without_the_monotone_rule_the_rebuild_is_a_full_build(pushed):

@@ -1,0 +1,42 @@
+"""Grid helpers: listing the true cells of a mask, cell positions and neighbour lists."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxplan import _grid
+
+_true_indices = jax.jit(_grid.true_indices, static_argnums=1)
+
+
+@settings(max_examples=30, deadline=None)
+@given(n=st.sampled_from((1, 31, 32, 33, 100, 1000)), density=st.sampled_from((0.0, 0.01, 0.3, 1.0)),
+       size=st.sampled_from((1, 5, 64, 1100)), seed=st.integers(0, 2**31 - 1))
+def test_true_indices_equal_nonzero(n, density, size, seed):
+    mask = np.random.default_rng(seed).random(n) < density
+    want = np.full(size, n)
+    found = np.flatnonzero(mask)[:size]
+    want[: found.size] = found
+    np.testing.assert_array_equal(np.asarray(_true_indices(jnp.asarray(mask), size)), want)
+    np.testing.assert_array_equal(np.asarray(_grid.true_indices(jnp.asarray(mask), size)), want)   # un-jitted
+
+
+def test_positions_ignore_padding():
+    cells = jnp.array([4, 7, 9, 9 + 0], jnp.int32).at[-1].set(10)    # 10 = H*W: padding
+    got = np.asarray(_grid.positions(cells, 10, 99))
+    want = np.full(11, 99)
+    want[[4, 7, 9]] = [0, 1, 2]
+    np.testing.assert_array_equal(got, want)
+
+
+def test_lane_neighbours_match_the_grid_shift():
+    h, w = 4, 5
+    index = jnp.arange(h * w, dtype=jnp.int32).reshape(h, w)
+    lanes = np.asarray(_grid.lane_neighbours(jnp.append(index.reshape(-1), h * w), (h, w)))
+    for d, (dr, dc) in enumerate(_grid.DIRS):
+        want = np.asarray(_grid.shift(index, dr, dc, h * w)).reshape(-1)
+        np.testing.assert_array_equal(lanes[d, :-1], want)
+    assert (lanes[:, -1] == h * w).all()
