@@ -160,8 +160,8 @@ def true_indices(mask, size: int):
 
     For sparse masks of large grids: ``jnp.nonzero`` runs a prefix sum over all N entries, which
     XLA's CPU backend makes slow (about 1 ms at N = 65,536, measured); here the prefix sum runs
-    over N / 32 bit-packed words, and each output finds its word by binary search and its bit
-    by counting set bits below it.
+    over N / 32 bit-packed words, and each output finds its word by binary search and its bit by
+    halving the word five times.
     """
     n = mask.shape[0]
     bits = jnp.arange(32, dtype=jnp.uint32)
@@ -172,10 +172,13 @@ def true_indices(mask, size: int):
     rank = jnp.arange(size, dtype=jnp.int32)
     word = jnp.minimum(jnp.searchsorted(ends, rank, side="right"), words.shape[0] - 1)
     within = rank - (ends[word] - count[word])                       # rank among the word's set bits
-    w = words[word][:, None]
-    below = jax.lax.population_count(w & ((jnp.uint32(1) << bits) - 1)).astype(jnp.int32)
-    bit = jnp.argmax((((w >> bits) & 1) == 1) & (below == within[:, None]), axis=1).astype(jnp.int32)
-    return jnp.where(rank < ends[-1], word.astype(jnp.int32) * 32 + bit, n)
+    w, bit = words[word], jnp.zeros(size, jnp.uint32)
+    for half in (16, 8, 4, 2, 1):        # the wanted bit lies in the upper half when the lower is too short
+        low = jax.lax.population_count((w >> bit) & jnp.uint32((1 << half) - 1)).astype(jnp.int32)
+        upper = within >= low
+        bit = jnp.where(upper, bit + half, bit)
+        within = jnp.where(upper, within - low, within)
+    return jnp.where(rank < ends[-1], word.astype(jnp.int32) * 32 + bit.astype(jnp.int32), n)
 
 
 def tree_pointer(direction, stops):
