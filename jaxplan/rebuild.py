@@ -141,16 +141,20 @@ def _compact_dp(g: visibility.SuccessorGraph, table: Table, cells, cell_size, ma
     of the others, warm-started from the old first steps; a round (policy iteration) costs
     O(C log(path length)), not O(H W). rounds: policy iterations.
     """
-    h, w, k = table.raw.shape
-    n = h * w
+    k = table.raw.shape[-1]
     b = _compact.gather(g, cells, table.raw, table.length)
     warm = _grid.take_cells(table.next_dir[..., 0], cells, -1)
     best_raw, best_len, policy, rounds = _compact.best_paths(b, warm, cell_size, max_rounds)
     raw, length, direction = _compact.kbest_rows(b, best_raw, best_len, policy, k, cell_size)
     rank = ranks_from_directions(direction[..., None])[..., 0]
     rows = _table(raw, length, direction, rank, b.enters_goal)    # fields [C, K]
-    scatter = lambda a, new: a.reshape(n, k).at[cells].set(new, mode="drop").reshape(h, w, k)  # noqa: E731
-    return Table(*(scatter(a, new) for a, new in zip(table, rows))), rounds
+    return Table(*(_put_rows(a, cells, new) for a, new in zip(table, rows))), rounds
+
+
+def _put_rows(a, cells, rows):
+    """``a: [H, W, ...]`` with the entries of ``cells: i32[C]`` (``H*W`` padding) replaced by ``rows: [C, ...]``."""
+    h, w = a.shape[:2]
+    return a.reshape((h * w,) + a.shape[2:]).at[cells].set(rows, mode="drop").reshape(a.shape)
 
 
 def _lanes(scene, params: FabricParams, cells):
@@ -165,17 +169,13 @@ def _patch_own_fields(scene, fabric: Fabric, table: Table, g, cells, rounds, con
     """``(fabric, hop_len)`` as ``fabric.own_fields`` gives them for the new ``table``, rewriting only
     the rows of ``cells`` (every other cell's table row, occupancy and successors are unchanged).
     Valid when ``fabric`` follows entry 0 everywhere (``selected`` all 0)."""
-    h, w, k = table.raw.shape
-    n = h * w
+    w = table.raw.shape[1]
     row = lambda a, fill: _grid.take_cells(a, cells, fill)  # noqa: E731
+    put = lambda a, rows: _put_rows(a, cells, rows)  # noqa: E731
     step = row(table.next_dir[..., 0], -1)
     occupied = jnp.any(g.feasible, axis=0) | g.fallback
     hop, heading, _ = hops_from_steps(step, visibility.fallback_direction_at(scene.tvec, cells), cells // w,
                                       cells % w, scene.cell_size)
-
-    def put(a, new):
-        return a.reshape((n,) + a.shape[2:]).at[cells].set(new, mode="drop").reshape(a.shape)
-
     patched = fabric._replace(
         value=put(fabric.value, jnp.where(occupied, row(table.raw[..., 0], 0.0), 0.0)),
         length=put(fabric.length, jnp.where(occupied, row(table.length[..., 0], 0.0), 0.0)),
@@ -186,23 +186,20 @@ def _patch_own_fields(scene, fabric: Fabric, table: Table, g, cells, rounds, con
     return patched, hop_lengths(patched.first_hop, scene.cell_size)
 
 
-def _own_fields_after(scene, params, fabric: Fabric, table: Table, g, cells, rounds):
+def _own_fields_after(scene, params, fabric: Fabric, table: Table, g, cells, rounds, reselected):
     """The new fabric's own fields: patched at ``cells``, or recomputed for the whole grid when the
-    old fabric followed Eq. 6 entries (``selection.reselect``) somewhere."""
+    old fabric followed Eq. 6 entries (``selection.reselect``) somewhere. reselected: whether it
+    did (static bool), or None to test it inside the program (both branches compiled)."""
     converged = rounds < params.resolved_max_hops(scene.shape)
+    patch = lambda _: _patch_own_fields(scene, fabric, table, g, cells, rounds, converged)  # noqa: E731
 
     def whole(_):
-        feasible = jnp.moveaxis(put_feasible(fabric.feasible, g, cells), -1, 0)
+        feasible = jnp.moveaxis(_put_rows(fabric.feasible, cells, g.feasible.T), -1, 0)
         return own_fields(scene, table, feasible, rounds, converged)
 
-    return jax.lax.cond(jnp.any(fabric.selected != 0), whole,
-                        lambda _: _patch_own_fields(scene, fabric, table, g, cells, rounds, converged), None)
-
-
-def put_feasible(feasible, g, cells):
-    """``feasible: bool[H, W, 8]`` with the rows of ``cells`` replaced by ``g.feasible: bool[8, C]``."""
-    h, w, d = feasible.shape
-    return feasible.reshape(h * w, d).at[cells].set(g.feasible.T, mode="drop").reshape(h, w, d)
+    if reselected is None:
+        return jax.lax.cond(jnp.any(fabric.selected != 0), whole, patch, None)
+    return whole(None) if reselected else patch(None)
 
 
 WALK_FACTOR = 4   # room for the cells downstream of the dirty ones, in dirty buffers
@@ -223,12 +220,13 @@ def local_flow_default(shape) -> bool:
 
 
 def _flow(scene, params: FabricParams, old: Fabric, own: Fabric, hop_len, cells, dirty, local: bool,
-          everywhere=False):
+          reselected, everywhere=False):
     """``own`` with psi, heat and highways. With ``local`` (static), recomputed only where the dirty
     cells' old or new paths run, and around them (``heatmap.repropagated_mass``,
     ``heatmap.heat_at``); for the whole grid when those cells overflow ``WALK_FACTOR`` buffers, the
-    old fabric followed Eq. 6 entries, or ``everywhere`` (bool[]) holds."""
-    if not local:
+    old fabric followed Eq. 6 entries (``reselected`` as in ``_own_fields_after``), or
+    ``everywhere`` (bool[]) holds."""
+    if not local or reselected:
         return with_flow(scene, params, own, hop_len)
     target = jnp.asarray(scene.target_mask, bool)
     psi, touched, count = heatmap.repropagated_mass(
@@ -241,7 +239,9 @@ def _flow(scene, params: FabricParams, old: Fabric, own: Fabric, hop_len, cells,
         heat = old.heat.reshape(-1).at[around].set(fresh, mode="drop").reshape(scene.shape)
         return own._replace(psi=psi, heat=heat, highways=highways_of(scene, params, heat))
 
-    everywhere = everywhere | jnp.any(old.selected != 0) | (count > touched.shape[0])
+    if reselected is None:
+        everywhere = everywhere | jnp.any(old.selected != 0)
+    everywhere = everywhere | (count > touched.shape[0])
     return jax.lax.cond(everywhere, lambda _: with_flow(scene, params, own, hop_len), nearby, None)
 
 
@@ -259,24 +259,24 @@ def _exact_dirty(scene, params: FabricParams, fabric: Fabric, changed, new_feasi
     return dirty, jnp.sum(dirty, dtype=jnp.int32)
 
 
-def _partial(scene, params: FabricParams, fabric: Fabric, cells):
+def _partial(scene, params: FabricParams, fabric: Fabric, cells, reselected):
     """Steps 2-3 on the buffer ``cells``: ``(own-field fabric, hop_len)``."""
     g = _lanes(scene, params, cells)
     table, rounds = _compact_dp(g, fabric.table, cells, scene.cell_size, params.resolved_max_hops(scene.shape))
-    return _own_fields_after(scene, params, fabric, table, g, cells, rounds)
+    return _own_fields_after(scene, params, fabric, table, g, cells, rounds, reselected)
 
 
-def _finish(scene, params, fabric, changed, cells, count, dirty, bucket: int | None, local: bool):
+def _finish(scene, params, fabric, changed, cells, count, dirty, bucket: int | None, local: bool, reselected: bool):
     """Steps 2-3 with the buffer of ``bucket`` cells (``None``: the full build), then psi, heat and
-    highways (``local``: ``_flow``)."""
+    highways (``local``, ``reselected``: ``_flow``)."""
     if bucket is None:
         table, feasible, rounds, converged = full_table(scene, params)
         own, hop_len = own_fields(scene, table, feasible, rounds, converged)
         dirty, count = _exact_dirty(scene, params, fabric, changed, feasible)
         rebuilt = with_flow(scene, params, own, hop_len)
     else:
-        own, hop_len = _partial(scene, params, fabric, cells[:bucket])
-        rebuilt = _flow(scene, params, fabric, own, hop_len, cells[:bucket], dirty, local)
+        own, hop_len = _partial(scene, params, fabric, cells[:bucket], reselected)
+        rebuilt = _flow(scene, params, fabric, own, hop_len, cells[:bucket], dirty, local, reselected)
     return rebuilt, Affected(changed, dirty, count, rebuilt.rounds, jnp.bool_(bucket is None))
 
 
@@ -287,7 +287,7 @@ def _selective_switch(scene, params: FabricParams, fabric: Fabric, changed, capa
     buckets = capacity_buckets(capacity)
 
     def partial_with(size):
-        return lambda _: (*_partial(scene, params, fabric, cells[:size]), dirty, count)
+        return lambda _: (*_partial(scene, params, fabric, cells[:size], None), dirty, count)
 
     def full(_):
         table, feasible, rounds, converged = full_table(scene, params)
@@ -298,7 +298,7 @@ def _selective_switch(scene, params: FabricParams, fabric: Fabric, changed, capa
     branch = jnp.where(jnp.any(fits), jnp.argmax(fits), len(buckets))
     # only the tables and own fields go through the switch; the global refresh runs once, after it
     own, hop_len, dirty, count = jax.lax.switch(branch, [partial_with(c) for c in buckets] + [full], None)
-    rebuilt = _flow(scene, params, fabric, own, hop_len, cells, dirty, local, everywhere=branch == len(buckets))
+    rebuilt = _flow(scene, params, fabric, own, hop_len, cells, dirty, local, None, everywhere=branch == len(buckets))
     return rebuilt, Affected(changed, dirty, count, rebuilt.rounds, branch == len(buckets))
 
 
@@ -339,7 +339,7 @@ def _rebuild(scene, params: FabricParams, fabric: Fabric, changed, capacity: int
 
 
 _dirty_jit = jax.jit(_dirty_cells, static_argnums=4)
-_finish_jit = jax.jit(_finish, static_argnums=(7, 8))
+_finish_jit = jax.jit(_finish, static_argnums=(7, 8, 9))
 _full_only_jit = jax.jit(_full_only)
 
 
@@ -369,7 +369,10 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
         return _full_only_jit(scene, params, changed)
     cells, count, dirty = _dirty_jit(scene, params, fabric, changed, capacity)
     fitting = [c for c in capacity_buckets(capacity) if c >= int(count)]
-    return _finish_jit(scene, params, fabric, changed, cells, count, dirty, fitting[0] if fitting else None, local)
+    # an Eq. 6 fabric (rare) cannot be patched: decided here, so that one program holds one way
+    reselected = bool(jnp.any(jnp.asarray(fabric.selected) != 0))
+    return _finish_jit(scene, params, fabric, changed, cells, count, dirty, fitting[0] if fitting else None, local,
+                       reselected)
 
 
 # ----------------------------------------------------------------------------------- connectors
