@@ -20,7 +20,8 @@ def cone_cos(theta_tol_deg):
 def cone_alignment(tvec):
     """``f32[8, H, W]``: ``t(C) . step_unit`` for every cell and direction (Eq. 1's left side).
 
-    tvec: f32[H, W, 2], unit (x, y) vector toward the goal per cell.
+    tvec: f32[H, W, 2], unit (x, y) vector toward the goal per cell (any leading shape: ``[C, 2]``
+    for a list of cells gives ``f32[8, C]``).
     """
     return jnp.stack([step_alignment(tvec, d) for d in range(_grid.N_DIRS)])
 
@@ -74,8 +75,7 @@ def fallback_direction(tvec):
 def fallback_direction_at(tvec, cells):
     """``fallback_direction`` at a list of cells (``cells: i32[C]``, ``H*W`` for padding): ``i32[C]``."""
     inside = _grid.lane_neighbours(cells, tvec.shape[:2]) < tvec.shape[0] * tvec.shape[1]
-    own_t = _grid.take_cells(tvec, cells, 0.0)
-    alignment = jnp.stack([step_alignment(own_t, d) for d in range(_grid.N_DIRS)])
+    alignment = cone_alignment(_grid.take_cells(tvec, cells, 0.0))
     return _best_aligned(alignment, inside, jnp.any(inside, axis=0))
 
 
@@ -122,8 +122,7 @@ def successor_lanes(cells, obj, occupied, goal, dist, tvec, theta_tol_deg, cell_
     at = lambda a, where, fill: _grid.take_cells(a, where, fill)  # noqa: E731
     occ = at(occupied, cells, False)
     enterable = at(occupied, nb, False) | at(goal, nb, False)
-    own_t = at(tvec, cells, 0.0)
-    alignment = jnp.stack([step_alignment(own_t, d) for d in range(_grid.N_DIRS)])
+    alignment = cone_alignment(at(tvec, cells, 0.0))
     own_dist = at(dist, cells, 0.0)
     nb_dist = at(dist, nb, jnp.inf) if monotone else None
     feasible = (nb < obj.size) & step_feasible(
