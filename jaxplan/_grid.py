@@ -139,6 +139,33 @@ def lane_neighbours(cells, shape):
     return jnp.where(inside, nr * w + nc, h * w).astype(jnp.int32)
 
 
+def lane_predecessors(cells, shape):
+    """``i32[8, C]``: row d holds, for each listed cell, the neighbour that steps onto it by
+    ``DIRS[d]`` (``H*W`` off the grid and for padding). DIRS is symmetric (``DIRS[7 - d] = -DIRS[d]``),
+    so that is its neighbour in direction 7 - d."""
+    return lane_neighbours(cells, shape)[::-1]
+
+
+def append_new(listed, count, in_set, owner, stamp, found):
+    """Append the distinct cells of ``found`` that are not yet in ``in_set`` to the list ``listed``.
+
+    listed: i32[L] the list, ``count`` entries filled (slots past L are dropped; the caller compares
+    the new count with L); in_set: bool[N + 1] membership, the sink N set; owner: i32[N + 1] scratch
+    for the deduplication, which must only grow: ``stamp`` (i32[]) must exceed every earlier call's
+    ``stamp + found.size``; found: i32[M] candidate cells, N for none. Of the lanes holding one new
+    cell, the last wins. Returns ``(listed, count, in_set, owner, won: bool[M])``.
+    """
+    n = in_set.shape[0] - 1
+    fresh = (found < n) & ~in_set[found]
+    ids = stamp + jnp.arange(found.shape[0], dtype=jnp.int32)
+    owner = owner.at[jnp.where(fresh, found, n)].max(ids)
+    won = fresh & (owner[found] == ids)
+    slot = count + jnp.cumsum(won, dtype=jnp.int32) - 1
+    listed = listed.at[jnp.where(won, slot, listed.shape[0])].set(found, mode="drop")
+    in_set = in_set.at[jnp.where(won, found, n)].set(True)
+    return listed, count + jnp.sum(won, dtype=jnp.int32), in_set, owner, won
+
+
 def positions(cells, n: int, missing: int):
     """``i32[n + 1]``: where each flat cell index sits in the list ``cells: i32[C]`` (``n`` marks
     padding), ``missing`` for cells not listed and for the padding index ``n`` itself."""

@@ -65,7 +65,6 @@ def repropagated_mass(psi, value, old_pointer, new_pointer, changed, cells, size
     lanes = cells.shape[0]
     start = jnp.concatenate([jnp.take(old_pointer, cells, mode="fill", fill_value=n),
                              jnp.take(new_pointer, cells, mode="fill", fill_value=n)])
-    walker = jnp.arange(start.shape[0], dtype=jnp.int32)
 
     def walking(carry):
         pos, _, count, _, _, _ = carry
@@ -73,16 +72,10 @@ def repropagated_mass(psi, value, old_pointer, new_pointer, changed, cells, size
 
     def step(carry):
         pos, walked, count, in_s, owner, it = carry
-        fresh = (pos < n) & ~in_s[pos]
-        # walks reaching one cell together continue as one: the highest id wins
-        ids = it * walker.shape[0] + walker
-        owner = owner.at[jnp.where(fresh, pos, n)].max(ids)
-        won = fresh & (owner[pos] == ids)
-        slot = count + jnp.cumsum(won, dtype=jnp.int32) - 1
-        walked = walked.at[jnp.where(won, slot, size)].set(pos, mode="drop")
-        in_s = in_s.at[jnp.where(won, pos, n)].set(True)
+        # walks reaching one cell together continue as one; a walk into S stops (S is ahead of it)
+        walked, count, in_s, owner, won = _grid.append_new(walked, count, in_s, owner, it * pos.shape[0], pos)
         nxt = jnp.where(won, jnp.take(new_pointer, pos, mode="fill", fill_value=n), n)
-        return nxt, walked, count + jnp.sum(won, dtype=jnp.int32), in_s, owner, it + 1
+        return nxt, walked, count, in_s, owner, it + 1
 
     carry = (start, jnp.full(size, n, jnp.int32), jnp.int32(0), jnp.append(changed.reshape(-1), True),
              jnp.full(n + 1, -1, jnp.int32), jnp.int32(0))
@@ -93,7 +86,7 @@ def repropagated_mass(psi, value, old_pointer, new_pointer, changed, cells, size
     inside = position < total
     pointer = position[jnp.take(new_pointer, touched, mode="fill", fill_value=n)]
     # a predecessor outside S keeps its subtree, hence its old psi
-    pred = _grid.lane_neighbours(touched, (h, w))
+    pred = _grid.lane_predecessors(touched, (h, w))
     feeds = (jnp.take(new_pointer, pred, mode="fill", fill_value=n) == touched[None]) & ~inside[pred]
     inflow = jnp.max(jnp.where(feeds, _grid.take_cells(psi, pred, 0.0), 0.0), axis=0)
     mass = jnp.maximum(_grid.take_cells(value, touched, 0.0), inflow)
@@ -143,9 +136,7 @@ def heat(psi, occupied, heading, hop_len, target, cell_size):
 def heat_at(cells, psi, occupied, heading, hop_len, target, cell_size):
     """``heat`` at a list of cells (``cells: i32[C]`` flat, ``H*W`` for padding): ``f32[C]``, the
     same values, each reading only its 8 neighbours."""
-    h, w = psi.shape
-    # DIRS is symmetric: the source stepping by DIRS[d] onto X is X's neighbour 7 - d
-    source = _grid.lane_neighbours(cells, (h, w))[::-1]
+    source = _grid.lane_predecessors(cells, psi.shape)
     best = jnp.zeros(cells.shape, psi.dtype)
     for d in range(_grid.N_DIRS):
         at = lambda a, fill: _grid.take_cells(a, source[d], fill)  # noqa: E731, B023

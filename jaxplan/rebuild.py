@@ -97,7 +97,6 @@ def _upstream_queue(changed, old_feasible, occupied, goal, dist, tvec, cos_t, mo
     old_edges = old_feasible.reshape(n, _grid.N_DIRS)
     into = jnp.arange(_grid.N_DIRS)[None]                             # a predecessor's step onto the cell
     seeds = _grid.true_indices(flat, capacity + window)
-    lane = jnp.arange(window * _grid.N_DIRS, dtype=jnp.int32).reshape(window, _grid.N_DIRS)
 
     def more(carry):
         _, count, start, _, _, _ = carry
@@ -107,8 +106,7 @@ def _upstream_queue(changed, old_feasible, occupied, goal, dist, tvec, cos_t, mo
         cells, count, start, in_set, owner, it = carry
         head = jax.lax.dynamic_slice(cells, (start,), (window,))
         head = jnp.where(start + jnp.arange(window) < count, head, n)
-        # DIRS is symmetric: the predecessor stepping by DIRS[d] onto a cell is its neighbour 7 - d
-        pred = _grid.lane_neighbours(head, (h, w))[::-1].T               # [window, 8]
+        pred = _grid.lane_predecessors(head, (h, w)).T                   # [window, 8]
         new_edge = visibility.step_feasible(
             _grid.take_cells(occupied, pred, False), _grid.take_cells(enterable, head, False)[:, None],
             jnp.stack([visibility.step_alignment(_grid.take_cells(tvec, pred[:, d], 0.0), d)
@@ -116,16 +114,10 @@ def _upstream_queue(changed, old_feasible, occupied, goal, dist, tvec, cos_t, mo
             _grid.take_cells(dist, pred, 0.0), _grid.take_cells(dist, head, jnp.inf)[:, None], cos_t, monotone,
             cell_size)
         old_edge = old_edges.at[pred, into].get(mode="fill", fill_value=False)
-        fresh = (pred < n) & (old_edge | new_edge) & ~in_set[pred]
-        # one queue slot per new cell: of the lanes that found it, the highest id this visit wins
-        ids = it * lane.size + lane
-        owner = owner.at[jnp.where(fresh, pred, n)].max(ids)
-        won = (fresh & (owner[pred] == ids)).reshape(-1)
-        slot = count + jnp.cumsum(won, dtype=jnp.int32) - 1
-        cells = cells.at[jnp.where(won, slot, cells.shape[0])].set(pred.reshape(-1), mode="drop")
-        in_set = in_set.at[jnp.where(won, pred.reshape(-1), n)].set(True)
+        found = jnp.where(old_edge | new_edge, pred, n).reshape(-1)
+        cells, grown, in_set, owner, _ = _grid.append_new(cells, count, in_set, owner, it * found.size, found)
         # the head was the queue up to the old count; what this visit appended comes next
-        return cells, count + jnp.sum(won, dtype=jnp.int32), jnp.minimum(start + window, count), in_set, owner, it + 1
+        return cells, grown, jnp.minimum(start + window, count), in_set, owner, it + 1
 
     start = (seeds, jnp.sum(flat, dtype=jnp.int32), jnp.int32(0), jnp.append(flat, True),
              jnp.full(n + 1, -1, jnp.int32), jnp.int32(0))
@@ -338,7 +330,13 @@ def _rebuild(scene, params: FabricParams, fabric: Fabric, changed, capacity: int
     return _selective_switch(scene, params, fabric, changed, capacity, local)
 
 
-_dirty_jit = jax.jit(_dirty_cells, static_argnums=4)
+def _listing(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
+    """``_dirty_cells`` and whether the old fabric follows Eq. 6 entries somewhere (such a fabric
+    cannot be patched), computed together so that the host reads both at once."""
+    return (*_dirty_cells(scene, params, fabric, changed, capacity), jnp.any(fabric.selected != 0))
+
+
+_listing_jit = jax.jit(_listing, static_argnums=4)
 _finish_jit = jax.jit(_finish, static_argnums=(7, 8, 9))
 _full_only_jit = jax.jit(_full_only)
 
@@ -367,12 +365,12 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
         return _rebuild(scene, params, fabric, changed, capacity, local)
     if not params.monotone:
         return _full_only_jit(scene, params, changed)
-    cells, count, dirty = _dirty_jit(scene, params, fabric, changed, capacity)
-    fitting = [c for c in capacity_buckets(capacity) if c >= int(count)]
-    # an Eq. 6 fabric (rare) cannot be patched: decided here, so that one program holds one way
-    reselected = bool(jnp.any(jnp.asarray(fabric.selected) != 0))
+    cells, count, dirty, reselected = _listing_jit(scene, params, fabric, changed, capacity)
+    # read on the host, so that each program holds one buffer size and one way of finishing
+    n_dirty, reselected = (int(v) for v in jax.device_get((count, reselected)))
+    fitting = [c for c in capacity_buckets(capacity) if c >= n_dirty]
     return _finish_jit(scene, params, fabric, changed, cells, count, dirty, fitting[0] if fitting else None, local,
-                       reselected)
+                       bool(reselected))
 
 
 # ----------------------------------------------------------------------------------- connectors

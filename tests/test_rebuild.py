@@ -175,11 +175,11 @@ def test_paper_sets_equal_reference(pushed):
 def test_rebuild_compiles_once_per_grid(pushed):
     scene, params, fabric, push = pushed
     rb.selective_rebuild(scene, params, fabric, push.changed)
-    before = (rb._dirty_jit._cache_size(), rb._finish_jit._cache_size())
+    before = (rb._listing_jit._cache_size(), rb._finish_jit._cache_size())
     for theta in (50.0, 70.0):   # traced parameters change; shapes, hence the buffer size here, do not
         rebuilt, affected = rb.selective_rebuild(scene, params.replace(theta_tol_deg=theta), fabric, push.changed)
         assert bool(jnp.all(jnp.isfinite(rebuilt.heat)))
-    assert (rb._dirty_jit._cache_size(), rb._finish_jit._cache_size()) == before
+    assert (rb._listing_jit._cache_size(), rb._finish_jit._cache_size()) == before
 
 
 def test_inside_jit_the_switch_program_gives_the_same_fabric(pushed):
