@@ -12,16 +12,21 @@ from jaxplan.episode import Episode, EpisodeParams, run_episode
 from jaxplan.execute import Push, Route
 from jaxplan.fabric import Fabric, Paths, Table, build_fabric, extract_paths
 from jaxplan.params import FabricParams
-from jaxplan import sweep, tune
-from jaxplan.pusharound import (PushScene, RankingParams, SearchConfig, build_wccg, connectivity, nominal_scene,
-                                plan_pushes, rank_gaps)
 from jaxplan.rebuild import Affected, refresh_connectors, selective_rebuild
 from jaxplan.scene import BUILTIN_SCENES, DEFAULT_SCENE, Scene, box, builtin_scene, circle
 from jaxplan.selection import Selection, reselect, select_routes
 from jaxplan.soft import SoftFabric
 from jaxplan.spillage import SpillParams
-from jaxplan.teams import (SiteParams, TeamsConfig, paper_scenario, random_sites, run_sites,
-                           simulate_site)
+
+# PushAround, the team model, sweeps and tuning load on first use: each pulls in libraries (MuJoCo,
+# optax) that planning on a grid does not need, so ``import jaxplan`` stays quick and small.
+_LAZY = {
+    **{name: "jaxplan.pusharound" for name in ("PushScene", "RankingParams", "SearchConfig", "build_wccg",
+                                                "connectivity", "nominal_scene", "plan_pushes", "rank_gaps")},
+    **{name: "jaxplan.teams" for name in ("SiteParams", "TeamsConfig", "paper_scenario", "random_sites",
+                                           "run_sites", "simulate_site")},
+}
+_LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference")
 
 __all__ = [
     "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "Fabric",
@@ -32,3 +37,20 @@ __all__ = [
     "simulate_site", "sweep", "tune",
 ]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    import importlib
+
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+    elif name in _LAZY_MODULES:
+        value = importlib.import_module(f"jaxplan.{name}")
+    else:
+        raise AttributeError(f"module 'jaxplan' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY) | set(_LAZY_MODULES))

@@ -6,6 +6,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplan._compile import grid_jit
 from jaxplan import _grid
 from jaxplan.fabric import Fabric, Table, continuation_dp
 from jaxplan.params import FabricParams, validate_params
@@ -183,7 +184,7 @@ def assemble(scene, fabric: Fabric, anchor_flat, anchors, tables: Table) -> Conn
                       via_raw, via_len, has, truncated, anchors, slot, tables)
 
 
-_plan_jit = jax.jit(_plan, static_argnums=(3, 4))
+_plan_jit = grid_jit(_plan, static_argnums=(3, 4))
 
 
 def plan_connectors(scene, params: FabricParams | None, fabric: Fabric, *, max_anchors: int = 32) -> Connectors:

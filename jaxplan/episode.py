@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplan._compile import grid_jit
 from jaxplan import _grid, connectors, execute, rebuild, selection, spillage
 from jaxplan._timing import timed
 from jaxplan.fabric import Fabric, Table, _walk, build_fabric
@@ -172,7 +173,7 @@ def plan_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.Sp
                 jnp.where(anchor >= 0, anchor_rc, -1), entry, connector)
 
 
-_plan_tick_jit = jax.jit(plan_tick, static_argnames=("max_steps", "evaluator"))
+_plan_tick_jit = grid_jit(plan_tick, static_argnames=("max_steps", "evaluator"))
 
 
 def _plan(scene, params, ep: EpisodeParams, spill, fabric: Fabric, cap: int, evaluator):
@@ -183,7 +184,7 @@ def _plan(scene, params, ep: EpisodeParams, spill, fabric: Fabric, cap: int, eva
     return _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap, evaluator=evaluator), fabric
 
 
-_rebuild_full_jit = jax.jit(lambda scene, params: build_fabric(scene, params))
+_rebuild_full_jit = grid_jit(lambda scene, params: build_fabric(scene, params))
 
 
 # ------------------------------------------------------------------------------------------ the loop

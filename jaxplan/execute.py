@@ -14,6 +14,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplan._compile import grid_jit
 from jaxplan import spillage
 from jaxplan.fabric import Paths
 
@@ -159,4 +160,4 @@ def execute(scene, route: Route, spill: spillage.SpillParams,
     return new_obj, Push(collected, spilled, delivered, jnp.sum(samples.ds), changed, samples, spill_per_sample)
 
 
-execute_jit = jax.jit(execute, static_argnums=3)
+execute_jit = grid_jit(execute, static_argnums=3)

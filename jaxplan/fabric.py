@@ -18,6 +18,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplan._compile import grid_jit
 from jaxplan import _grid, _kbest, heatmap, visibility
 from jaxplan.params import FabricParams, validate_params
 
@@ -261,7 +262,7 @@ def _build(scene, params: FabricParams) -> Fabric:
     return derive(scene, params, *full_table(scene, params))
 
 
-_build_jit = jax.jit(_build)
+_build_jit = grid_jit(_build)
 
 
 def _traced(*trees) -> bool:
@@ -348,7 +349,7 @@ def _table_hops(table: Table):
     return hops[:-1].reshape(h, w, k)
 
 
-table_hops = jax.jit(_table_hops)
+table_hops = grid_jit(_table_hops)
 
 
 def extract_paths(fabric: Fabric, sources, ranks=None, *, max_steps: int | None = None) -> Paths:
@@ -370,4 +371,4 @@ def _extract(table, sources, ranks, max_steps):
     return jax.vmap(lambda s, r: _walk(table, s, r, max_steps))(sources, ranks)
 
 
-_extract_jit = jax.jit(_extract, static_argnums=3)
+_extract_jit = grid_jit(_extract, static_argnums=3)

@@ -32,6 +32,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplan._compile import grid_jit
 from jaxplan import _compact, _grid, connectors, heatmap, visibility
 from jaxplan.connectors import Connectors
 from jaxplan.fabric import (Fabric, Table, _build, _table, _traced, full_table, highways_of, hop_lengths,
@@ -336,9 +337,9 @@ def _listing(scene, params: FabricParams, fabric: Fabric, changed, capacity: int
     return (*_dirty_cells(scene, params, fabric, changed, capacity), jnp.any(fabric.selected != 0))
 
 
-_listing_jit = jax.jit(_listing, static_argnums=4)
-_finish_jit = jax.jit(_finish, static_argnums=(7, 8, 9))
-_full_only_jit = jax.jit(_full_only)
+_listing_jit = grid_jit(_listing, static_argnums=4)
+_finish_jit = grid_jit(_finish, static_argnums=(7, 8, 9))
+_full_only_jit = grid_jit(_full_only)
 
 
 def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, capacity: int | None = None,
@@ -411,7 +412,7 @@ def _refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_occupie
     return connectors.assemble(scene, fabric, anchor_flat, anchors, tables), reused
 
 
-_refresh_connectors_jit = jax.jit(_refresh_connectors, static_argnums=(6, 7))
+_refresh_connectors_jit = grid_jit(_refresh_connectors, static_argnums=(6, 7))
 
 
 def refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_fabric: Fabric, old: Connectors, changed,

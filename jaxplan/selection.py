@@ -23,6 +23,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplan._compile import grid_jit
 from jaxplan import execute, fabric as _fabric, rebuild, spillage
 from jaxplan.fabric import Fabric, _walk
 
@@ -86,7 +87,7 @@ def select_routes(scene, fabric: Fabric, sources, slack_tau, spill: spillage.Spi
     return Selection(_pick(delivered, length, candidate), delivered, candidate)
 
 
-select_routes_jit = jax.jit(select_routes, static_argnames=("max_steps", "evaluator"))
+select_routes_jit = grid_jit(select_routes, static_argnames=("max_steps", "evaluator"))
 
 
 def _pairs_to_evaluate(fabric: Fabric, slack_tau):
@@ -95,7 +96,7 @@ def _pairs_to_evaluate(fabric: Fabric, slack_tau):
     return candidate & (jnp.sum(candidate, -1, keepdims=True) >= 2)
 
 
-@jax.jit
+@grid_jit
 def _pair_counts(fabric: Fabric, slack_tau):
     """``(pairs, longest)``: how many pairs need the evaluator, and the most grid steps among them."""
     pairs = _pairs_to_evaluate(fabric, slack_tau)
@@ -117,7 +118,7 @@ def _select_pairs(scene, fabric: Fabric, slack_tau, spill: spillage.SpillParams,
     return jnp.where(jnp.any(pairs, -1), entry, 0)
 
 
-_select_pairs_jit = jax.jit(_select_pairs, static_argnames=("capacity", "max_steps", "evaluator"))
+_select_pairs_jit = grid_jit(_select_pairs, static_argnames=("capacity", "max_steps", "evaluator"))
 
 
 def _bucket(n: int, largest: int, smallest: int) -> int:
@@ -170,10 +171,10 @@ def reselect(scene, params, fabric: Fabric, spill: spillage.SpillParams, *, max_
     return _rederive_jit(scene, params, fabric, entry)   # under a caller's jit this is inlined
 
 
-@jax.jit
+@grid_jit
 def _rederive_jit(scene, params, fabric: Fabric, entry):
     return _fabric.derive(scene, params, fabric.table, jnp.moveaxis(fabric.feasible, -1, 0), fabric.rounds,
                           fabric.converged, entry)
 
 
-reselect_jit = jax.jit(reselect, static_argnames=("max_steps", "evaluator"))
+reselect_jit = grid_jit(reselect, static_argnames=("max_steps", "evaluator"))

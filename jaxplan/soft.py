@@ -26,6 +26,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplan._compile import grid_jit
 from jaxplan import _grid, visibility
 from jaxplan.params import FabricParams
 
@@ -318,7 +319,7 @@ def _soft_build(scene, params: FabricParams) -> SoftFabric:
                       highways, occupied * (1.0 - highways), candidate, anchors, t)
 
 
-_soft_build_jit = jax.jit(_soft_build)
+_soft_build_jit = grid_jit(_soft_build)
 
 
 def build_soft_fabric(scene, params: FabricParams) -> SoftFabric:

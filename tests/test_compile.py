@@ -1,0 +1,49 @@
+"""grid_jit: the code generator is picked by grid size, and both give the same fabric."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan import FabricParams, _compile, build_fabric, fabric
+from jaxplan.scene import builtin_scene
+
+
+def _doubler():
+    """A fresh function each time: jax keys its compile cache by the function."""
+    return lambda a: 2.0 * a
+
+
+def test_small_grids_take_the_older_emitters_and_large_the_default():
+    jitted = _compile.grid_jit(_doubler())
+    side = int(np.sqrt(_compile.SMALL_GRID_CELLS))
+    small, large = jnp.ones((side, side)), jnp.ones((side + 1, side + 1))
+    np.testing.assert_array_equal(np.asarray(jitted(small)), 2.0 * np.ones((side, side)))
+    assert (jitted._small._cache_size(), jitted._default._cache_size()) == (1, 0)
+    np.testing.assert_array_equal(np.asarray(jitted(large)), 2.0 * np.ones((side + 1, side + 1)))
+    assert (jitted._small._cache_size(), jitted._default._cache_size()) == (1, 1)
+    assert jitted._cache_size() == 2
+
+
+def test_grid_size_is_the_largest_trailing_plane_of_any_argument():
+    args = ({"a": jnp.zeros((3, 40, 50)), "b": jnp.zeros(7)}, np.zeros((6, 6)))
+    assert _compile._grid_cells(jax.tree.leaves(args)) == 2000
+    assert _compile._grid_cells(jax.tree.leaves((jnp.zeros(9), 3.0, {"k": 2}))) == 0
+
+
+def test_inside_a_caller_trace_the_call_inlines():
+    jitted = _compile.grid_jit(_doubler())
+    outer = jax.jit(lambda a: jitted(a) + 1.0)
+    np.testing.assert_array_equal(np.asarray(outer(jnp.ones((4, 4)))), 3.0 * np.ones((4, 4)))
+    grads = jax.grad(lambda a: jnp.sum(jitted(a)))(jnp.ones((4, 4)))
+    np.testing.assert_array_equal(np.asarray(grads), 2.0 * np.ones((4, 4)))
+    assert jitted._small._cache_size() == 0
+
+
+def test_both_code_generators_build_the_same_fabric():
+    scene = builtin_scene()
+    params = FabricParams(theta_tol_deg=60.0)
+    newer = jax.jit(fabric._build, compiler_options={"xla_cpu_use_fusion_emitters": True})
+    older = build_fabric(scene, params)
+    for a, b in zip(jax.tree.leaves(older), jax.tree.leaves(newer(scene, params))):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
