@@ -4,9 +4,10 @@ generator by grid size.
 XLA's CPU backend has two fusion code generators. On the paper's grids (up to 65^2) the older one
 runs our programs as fast as the newer one and compiles them with about a fifth of the memory and
 about 25% sooner (ad hoc, this project's 2-core CPU, 65^2 full build: +60 vs +380 MB of peak RSS, 6 vs
-8 s; one planning process with pushes and selective rebuilds: 654 vs 1,047 MB peak, 38 vs 53 s). From
-128^2 on, the newer one runs the build 20-35% faster. Both give bit-identical results (checked by
-``tests/test_compile.py``). Other backends get plain ``jax.jit``.
+8 s; one planning process with pushes and selective rebuilds: 654 vs 1,047 MB peak, 38 vs 53 s). Above
+65^2 the newer one runs the build faster (``SMALL_GRID_CELLS``). Both gave bit-identical fabrics in
+every case tried (25^2 to 256^2; ``tests/test_compile.py`` holds them equal on the built-in scene).
+Other backends get plain ``jax.jit``.
 """
 from __future__ import annotations
 
@@ -15,9 +16,10 @@ import math
 
 import jax
 
-SMALL_GRID_CELLS = 96 * 96
-"""Grids of at most this many cells compile with the older emitters (the crossover lies between
-65^2, measured equal speed, and 128^2, measured slower)."""
+SMALL_GRID_CELLS = 65 * 65
+"""Grids of at most this many cells (the paper's grids) compile with the older emitters. Ad hoc,
+paired in one process, full build at densities 0.2 / 0.4 / 0.6: equal speed at 65^2 (within the
+noise either way), 5-20% slower at 80^2, 20-35% slower at 128^2."""
 
 _SMALL_GRID_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
