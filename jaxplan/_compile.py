@@ -24,6 +24,11 @@ noise either way), 5-20% slower at 80^2, 20-35% slower at 128^2."""
 _SMALL_GRID_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 
+def traced(*trees) -> bool:
+    """Whether any leaf of ``trees`` is a tracer (called under a caller's ``jit``, ``vmap``, ``grad``)."""
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
+
+
 def _grid_cells(leaves) -> int:
     """The largest trailing 2-D size among arrays ``leaves`` (the grid's cells), 0 when none has one."""
     cells = 0
@@ -45,10 +50,10 @@ class _GridJit:
 
     def _pick(self, args, kwargs):
         # under a caller's jit, vmap or grad the call is inlined, where compile options are refused
-        leaves = jax.tree_util.tree_leaves((args, kwargs))
-        if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves) or jax.default_backend() != "cpu":
+        if traced(args, kwargs) or jax.default_backend() != "cpu":
             return self._default
-        return self._small if _grid_cells(leaves) <= SMALL_GRID_CELLS else self._default
+        return self._small if _grid_cells(jax.tree_util.tree_leaves((args, kwargs))) <= SMALL_GRID_CELLS \
+            else self._default
 
     def __call__(self, *args, **kwargs):
         return self._pick(args, kwargs)(*args, **kwargs)

@@ -6,8 +6,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan._compile import grid_jit
 from jaxplan import _grid
+from jaxplan._compile import grid_jit
 from jaxplan.fabric import Fabric, Table, continuation_dp
 from jaxplan.params import FabricParams, validate_params
 

@@ -31,8 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan._compile import grid_jit
 from jaxplan import _grid, connectors, execute, rebuild, selection, spillage
+from jaxplan._compile import grid_jit
 from jaxplan._timing import timed
 from jaxplan.fabric import Fabric, Table, _walk, build_fabric
 from jaxplan.params import FabricParams, validate_params

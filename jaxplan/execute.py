@@ -14,8 +14,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan._compile import grid_jit
 from jaxplan import spillage
+from jaxplan._compile import grid_jit
 from jaxplan.fabric import Paths
 
 # Counts written by a push are multiples of QUANTUM objects. Sums of such numbers are exact in

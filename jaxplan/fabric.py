@@ -18,8 +18,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan._compile import grid_jit
 from jaxplan import _grid, _kbest, heatmap, visibility
+from jaxplan._compile import grid_jit, traced as _traced
 from jaxplan.params import FabricParams, validate_params
 
 
@@ -263,11 +263,6 @@ def _build(scene, params: FabricParams) -> Fabric:
 
 
 _build_jit = grid_jit(_build)
-
-
-def _traced(*trees) -> bool:
-    """Whether any leaf of ``trees`` is a tracer (called under a caller's ``jit``, ``vmap``, ``grad``)."""
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
 
 
 def _is_concrete(scene) -> bool:

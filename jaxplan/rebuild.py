@@ -32,8 +32,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan._compile import grid_jit
 from jaxplan import _compact, _grid, connectors, heatmap, visibility
+from jaxplan._compile import grid_jit
 from jaxplan.connectors import Connectors
 from jaxplan.fabric import (Fabric, Table, _build, _table, _traced, full_table, highways_of, hop_lengths,
                             hops_from_steps, own_fields, ranks_from_directions, with_flow)

@@ -23,8 +23,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan._compile import grid_jit
 from jaxplan import execute, fabric as _fabric, rebuild, spillage
+from jaxplan._compile import grid_jit
 from jaxplan.fabric import Fabric, _walk
 
 DELIVERED_TIE = 1e-4   # objects

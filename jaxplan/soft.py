@@ -26,8 +26,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan._compile import grid_jit
 from jaxplan import _grid, visibility
+from jaxplan._compile import grid_jit
 from jaxplan.params import FabricParams
 
 MIN_TEMPERATURE = 1e-6   # a traced temperature is floored here, so t = 0 under vmap/grad cannot divide by 0
