@@ -155,6 +155,7 @@ def improve_policy(start, evaluate, best_step, occupied, cell_size, max_iteratio
     policy, iterations, _ = jax.lax.while_loop(improving, improve, (start, jnp.int32(0), jnp.bool_(True)))
     raw, length = evaluate(policy)
     _, _, policy = best_step(raw, length)
+    policy = _grid.materialize(policy)   # stored once: its consumers would each recompute the selection
     return raw, length, jnp.where(occupied, policy, -1), iterations
 
 
