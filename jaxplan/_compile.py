@@ -49,17 +49,14 @@ class _GridJit:
         functools.update_wrapper(self, fn)
 
     def _pick(self, args, kwargs):
+        leaves = jax.tree_util.tree_leaves((args, kwargs))
         # under a caller's jit, vmap or grad the call is inlined, where compile options are refused
-        if traced(args, kwargs) or jax.default_backend() != "cpu":
+        if traced(leaves) or jax.default_backend() != "cpu":
             return self._default
-        return self._small if _grid_cells(jax.tree_util.tree_leaves((args, kwargs))) <= SMALL_GRID_CELLS \
-            else self._default
+        return self._small if _grid_cells(leaves) <= SMALL_GRID_CELLS else self._default
 
     def __call__(self, *args, **kwargs):
         return self._pick(args, kwargs)(*args, **kwargs)
-
-    def lower(self, *args, **kwargs):
-        return self._pick(args, kwargs).lower(*args, **kwargs)
 
     def _cache_size(self) -> int:
         return self._default._cache_size() + self._small._cache_size()
