@@ -139,6 +139,24 @@ def test_face_graph_on_the_tiny_scene():
     assert not fg2.final[(0, 2)] and 0 < fg2.tail[(0, 2)] < 1e3
 
 
+def test_stale_stuck_penalties_are_taken_in_on_pop():
+    """The stuck penalty of a gap grows during the search; an evaluated node takes the growth into its
+    targets' one-hop costs (so a node evaluated early does not keep a cheaper estimate than its
+    later siblings), once per growth."""
+    from jaxplan.pusharound.search import SEARCH_RANKING, _Search  # noqa: PLC0415
+    search = _Search(ONE, FAST, SEARCH_RANKING, None, None, None, None)
+    root = search._new_node(ONE.poses, np.asarray(ONE.robots, np.float64), (), 0.0, 0.0)
+    assert search._evaluate(root) is None
+    best = root.targets[0]
+    assert not search._refresh_stuck(root)
+    search.stuck[best.bodies] = 2.0
+    assert search._refresh_stuck(root)
+    refreshed = {tg.bodies: tg.cost for tg in root.targets}
+    assert refreshed[best.bodies] == pytest.approx(best.cost + 2.0)
+    assert root.h == pytest.approx(min(refreshed.values()))
+    assert not search._refresh_stuck(root)
+
+
 def test_deterministic_for_a_seed(one_world):
     world, sim = one_world
     a = plan_pushes(ONE, FAST.replace(seed=3), world=world, sim=sim)
@@ -194,7 +212,8 @@ def test_mode_table_unit():
 @pytest.mark.parametrize("field, value", [("max_batch", 0), ("max_batch", 65), ("backend", "gpu"),
                                           ("time_limit_s", 0.0), ("presearch", "yes"), ("seed", 1.5),
                                           ("speeds", ()), ("team_sizes", (0,)), ("heuristic_weight", -1.0),
-                                          ("presearch_mode", "dfs"), ("batch_size", 0)])
+                                          ("presearch_mode", "dfs"), ("batch_size", 0),
+                                          ("refresh_stuck", 1)])
 def test_bad_config_raises(field, value):
     with pytest.raises(ValueError, match=field):
         SearchConfig(**{field: value})

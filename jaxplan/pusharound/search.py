@@ -97,7 +97,9 @@ class SearchConfig:
     had (cost units of Eq. 9); progress_bonus: subtracted from the estimate per gap the node's
     schedule opened that lowered the estimate (cost units; without it the search goes
     breadth-first over equally rated states); stuck_penalty: added to a gap's cost (one-hop and in
-    the face graph) for the rest of the search each time a batch's pushes on it all fail to widen it.
+    the face graph) for the rest of the search each time a batch's pushes on it all fail to widen it;
+    refresh_stuck: an evaluated node popped again first takes the stuck penalties added since its
+    evaluation into its targets' one-hop costs (and goes back to the queue if it is no longer best).
     """
 
     presearch: bool = True
@@ -128,9 +130,10 @@ class SearchConfig:
     reinsert_penalty: float = 1.0
     progress_bonus: float = 1.0
     stuck_penalty: float = 0.5
+    refresh_stuck: bool = True
 
     def __post_init__(self):
-        for name in ("presearch", "mode_table", "quick_pass", "reinsertion"):
+        for name in ("presearch", "mode_table", "quick_pass", "reinsertion", "refresh_stuck"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"SearchConfig.{name}: must be a bool; got {getattr(self, name)!r}.")
         for name, lo, hi in (("max_batch", 1, MAX_BATCH), ("max_expansions", 1, None), ("gaps_per_node", 1, None),
@@ -273,6 +276,7 @@ class _Node:
     check: tuple | None = None  # (WCCG, Connectivity, path) once Eq. 7 was tested
     origin: tuple = ()        # (parent nid, target index): siblings share their estimate's error
     corrected: bool = False
+    stuck_at: dict | None = None  # gap bodies -> the stuck penalty its target's cost includes
 
     @property
     def depth(self) -> int:
@@ -569,6 +573,7 @@ class _Search:
         else:
             targets = self._endpoint_targets(node.poses)
         node.targets = targets
+        node.stuck_at = {tg.bodies: self.stuck.get(tg.bodies, 0.0) for tg in targets if tg.kind == "gap"}
         node.h = min((tg.cost for tg in targets), default=math.inf)
         if node.opened and not node.h < node.parent_h - 1e-6:
             node.opened -= 1      # the gap it opened did not bring the goal closer: no bonus
@@ -804,6 +809,24 @@ class _Search:
             self._push(child, self._f(child))
         return None
 
+    def _refresh_stuck(self, node: _Node) -> bool:
+        """Raise the one-hop costs of an evaluated node's targets by the stuck penalties added since it
+        was evaluated (the penalties only grow, and an estimate fixed at evaluation would make nodes
+        evaluated early look cheaper than their later siblings). Returns whether any cost changed."""
+        changed = False
+        for k, tg in enumerate(node.targets or ()):
+            if tg.kind != "gap":
+                continue
+            grown = self.stuck.get(tg.bodies, 0.0) - node.stuck_at.get(tg.bodies, 0.0)
+            if grown > 0:
+                node.targets[k] = tg._replace(cost=tg.cost + grown, one_hop=tg.one_hop + grown)
+                node.stuck_at[tg.bodies] = self.stuck[tg.bodies]
+                changed = True
+        if changed:
+            node.h = (self._node_estimate(node) + self.cfg.reinsert_penalty * node.expansions if node.cands is not None
+                      else min(tg.cost for tg in node.targets))
+        return changed
+
     def _node_estimate(self, node: _Node) -> float:
         """Best cost among the gaps whose candidates are not used up."""
         left = {c.target for c in node.cands[node.cursor:]}
@@ -861,6 +884,10 @@ class _Search:
                 f_new = self._f(node)
                 if self.queue and f_new > self.queue[0][0] + 1e-9:
                     self._push(node, f_new)
+                    continue
+            elif self.cfg.refresh_stuck and self._refresh_stuck(node):
+                if self.queue and self._f(node) > self.queue[0][0] + 1e-9:
+                    self._push(node, self._f(node))
                     continue
             if self.best is None or node.h < self.best.h:
                 self.best = node
