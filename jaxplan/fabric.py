@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan import _grid, _kbest, heatmap, visibility
-from jaxplan._compile import grid_jit, traced as _traced
+from jaxplan._compile import grid_jit, traced
 from jaxplan.params import FabricParams, validate_params
 
 
@@ -266,7 +266,7 @@ _build_jit = grid_jit(_build)
 
 
 def _is_concrete(scene) -> bool:
-    return not _traced(scene)
+    return not traced(scene)
 
 
 def build_fabric(scene, params: FabricParams | None = None) -> Fabric:

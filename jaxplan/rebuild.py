@@ -33,9 +33,9 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan import _compact, _grid, connectors, heatmap, visibility
-from jaxplan._compile import grid_jit
+from jaxplan._compile import grid_jit, traced
 from jaxplan.connectors import Connectors
-from jaxplan.fabric import (Fabric, Table, _build, _table, _traced, full_table, highways_of, hop_lengths,
+from jaxplan.fabric import (Fabric, Table, _build, _table, full_table, highways_of, hop_lengths,
                             hops_from_steps, own_fields, ranks_from_directions, with_flow)
 from jaxplan.params import FabricParams
 
@@ -362,7 +362,7 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
     capacity = default_capacity(scene.shape) if capacity is None else int(capacity)
     changed = jnp.asarray(changed, bool)
     local = local_flow_default(scene.shape) if local_flow is None else bool(local_flow)
-    if _traced(scene, params, fabric, changed):
+    if traced(scene, params, fabric, changed):
         return _rebuild(scene, params, fabric, changed, capacity, local)
     if not params.monotone:
         return _full_only_jit(scene, params, changed)

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan import execute, fabric as _fabric, rebuild, spillage
-from jaxplan._compile import grid_jit
+from jaxplan._compile import grid_jit, traced
 from jaxplan.fabric import Fabric, _walk
 
 DELIVERED_TIE = 1e-4   # objects
@@ -145,7 +145,7 @@ def select_all(scene, fabric: Fabric, slack_tau, spill: spillage.SpillParams, *,
     h, w = fabric.occupied.shape
     if not spill.enabled:
         return jnp.zeros((h, w), jnp.int32)
-    if _fabric._traced(scene, fabric, slack_tau, spill):
+    if traced(scene, fabric, slack_tau, spill):
         return _select_every_cell(scene, fabric, slack_tau, spill, max_steps=max_steps, evaluator=evaluator)
     n_pairs, longest = (int(x) for x in _pair_counts(fabric, slack_tau))
     if n_pairs == 0:

@@ -823,14 +823,14 @@ class _Search:
                 node.stuck_at[tg.bodies] = self.stuck[tg.bodies]
                 changed = True
         if changed:
-            node.h = (self._node_estimate(node) + self.cfg.reinsert_penalty * node.expansions if node.cands is not None
-                      else min(tg.cost for tg in node.targets))
+            node.h = self._node_estimate(node) if node.cands is not None else min(tg.cost for tg in node.targets)
         return changed
 
     def _node_estimate(self, node: _Node) -> float:
-        """Best cost among the gaps whose candidates are not used up."""
+        """A partly expanded node's estimate: the best cost among the gaps whose candidates are not used
+        up, plus ``reinsert_penalty`` per batch it already had (its children come first)."""
         left = {c.target for c in node.cands[node.cursor:]}
-        return min((node.targets[t].cost for t in left), default=math.inf)
+        return min((node.targets[t].cost for t in left), default=math.inf) + self.cfg.reinsert_penalty * node.expansions
 
     # ------------------------------------------------------------------ main loop
     def run(self) -> SearchResult:
@@ -899,9 +899,8 @@ class _Search:
                 path, child = found
                 return self._result(True, child, path, "")
             if cfg.reinsertion and node.cursor < len(node.cands):
-                # Deferred expansion: back to the queue with its best unexplored gap, plus
-                # reinsert_penalty per batch already spent on it (its children come first).
-                node.h = self._node_estimate(node) + cfg.reinsert_penalty * node.expansions
+                # Deferred expansion: back to the queue with its best unexplored gap.
+                node.h = self._node_estimate(node)
                 self._push(node, self._f(node))
         best = self.best if self.best is not None else root
         return self._result(False, best, None, reason)
