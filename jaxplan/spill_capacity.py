@@ -169,7 +169,8 @@ class CapacityFit(NamedTuple):
 
 def fit_capacity(waypoints, n_points, waypoint_pickup, delivered, *, temperature: float = 0.5,
                  steps: int = 300, learning_rate: float = 0.05,
-                 grid=((4.0, 8.0, 12.0, 16.0, 24.0, 48.0), (0.0, 0.05, 0.2, 0.5), (0.0, 0.01, 0.03, 0.1)),
+                 grid=((4.0, 8.0, 16.0, 24.0, 48.0, 96.0, 192.0, 1000.0),
+                       (0.0, 0.01, 0.02, 0.03, 0.05, 0.1, 0.2, 0.5), (0.0, 0.002, 0.005, 0.01, 0.03, 0.1)),
                  base: CapacitySpillParams | None = None) -> CapacityFit:
     """Fit ``capacity``, ``lam`` and ``mu`` to observed delivered objects of R routes.
 
@@ -177,7 +178,10 @@ def fit_capacity(waypoints, n_points, waypoint_pickup, delivered, *, temperature
     delivered: f[R] observed objects (e.g. the physics rollouts of the same routes).
     Loss: mean squared error in objects^2. A coarse grid (capacity x lam x mu, evaluated in one
     ``vmap`` over parameter sets) picks the start, then ``steps`` Adam steps (optax) on
-    ``log(capacity)`` and the softplus-inverse of ``lam`` and ``mu`` (so they stay positive). ``temperature`` is held fixed.
+    ``log(capacity)`` and the softplus-inverse of ``lam`` and ``mu`` (so they stay positive).
+    ``temperature`` is held fixed. The grid's capacities reach 1000 objects (no cap in practice):
+    Adam started from a small capacity does not find the uncapped regime of a shovel that holds
+    its load (it settled at capacity 98, lam and mu ~0 where the uncapped fit is far better).
     """
     import optax
 

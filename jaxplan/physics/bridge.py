@@ -34,8 +34,11 @@ __all__ = ["PursuitParams", "RouteOutcome", "Check", "pursuit_policy", "route_pa
            "rasterise", "project", "plan_routes", "tracking_error", "PUSH_IN"]
 
 _SAMPLES = 8            # spline samples per waypoint segment (as spillage's default)
-_START_GAP = 0.9        # blade starts this many cells behind the source cell's centre (its wings
-                        # clear a diagonal source cell's corner particles)
+_TIP_GAP = 0.68         # the shovel's wing tips start this many cells behind the source cell's
+                        # centre: they clear a diagonal source cell's corner particles (with 1-cell
+                        # wings a blade start 0.9 cell behind put the tips among the source's particles)
+_MAX_SEGMENT = 1.5       # cells: longer waypoint segments are split before the spline (_split_long_segments)
+_PATH_PAD = 64          # tracked paths are padded to a multiple of this many points (fewer shapes to compile)
 _STOP_TOL = 0.05        # cells: the rover stops once the blade is this close to the path's end
 PUSH_IN = 1.0           # cells the blade drives on past a route's end by default: stopping on a
                         # fallback route's boundary point left the carried load straddling the
@@ -114,11 +117,14 @@ def pursuit_policy(p: PursuitParams, pstate, qpos, qvel, time):
 def route_path(scene, route: execute.Route, world_geom: rover_mod.Geometry, push_in: float = 0.0):
     """The tracked path of one route: ``(path f[M, 2], arc f[M], total, end_dir f[2], start_xy, yaw)``.
 
-    Waypoints are the start point (``_START_GAP`` cells behind the source, on the line to the next
-    waypoint), then the route's waypoints (``execute.waypoints``). The spline is sampled like the
-    2D spill model's and closed with the end point, then extended straight on by ``push_in`` cells
-    along the end tangent (the blade stops there: with 0 it stops on a fallback route's boundary
-    point, and the load it carries straddles the boundary). Numpy; M = (S + 1) * _SAMPLES + 2.
+    Waypoints are the start point (the blade's front face placed so that the wing tips are
+    ``_TIP_GAP`` cells behind the source, on the line to the next waypoint), then the route's
+    waypoints (``execute.waypoints``), with segments longer than 1.5 cells split into pieces of at
+    most one cell (``_split_long_segments``). The spline is sampled like the 2D spill model's and
+    closed with the end point, then extended straight on by ``push_in`` cells along the end tangent
+    (the blade stops there: with 0 it stops on a fallback route's boundary point, and the load it
+    carries straddles the boundary). Numpy; M = (S + 1) * _SAMPLES + 2 (S waypoint slots), or the
+    next multiple of ``_PATH_PAD`` above the sample count where the split made more.
     """
     s = float(np.asarray(scene.cell_size))
     pts, n = execute.waypoints(scene, route)
@@ -126,23 +132,42 @@ def route_path(scene, route: execute.Route, world_geom: rover_mod.Geometry, push
     first = pts[1] - pts[0] if n > 1 else np.asarray(route.end, np.float64) - pts[0]
     norm = np.linalg.norm(first)
     dir0 = first / norm if norm > 0 else np.array([1.0, 0.0])
-    start = pts[0] - dir0 * _START_GAP * s
-    way = np.concatenate([start[None], pts], 0)
-    samples = spillage.sample_route(jnp.asarray(way, jnp.float32), n + 1, _SAMPLES)
+    start = pts[0] - dir0 * (_TIP_GAP * s + world_geom.wing_reach)
+    way = _split_long_segments(np.concatenate([start[None], pts[:n]], 0), _MAX_SEGMENT * s, s)
+    samples = spillage.sample_route(jnp.asarray(way, jnp.float32), way.shape[0], _SAMPLES)
     pos = np.asarray(samples.pos, np.float64)
     valid = np.asarray(samples.valid)
-    end = way[n]
+    end = way[-1]
     poly = np.concatenate([start[None], pos[valid], end[None]], 0)
     tail = poly[valid.sum()] - poly[max(valid.sum() - 1, 0)]
     end_dir = tail / max(np.linalg.norm(tail), 1e-12)
     stop = end + end_dir * float(push_in) * s
     poly = np.concatenate([poly, stop[None]], 0)
-    m = way.shape[0] * _SAMPLES + 2
+    m = (len(pts) + 1) * _SAMPLES + 2
+    if poly.shape[0] > m:
+        m = _PATH_PAD * -(-poly.shape[0] // _PATH_PAD)
     poly = np.concatenate([poly, np.repeat(stop[None], m - poly.shape[0], 0)], 0)
     seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(seg)])
     axle = start - dir0 * world_geom.blade_front
     return poly, arc, float(arc[-1]), end_dir, axle, math.atan2(dir0[1], dir0[0])
+
+
+def _split_long_segments(way, max_length, piece):
+    """``f[K, 2]``: the polyline ``way f[J, 2]`` with every segment longer than ``max_length`` cut
+    into equal pieces no longer than ``piece`` (world units).
+
+    The uniform Catmull-Rom spline takes its tangent at a waypoint from the two neighbours, so a
+    one-cell step followed by a long fallback segment (tens of cells on ``sparse65``) got a tangent
+    of half the long segment and looped on the short one: the rover drove the loop and swept its
+    load out (3 of 20 objects delivered). Equal spacing keeps the spline on the polyline.
+    """
+    out = [way[0]]
+    for a, b in zip(way[:-1], way[1:]):
+        length = float(np.linalg.norm(b - a))
+        k = int(math.ceil(length / piece)) if length > max_length else 1
+        out.extend(a + (b - a) * (j / k) for j in range(1, k + 1))
+    return np.asarray(out)
 
 
 class RouteOutcome(NamedTuple):
@@ -296,6 +321,7 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
     g = world.geometry
     speeds = np.broadcast_to(np.asarray(speed, np.float64), (b,)) * s
     paths = [route_path(scene, _index(routes, i), g, push_in) for i in range(b)]
+    paths = _pad_paths(paths)
     q0 = np.stack([rover_mod.initial_qpos(world, p[4], p[5], lay[0]) for p, lay in zip(paths, layouts)])
     qv0 = np.zeros((b, world.model.nv))
     f32 = lambda x: jnp.asarray(np.asarray(x), jnp.float32)  # noqa: E731
@@ -316,6 +342,13 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
     outcome = _score(scene, routes, world, traj, paths, layouts, masks, spill)
     return Check(outcome, traj, world, params, [lay[1] for lay in layouts], [lay[2] for lay in layouts],
                  np.stack(masks), n_ticks)
+
+
+def _pad_paths(paths):
+    """Route paths (``route_path``) padded to one length by repeating their end point."""
+    m = max(p[0].shape[0] for p in paths)
+    pad = lambda a: np.concatenate([a, np.repeat(a[-1:], m - a.shape[0], 0)], 0)  # noqa: E731
+    return [(pad(p[0]), pad(p[1])) + tuple(p[2:]) for p in paths]
 
 
 def _score(scene, routes, world, traj: Trajectory, paths, layouts, masks, spill) -> RouteOutcome:

@@ -56,11 +56,14 @@ class RoverConfig:
     pair_factor, hull_factor: contact-cap sizing (module docstring).  friction: floor and
     particle sliding friction.  roll_stop: seconds for a rolling particle to stop (joint
     damping stands in for rolling resistance).  wheel_kv: velocity-actuator gain (N m s / rad), moderate on purpose.
+    wing_length: how far the shovel's side plates reach forward of the blade, in cells. With 1 cell
+    the shovel holds its load like the 2D model's shovel (most of what it collects arrives); with
+    short wings (0.24) it behaved like a flat blade with a fixed capacity (docs/physics.md).
     """
 
     shovel_width: float = 1.0
     particles_per_object: int = 1
-    particle_radius: float = 0.09
+    particle_radius: float = 0.06
     particle_mass: float = 0.2
     rover_mass: float = 60.0
     timestep: float = 0.005
@@ -72,6 +75,7 @@ class RoverConfig:
     friction: float = 0.6
     wheel_kv: float = 4.0
     roll_stop: float = 0.1
+    wing_length: float = 1.0
 
     def replace(self, **changes) -> "RoverConfig":
         return dataclasses.replace(self, **changes)
@@ -84,6 +88,7 @@ class Geometry(NamedTuple):
     half_track: float      # axle midpoint to a wheel centre
     blade_front: float     # axle midpoint to the blade's front face (the tracked point)
     blade_half_width: float
+    wing_reach: float      # blade's front face to the side plates' tips
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,7 +122,8 @@ def _geometry(s: float, cfg: RoverConfig) -> Geometry:
     wheel_r = 0.12 * s
     blade_x = 0.42 * s
     blade_hx = 0.02 * s
-    return Geometry(wheel_r, 0.3 * s, blade_x + blade_hx, 0.5 * cfg.shovel_width * s)
+    return Geometry(wheel_r, 0.3 * s, blade_x + blade_hx, 0.5 * cfg.shovel_width * s,
+                    cfg.wing_length * s - blade_hx)
 
 
 def _rover_xml(s: float, cfg: RoverConfig) -> str:
@@ -130,7 +136,8 @@ def _rover_xml(s: float, cfg: RoverConfig) -> str:
         chassis_hy=0.22 * s, chassis_hz=0.06 * s, chassis_mass=cfg.rover_mass,
         blade_x=g.blade_front - 0.02 * s, blade_z=0.13 * s - g.wheel_r, blade_hx=0.02 * s,
         blade_hy=g.blade_half_width, blade_hz=0.12 * s, blade_mass=0.1 * cfg.rover_mass,
-        wing_x=g.blade_front + 0.1 * s, wing_y=g.blade_half_width - 0.02 * s, wing_hx=0.12 * s,
+        wing_x=g.blade_front + (0.5 * cfg.wing_length - 0.02) * s, wing_y=g.blade_half_width - 0.02 * s,
+        wing_hx=0.5 * cfg.wing_length * s,
         wing_mass=0.02 * cfg.rover_mass,
         caster_x=-0.32 * s, caster_front_x=0.3 * s, caster_r=0.05 * s, caster_z=0.05 * s - g.wheel_r, caster_mass=0.02 * cfg.rover_mass,
         wheel_y=g.half_track, wheel_mass=0.04 * cfg.rover_mass, wheel_damping=0.05,
