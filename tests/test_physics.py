@@ -176,3 +176,10 @@ def test_tracked_path_does_not_loop_before_a_long_fallback_segment():
     assert on_route.max() < 0.3 * scene.cell_size
     polyline = np.sum(np.linalg.norm(np.diff(np.concatenate([path[:1], pts], 0), axis=0), axis=1))
     assert total <= 1.05 * polyline and np.all(np.diff(arc) >= 0)
+
+
+@pytest.mark.parametrize("field, value", [("wing_length", 0.0), ("particle_radius", -0.1),
+                                          ("timestep", float("nan")), ("substeps", 0)])
+def test_rover_config_rejects_bad_values(field, value):
+    with pytest.raises(ValueError, match=f"RoverConfig.{field}"):
+        rover.RoverConfig().replace(**{field: value})

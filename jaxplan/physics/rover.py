@@ -77,6 +77,18 @@ class RoverConfig:
     roll_stop: float = 0.1
     wing_length: float = 1.0
 
+    def __post_init__(self):
+        positive = ("shovel_width", "particle_radius", "particle_mass", "rover_mass", "timestep",
+                    "wheel_kv", "roll_stop", "wing_length")
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"RoverConfig.{name}: must be a positive number; got {value!r}.")
+        for name in ("particles_per_object", "substeps", "iterations", "ls_iterations"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"RoverConfig.{name}: must be an integer >= 1; got {value!r}.")
+
     def replace(self, **changes) -> "RoverConfig":
         return dataclasses.replace(self, **changes)
 
