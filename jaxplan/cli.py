@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import sys
@@ -412,6 +413,8 @@ def _cmd_rover(args) -> int:
         raise CLIError(f"--routes: must be an int >= 1; got {args.routes}.")
     if not args.speed > 0:
         raise CLIError(f"--speed: must be > 0 cells/s; got {args.speed}.")
+    if args.friction is not None and not (math.isfinite(args.friction) and args.friction > 0):
+        raise CLIError(f"--friction: must be a positive number; got {args.friction}.")
     spill = _spill_params(args)
     params = _params(args)
     scene = _load_scene(args.scene)
@@ -430,7 +433,8 @@ def _cmd_rover(args) -> int:
         bar.update()
         bar.set_postfix_str(stages[1])
         start = time.perf_counter()
-        check = bridge.check_routes(scene, routes, spill=spill, speed=args.speed, backend=args.backend)
+        check = bridge.check_routes(scene, routes, spill=spill, speed=args.speed, backend=args.backend,
+                                    friction=args.friction)
         rollout_s = time.perf_counter() - start
         bar.update()
         bar.set_postfix_str(stages[2])
@@ -463,6 +467,7 @@ def _cmd_rover(args) -> int:
         "rollout_seconds": round(rollout_s, 3),
         "throughput_route_steps_per_s": round(b * check.n_ticks * check.world.config.substeps / rollout_s, 1),
         "speed_cells_per_s": args.speed,
+        "friction": check.world.config.friction if args.friction is None else args.friction,
         "spill": {"lam": float(spill.lam), "threshold": float(spill.threshold)},
         "notes": ("masses in objects (1 particle = 1 object); predicted_* from the 2D push "
                   "(execute.execute); lateral errors in cells, blade point to spline; rollout_seconds "
@@ -973,6 +978,8 @@ def _build_parser() -> argparse.ArgumentParser:
                         "(mjx with a GPU, else c); default auto")
     p.add_argument("--speed", type=float, default=0.8, metavar="CELLS_PER_S",
                    help="blade speed along the route, cells/s > 0; default 0.8")
+    p.add_argument("--friction", type=float, default=None, metavar="MU",
+                   help="sliding friction of floor, gravel and shovel, > 0; default: the rover model's (0.6)")
     _add_theta_option(p)
     _add_spill_options(p)
     p.add_argument("--no-render", action="store_true", help="skip the rendered frames")

@@ -21,8 +21,9 @@ def _tiny_file(tmp_path):
 def test_rover_writes_summary_table_and_figure(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["rover", "--scene", str(_tiny_file(tmp_path)), "--routes", "1", "--backend", "c",
-                 "--no-render", "--out", str(out)]) == 0
+                 "--friction", "0.8", "--no-render", "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
+    assert summary["friction"] == 0.8
     (route,) = summary["routes"]
     for key in ("predicted_delivered", "delivered", "mean_lateral", "max_lateral", "finite", "collected"):
         assert key in route
@@ -35,7 +36,8 @@ def test_rover_writes_summary_table_and_figure(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, field", [(["--routes", "0"], "--routes"), (["--speed", "-1"], "--speed"),
-                                         (["--scene", "nope.json"], "--scene"), (["--lam", "-1"], "lam")])
+                                         (["--scene", "nope.json"], "--scene"), (["--lam", "-1"], "lam"),
+                                         (["--friction", "0"], "--friction")])
 def test_rover_bad_input_exits_2(tmp_path, capsys, argv, field):
     with pytest.raises(SystemExit) as info:
         main(["rover", "--out", str(tmp_path / "o"), *argv])

@@ -24,6 +24,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 
 from jaxplan import execute, spillage
@@ -294,9 +295,13 @@ def plan_routes(scene, params=None, n_routes: int = 4):
 def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig | None = None,
                  spill: spillage.SpillParams | None = None, speed=0.8, lookahead: float = 0.8,
                  backend: str = "auto", horizon_factor: float = 1.5, n_ticks: int | None = None,
-                 push_in: float = PUSH_IN,
+                 push_in: float = PUSH_IN, friction=None,
                  simulator: Simulator | None = None, world: rover_mod.World | None = None) -> Check:
     """Roll out every route of ``routes`` (leading axis B) in one batch and score it.
+
+    friction: None (the world's, ``RoverConfig.friction``) or sliding friction per route (scalar or
+    f[B]) of the floor, the particles and the hull; the wheels keep theirs. Per element on both
+    engines (``Simulator.run``'s ``model_fields``), so a batch can sweep it.
 
     speed: blade speed in cells/s (scalar or f[B], a per-route parameter); lookahead: cells.
     push_in: cells the blade drives on past the route's end, along its end tangent (``route_path``).
@@ -338,10 +343,26 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
     if n_ticks is None:
         longest = max(p[2] for p in paths) / max(float(speeds.min()), 1e-9)
         n_ticks = int(math.ceil(horizon_factor * longest / simulator.tick_seconds)) + 20
-    traj = simulator.run(q0, qv0, params, pstate0, n_ticks)
+    traj = simulator.run(q0, qv0, params, pstate0, n_ticks,
+                         model_fields=None if friction is None else _friction_fields(world, friction, b))
     outcome = _score(scene, routes, world, traj, paths, layouts, masks, spill)
     return Check(outcome, traj, world, params, [lay[1] for lay in layouts], [lay[2] for lay in layouts],
                  np.stack(masks), n_ticks)
+
+
+def _friction_fields(world: rover_mod.World, friction, b: int) -> dict:
+    """``{"geom_friction": f[B, ngeom, 3]}``: the world's geom frictions with the sliding
+    coefficient of every geom but the wheels set to ``friction`` (scalar or f[B]) per route."""
+    mu = np.broadcast_to(np.asarray(friction, np.float64), (b,))
+    if not np.all(np.isfinite(mu) & (mu > 0)):
+        raise ValueError(f"friction: must be positive and finite, one value or one per route; got {friction!r}.")
+    model = world.model
+    wheels = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name) for name in ("wheel_left", "wheel_right")]
+    sliding = np.ones(model.ngeom, bool)
+    sliding[wheels] = False
+    table = np.repeat(np.asarray(model.geom_friction, np.float64)[None], b, 0)
+    table[:, sliding, 0] = mu[:, None]
+    return {"geom_friction": table}
 
 
 def _pad_paths(paths):

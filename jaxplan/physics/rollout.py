@@ -22,6 +22,11 @@ stepping it (vmapped lanes are independent, so NaNs never leak to other elements
 same. MuJoCo's auto-reset on bad accelerations is disabled in the C engine so that a blow-up shows up
 as NaN instead of a silent jump back to the initial pose.
 
+Model parameters per element: ``run(..., model_fields={"geom_friction": f[B, ngeom, 3]})`` gives each
+element its own values of any numeric ``MjModel`` field (friction, masses, gains, ...). MJX vmaps over
+them (one compiled program per horizon and set of field names, so the values can be swept, or
+differentiated, without recompiling); the C engine steps each element with its own model copy.
+
 Engines agree within the tolerances of ``docs/physics.md`` (MJX runs in float32, the C engine in
 float64; contact-rich scenes are chaotic, so per-particle states differ while aggregate verdicts agree).
 """
@@ -129,9 +134,10 @@ class Simulator:
         self._policy_batch = jax.jit(jax.vmap(policy))
 
     # ------------------------------------------------------------------------------------ public
-    def run(self, qpos0, qvel0, params, pstate0, n_ticks: int) -> Trajectory:
+    def run(self, qpos0, qvel0, params, pstate0, n_ticks: int, model_fields=None) -> Trajectory:
         """Roll out B elements for ``n_ticks`` control ticks. qpos0 f[B, nq], qvel0 f[B, nv];
-        params, pstate0: policy pytrees with leading axis B."""
+        params, pstate0: policy pytrees with leading axis B. model_fields: optional
+        ``{name: f[B, *shape]}``, per-element values of ``MjModel`` fields (``shape`` = the field's)."""
         qpos0 = np.asarray(qpos0, np.float64)
         qvel0 = np.asarray(qvel0, np.float64)
         if qpos0.ndim != 2 or qpos0.shape[1] != self.model.nq:
@@ -140,17 +146,34 @@ class Simulator:
             raise ValueError(f"qvel0: expected shape [{qpos0.shape[0]}, {self.model.nv}]; got {qvel0.shape}.")
         if int(n_ticks) < 1:
             raise ValueError(f"n_ticks: must be >= 1; got {n_ticks!r}.")
+        fields = self._check_fields(model_fields, qpos0.shape[0])
         run = self._run_mjx if self.backend == "mjx" else self._run_c
-        return run(qpos0, qvel0, params, pstate0, int(n_ticks))
+        return run(qpos0, qvel0, params, pstate0, int(n_ticks), fields)
 
     @property
     def tick_seconds(self) -> float:
         return float(self.model.opt.timestep) * self.substeps
 
+    def _check_fields(self, model_fields, b: int) -> dict:
+        fields = {}
+        for name, value in (model_fields or {}).items():
+            base = getattr(self.model, name, None)
+            if not isinstance(base, np.ndarray) or base.dtype.kind not in "fiu":
+                raise ValueError(f"model_fields[{name!r}]: not a numeric MjModel array field.")
+            value = np.asarray(value, np.float64)
+            if value.shape != (b,) + base.shape:
+                raise ValueError(f"model_fields[{name!r}]: expected shape {(b,) + base.shape} (batch, then the "
+                                 f"field's own shape); got {value.shape}.")
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"model_fields[{name!r}]: values must be finite.")
+            fields[name] = value.astype(base.dtype)
+        return fields
+
     # ------------------------------------------------------------------------------------ MJX
-    def _mjx_fn(self, n_ticks: int):
-        if n_ticks in self._mjx_cache:
-            return self._mjx_cache[n_ticks]
+    def _mjx_fn(self, n_ticks: int, field_names: tuple = ()):
+        key = (n_ticks, field_names)
+        if key in self._mjx_cache:
+            return self._mjx_cache[key]
         from mujoco import mjx
 
         mx = mjx.put_model(self.model)
@@ -162,15 +185,16 @@ class Simulator:
         def ncon_of(d):
             return jnp.sum(d._impl.contact.dist < 0).astype(jnp.int32) if d._impl.contact.dist.size else jnp.int32(0)
 
-        def single(qpos0, qvel0, params, pstate0):
+        def single(qpos0, qvel0, params, pstate0, fields):
+            m = mx.replace(**{k: v.astype(getattr(mx, k).dtype) for k, v in fields.items()}) if fields else mx
             d = d0.replace(qpos=qpos0.astype(d0.qpos.dtype), qvel=qvel0.astype(d0.qvel.dtype))
-            d = mjx.forward(mx, d)
+            d = mjx.forward(m, d)
 
             def tick(carry, t):
                 d, ps, ok, first_bad = carry
                 ctrl, ps = policy(params, ps, d.qpos, d.qvel, d.time)
                 d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype))
-                d = jax.lax.fori_loop(0, substeps, lambda _, dd: mjx.step(mx, dd), d)
+                d = jax.lax.fori_loop(0, substeps, lambda _, dd: mjx.step(m, dd), d)
                 good = _state_ok(d.qpos, d.qvel, free_adr, lo, hi, jnp)
                 first_bad = jnp.where(ok & ~good, t + 1, first_bad)
                 return (d, ps, ok & good, first_bad), (d.qpos, d.qvel, ctrl, ncon_of(d))
@@ -179,17 +203,18 @@ class Simulator:
             (d, ps, ok, first_bad), (qp, qv, ctrl, ncon) = jax.lax.scan(tick, init, jnp.arange(n_ticks))
             qp = jnp.concatenate([qpos0[None].astype(qp.dtype), qp])
             qv = jnp.concatenate([qvel0[None].astype(qv.dtype), qv])
-            ncon = jnp.concatenate([ncon_of(mjx.forward(mx, d0.replace(qpos=qpos0.astype(d0.qpos.dtype))))[None], ncon])
+            ncon = jnp.concatenate([ncon_of(mjx.forward(m, d0.replace(qpos=qpos0.astype(d0.qpos.dtype))))[None], ncon])
             return qp, qv, ctrl, ok, first_bad, ncon, ps
 
         fn = jax.jit(jax.vmap(single))
-        self._mjx_cache[n_ticks] = fn
+        self._mjx_cache[key] = fn
         return fn
 
-    def _run_mjx(self, qpos0, qvel0, params, pstate0, n_ticks):
-        fn = self._mjx_fn(n_ticks)
+    def _run_mjx(self, qpos0, qvel0, params, pstate0, n_ticks, fields):
+        fn = self._mjx_fn(n_ticks, tuple(sorted(fields)))
+        fields = {k: jnp.asarray(v) for k, v in fields.items()}
         qp, qv, ctrl, ok, first_bad, ncon, ps = jax.block_until_ready(
-            fn(jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32), params, pstate0))
+            fn(jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32), params, pstate0, fields))
         time = np.arange(n_ticks + 1) * self.tick_seconds
         return Trajectory(np.asarray(qp), np.asarray(qv), np.asarray(ctrl), time, np.asarray(ok),
                           np.asarray(first_bad), np.asarray(ncon), ps, "mjx")
@@ -200,13 +225,15 @@ class Simulator:
         model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
         return model
 
-    def _run_c(self, qpos0, qvel0, params, pstate0, n_ticks):
+    def _run_c(self, qpos0, qvel0, params, pstate0, n_ticks, fields):
         model = self._c_model()
         b = qpos0.shape[0]
-        datas = [mujoco.MjData(model) for _ in range(b)]
+        models = [_with_fields(model, {k: v[i] for k, v in fields.items()}) for i in range(b)] if fields \
+            else [model] * b
+        datas = [mujoco.MjData(m) for m in models]
         for i, d in enumerate(datas):
             d.qpos[:], d.qvel[:] = qpos0[i], qvel0[i]
-            mujoco.mj_forward(model, d)
+            mujoco.mj_forward(models[i], d)
         qp = np.empty((b, n_ticks + 1, model.nq))
         qv = np.empty((b, n_ticks + 1, model.nv))
         ctrl_out = np.zeros((b, n_ticks, model.nu))
@@ -222,7 +249,7 @@ class Simulator:
             d = datas[i]
             d.ctrl[:] = ctrl_i
             with np.errstate(all="ignore"):
-                mujoco.mj_step(model, d, nstep=substeps)
+                mujoco.mj_step(models[i], d, nstep=substeps)
             return i
 
         with concurrent.futures.ThreadPoolExecutor(self.nthread) as pool:
@@ -250,6 +277,14 @@ class Simulator:
 
 def _active_contacts(d: mujoco.MjData) -> int:
     return int(np.sum(d.contact.dist[: d.ncon] < 0)) if d.ncon else 0
+
+
+def _with_fields(model: mujoco.MjModel, values: dict) -> mujoco.MjModel:
+    """A copy of ``model`` with the given array fields overwritten (the C engine's per-element model)."""
+    copy = _copy_model(model)
+    for name, value in values.items():
+        getattr(copy, name)[...] = value
+    return copy
 
 
 def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
