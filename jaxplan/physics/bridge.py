@@ -38,7 +38,7 @@ _SAMPLES = 8            # spline samples per waypoint segment (as spillage's def
 _TIP_GAP = 0.68         # the shovel's wing tips start this many cells behind the source cell's
                         # centre: they clear a diagonal source cell's corner particles (with 1-cell
                         # wings a blade start 0.9 cell behind put the tips among the source's particles)
-_MAX_SEGMENT = 1.5       # cells: longer waypoint segments are split before the spline (_split_long_segments)
+_MAX_SEGMENT = 1.5      # cells: longer waypoint segments are split before the spline (_split_long_segments)
 _PATH_PAD = 64          # tracked paths are padded to a multiple of this many points (fewer shapes to compile)
 _STOP_TOL = 0.05        # cells: the rover stops once the blade is this close to the path's end
 PUSH_IN = 1.0           # cells the blade drives on past a route's end by default: stopping on a

@@ -24,8 +24,8 @@ as NaN instead of a silent jump back to the initial pose.
 
 Model parameters per element: ``run(..., model_fields={"geom_friction": f[B, ngeom, 3]})`` gives each
 element its own values of any numeric ``MjModel`` field (friction, masses, gains, ...). MJX vmaps over
-them (one compiled program per horizon and set of field names, so the values can be swept, or
-differentiated, without recompiling); the C engine steps each element with its own model copy.
+them (one compiled program per horizon and set of field names, so new values do not recompile); the C
+engine steps each element with its own model copy.
 
 Engines agree within the tolerances of ``docs/physics.md`` (MJX runs in float32, the C engine in
 float64; contact-rich scenes are chaotic, so per-particle states differ while aggregate verdicts agree).
@@ -177,6 +177,9 @@ class Simulator:
         from mujoco import mjx
 
         mx = mjx.put_model(self.model)
+        missing = [k for k in field_names if not hasattr(mx, k)]
+        if missing:
+            raise ValueError(f"model_fields: MJX's model has no field {missing[0]!r}; use the C engine for it.")
         d0 = mjx.make_data(mx)
         policy, substeps = self.policy, self.substeps
         free_adr = jnp.asarray(self.free_adr)
