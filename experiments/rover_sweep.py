@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxplan.scene import BUILTIN_SCENES
+
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 
@@ -45,7 +47,7 @@ def _floats(text):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scene", default="default", help="built-in scene name or scene file (default: default)")
+    ap.add_argument("--scene", default="default", choices=BUILTIN_SCENES, help="built-in scene (default: default)")
     ap.add_argument("--frictions", type=_floats, default=[0.3, 0.6, 0.9], help="sliding frictions, e.g. 0.3,0.6,0.9")
     ap.add_argument("--speeds", type=_floats, default=[0.5, 0.8, 1.2], help="blade speeds in cells/s, e.g. 0.5,0.8")
     ap.add_argument("--backend", default="c", choices=("c", "mjx", "auto"), help="physics engine (default c)")
@@ -53,10 +55,10 @@ def main(argv=None):
 
     import jax
 
-    from jaxplan.cli import _load_scene
+    from jaxplan import builtin_scene
     from jaxplan.physics import bridge
 
-    scene = _load_scene(args.scene)
+    scene = builtin_scene(args.scene)
     _, routes, sources = bridge.plan_routes(scene, n_routes=1)
     pairs = list(itertools.product(args.frictions, args.speeds))
     batch = jax.tree.map(lambda a: np.repeat(np.asarray(a)[:1], len(pairs), 0), routes)

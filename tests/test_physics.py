@@ -237,6 +237,9 @@ def test_check_routes_takes_a_friction_per_route(tiny):
     chk = bridge.check_routes(scene, routes, n_ticks=TICKS, world=world, simulator=sims["c"],
                               friction=np.array([0.3, 1.2]))
     assert chk.outcome.finite.all() and chk.outcome.reached.all()
+    # same routes, layouts, world and engine as the fixture's run at the default friction (0.6): the
+    # C engine is deterministic, so a different trajectory means the frictions reached the physics
+    assert not np.allclose(chk.trajectory.qpos, checks["c"].trajectory.qpos)
     fields = bridge._friction_fields(world, [0.3, 1.2], 2)["geom_friction"]
     wheel = world.model.geom("wheel_left").id
     assert fields[0, 0, 0] == 0.3 and fields[1, 0, 0] == 1.2 and fields[1, wheel, 0] == world.model.geom_friction[wheel, 0]

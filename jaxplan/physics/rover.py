@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from pathlib import Path
 from typing import NamedTuple
 
@@ -82,11 +83,11 @@ class RoverConfig:
                     "wheel_kv", "roll_stop", "wing_length")
         for name in positive:
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            if not (isinstance(value, numbers.Real) and math.isfinite(value) and value > 0):
                 raise ValueError(f"RoverConfig.{name}: must be a positive number; got {value!r}.")
         for name in ("particles_per_object", "substeps", "iterations", "ls_iterations"):
             value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
+            if not (isinstance(value, numbers.Integral) and value >= 1):
                 raise ValueError(f"RoverConfig.{name}: must be an integer >= 1; got {value!r}.")
 
     def replace(self, **changes) -> "RoverConfig":
