@@ -3,8 +3,11 @@
 Part 1 (physics outcomes, C engine): the first ``--routes`` routes (sources with the largest J, as
 ``bridge.plan_routes``) of the built-in scenes ``default``, ``corridor``, ``two_targets`` and
 ``sparse65`` are rolled out in one batch per scene with ``bridge.check_routes(..., backend="c")``,
-the blade driving ``--push-in`` cells past each route's end. Per route: collected and delivered
-particle mass (objects), mean / max lateral error of the blade point (cells), reached, finite.
+the blade driving ``--push-in`` cells past each route's end, each under ``--layouts`` particle
+layouts (same counts, different jitter). Per route: collected and delivered particle mass (objects;
+the mean over layouts, every layout's delivery kept), mean / max lateral error of the blade point
+(cells; the worst layout), reached, finite (every layout). The mean is what the 2D model, which sees
+only the counts, can predict; the fraction of single rollouts within 10% is reported beside it.
 
 Part 2 (fits of the 2D spill model to the simulated deliveries). Models: the curvature model
 (``spillage.curvature_spill``, ``lam`` only, 1-D grid + golden section on the squared error), the
@@ -146,12 +149,35 @@ def fit_lambda(predict, sim, idx):
     return float(best[1]), float(best[0]), {"grid": grid.tolist(), "loss": losses.tolist()}
 
 
-def errors(pred, sim, lateral, idx):
+def layout_row(rollouts):
+    """One route's row from its rollouts under several particle layouts (``RouteOutcome.rows()``).
+
+    Masses are layout means (the 2D model predicts a route's expected delivery from the counts
+    alone; one rollout is one draw of the particle layout); ``delivered_layouts`` keeps every draw.
+    Lateral errors are the worst layout's; ``reached`` / ``finite`` hold only if they hold for all.
+    """
+    row = {}
+    for key, v0 in rollouts[0].items():
+        vals = [r[key] for r in rollouts]
+        if isinstance(v0, bool):
+            row[key] = all(vals)
+        elif key in ("mean_lateral", "max_lateral", "max_contacts", "time"):
+            row[key] = max(vals)
+        else:
+            row[key] = float(np.mean(vals))
+    row["delivered_layouts"] = [r["delivered"] for r in rollouts]
+    return row
+
+
+def errors(pred, sim, lateral, idx, sim_layouts=None):
+    """Scores of predictions ``pred f[R]`` against simulated ``sim f[R]`` (layout means) on routes
+    ``idx``; with ``sim_layouts`` (R lists of single-rollout deliveries) also the fraction of single
+    rollouts within 10% of their route's prediction."""
     idx = np.asarray(idx)
     p, s, lat = pred[idx], sim[idx], lateral[idx]
     within = np.abs(s - p) <= TARGET_REL * np.maximum(p, 1e-9)
     ok = within & (lat < TARGET_LATERAL)
-    return {
+    out = {
         "n": int(idx.size),
         "rmse": float(np.sqrt(np.mean((p - s) ** 2))),
         "mean_abs_err": float(np.mean(np.abs(p - s))),
@@ -159,6 +185,10 @@ def errors(pred, sim, lateral, idx):
         "frac_within_10pct": float(np.mean(within)),
         "frac_target": float(np.mean(ok)),
     }
+    if sim_layouts is not None:
+        single = [abs(v - pred[i]) <= TARGET_REL * max(pred[i], 1e-9) for i in idx for v in sim_layouts[i]]
+        out["frac_single_rollouts_within_10pct"] = float(np.mean(single))
+    return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -235,8 +265,15 @@ def main(argv=None):
                     help=f"cells the blade drives on past each route's end (default {PUSH_IN})")
     ap.add_argument("--fit-steps", type=int, default=300, help="Adam steps of the capacity fit")
     ap.add_argument("--noise-reps", type=int, default=6, help="particle layouts of the noise-floor route")
+    ap.add_argument("--layouts", type=int, default=3,
+                    help="particle layouts per route in the route table; a route's simulated delivery is their "
+                         "mean (default 3, 2 with --quick)")
     args = ap.parse_args(argv)
     n_routes = args.routes or (2 if args.quick else 6)
+    if args.quick and "--layouts" not in (argv if argv is not None else sys.argv[1:]):
+        args.layouts = 2
+    if args.layouts < 1:
+        ap.error("--layouts: must be >= 1")
 
     import jax
 
@@ -249,15 +286,21 @@ def main(argv=None):
     for name in SCENES:
         scene = builtin_scene(name)
         _, routes, sources = bridge.plan_routes(scene, n_routes=n_routes)
-        t0 = time.perf_counter()
-        chk = bridge.check_routes(scene, routes, backend="c", push_in=args.push_in)
-        dt = time.perf_counter() - t0
         b = int(np.asarray(routes.n_cells).shape[0])
-        sim_runs[name] = {"routes": b, "ticks": chk.n_ticks, "particle_bodies": chk.world.n_particles,
-                          "wall_s": dt, "route_steps_per_s": b * chk.n_ticks * chk.world.config.substeps / dt}
-        print(f"{name}: {b} routes x {chk.n_ticks} ticks, {chk.world.n_particles} particle bodies, "
-              f"C engine {dt:.1f} s", flush=True)
-        for i, row in enumerate(chk.outcome.rows()):
+        # batch element i * L + k is route i under layout k (check_routes seeds the jitter by element)
+        batch = jax.tree.map(lambda a: np.repeat(np.asarray(a), args.layouts, 0), routes)
+        t0 = time.perf_counter()
+        chk = bridge.check_routes(scene, batch, backend="c", push_in=args.push_in)
+        dt = time.perf_counter() - t0
+        nb = b * args.layouts
+        sim_runs[name] = {"routes": b, "layouts": args.layouts, "rollouts": nb, "ticks": chk.n_ticks,
+                          "particle_bodies": chk.world.n_particles, "wall_s": dt,
+                          "route_steps_per_s": nb * chk.n_ticks * chk.world.config.substeps / dt}
+        print(f"{name}: {b} routes x {args.layouts} layouts x {chk.n_ticks} ticks, {chk.world.n_particles} "
+              f"particle bodies, C engine {dt:.1f} s", flush=True)
+        per_rollout = chk.outcome.rows()
+        for i in range(b):
+            row = layout_row(per_rollout[i * args.layouts:(i + 1) * args.layouts])
             row.update(scene=name, source=[int(v) for v in sources[i]],
                        n_cells=int(np.asarray(routes.n_cells)[i]), fallback=bool(np.asarray(routes.fallback)[i]))
             rows.append(row)
@@ -265,6 +308,7 @@ def main(argv=None):
         inputs += _route_inputs(scene, routes)
 
     sim = np.array([r["delivered"] for r in rows])
+    sim_layouts = [r["delivered_layouts"] for r in rows]
     collected = np.array([r["collected"] for r in rows])
     lateral = np.array([r["mean_lateral"] for r in rows])
     finite = np.array([r["finite"] for r in rows])
@@ -302,12 +346,13 @@ def main(argv=None):
                     params.append({"mean": float(np.mean(sim[tr]))})
                 pred_split[te] = pt[te]
             test = np.unique(np.concatenate([te for _, te in folds]))
-            fits[model][split] = {"params": params, **errors(pred_split, sim, lateral, test)}
+            fits[model][split] = {"params": params, **errors(pred_split, sim, lateral, test, sim_layouts)}
             held_pred[model][split] = pred_split
         print(f"  fits [{split}]: " + ", ".join(f"{m} RMSE {fits[m][split]['rmse']:.2f} within10% "
                                                   f"{fits[m][split]['frac_within_10pct']:.2f}" for m in fits),
               flush=True)
-    fits["curvature"]["default_lam"] = {"params": [{"lam": LAM_DEFAULT}], **errors(pred0, sim, lateral, every)}
+    fits["curvature"]["default_lam"] = {"params": [{"lam": LAM_DEFAULT}],
+                                        **errors(pred0, sim, lateral, every, sim_layouts)}
     pred_fit = held_pred["curvature"]["in_sample"]
     pred_cap = held_pred["capacity"]["in_sample"]
     pred_cap_loso = held_pred["capacity"]["scenes_held_out"]
@@ -357,7 +402,7 @@ def main(argv=None):
         "host": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": os.cpu_count(),
                  "jax": jax.__version__, "jax_devices": [str(d) for d in jax.devices()],
                  "mujoco": __import__("mujoco").__version__},
-        "quick": bool(args.quick), "routes_per_scene": n_routes,
+        "quick": bool(args.quick), "routes_per_scene": n_routes, "layouts_per_route": args.layouts,
         "push_in_cells": args.push_in,
         "fit_method": {
             "curvature": "lam only: grid of 201 lam on [0, 5], then 60 golden-section iterations around the best "
@@ -397,12 +442,16 @@ def to_markdown(r):
          "No GPU lent: CPU only.", "",
          f"## Routes (C engine; first {r['routes_per_scene']} routes by J per scene; the blade drives "
          f"{r['push_in_cells']:g} cell past each route's end)", "",
-         "| scene | route | source | cells | collected | sim delivered | 2D lam=0.05 | 2D lam fit "
+         f"Each route is rolled out under {r['layouts_per_route']} particle layouts (same counts, different "
+         "jitter); 'sim delivered' is their mean (the 2D model predicts a route's expected delivery from the "
+         "counts alone), the single rollouts are listed after it. Lateral errors: the worst layout.", "",
+         "| scene | route | source | cells | collected | sim delivered (layouts) | 2D lam=0.05 | 2D lam fit "
          "| capacity fit | capacity, scene held out | mean lat (cell) | max lat (cell) | reached | finite | target met |",
          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for x in r["routes"]:
         L.append(f"| {x['scene']} | {x['route_no']} | {tuple(x['source'])} | {x['n_cells']} | {x['collected']:.0f} "
-                 f"| {x['delivered']:.0f} | {x['pred_delivered_lam_default']:.1f} | {x['pred_delivered_lam_fit']:.1f} "
+                 f"| {x['delivered']:.1f} ({', '.join(f'{v:.0f}' for v in x['delivered_layouts'])}) "
+                 f"| {x['pred_delivered_lam_default']:.1f} | {x['pred_delivered_lam_fit']:.1f} "
                  f"| {x['pred_delivered_capacity_fit']:.1f} | {x['pred_delivered_capacity_scene_held_out']:.1f} "
                  f"| {x['mean_lateral']:.3f} | {x['max_lateral']:.3f} | {x['reached']} | {x['finite']} "
                  f"| {x['meets_target']} |")
@@ -411,8 +460,8 @@ def to_markdown(r):
     L += [f"- {k}: {v}" for k, v in r["fit_method"].items()]
     L += [f"- split {k}: {v}" for k, v in r["splits"].items()]
     L += ["", "| model | split | n scored | RMSE (objects) | mean abs err | mean rel err vs sim "
-          "| within 10% of pred | lateral < 0.25 AND within 10% | fitted parameters |",
-          "|---|---|---|---|---|---|---|---|---|"]
+          "| within 10% of pred | lateral < 0.25 AND within 10% | single rollouts within 10% | fitted parameters |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
 
     def fmt(ps):
         return "; ".join(", ".join(f"{k} {v:.3g}" for k, v in p.items()) for p in ps)
@@ -420,7 +469,7 @@ def to_markdown(r):
     def line(model, split, e):
         return (f"| {model} | {split} | {e['n']} | {e['rmse']:.2f} | {e['mean_abs_err']:.2f} "
                 f"| {e['mean_rel_err_vs_sim']:.2f} | {e['frac_within_10pct']:.2f} | {e['frac_target']:.2f} "
-                f"| {fmt(e['params'])} |")
+                f"| {e.get('frac_single_rollouts_within_10pct', float('nan')):.2f} | {fmt(e['params'])} |")
     L.append(line("curvature", "none (lam = 0.05)", f["curvature"]["default_lam"]))
     for model in ("curvature", "capacity", "constant"):
         for split in ("in_sample", "routes_held_out", "scenes_held_out"):
@@ -434,6 +483,15 @@ def to_markdown(r):
           "single rollouts wider than 10% would limit the target whatever the spill model"
           + (" (it does here)." if nf['frac_within_10pct_of_median'] < TARGET_FRACTION else
              " (it does not here).")]
+    if r.get("layouts_per_route", 1) > 1:
+        spread = []
+        for name in dict.fromkeys(x["scene"] for x in r["routes"]):
+            d = [np.asarray(x["delivered_layouts"]) for x in r["routes"] if x["scene"] == name]
+            cv = [v.std(ddof=1) / max(v.mean(), 1e-9) for v in d]
+            spread.append(f"{name} {np.median(cv):.2f} (largest {max(cv):.2f}, widest range "
+                          f"{max(v.max() - v.min() for v in d):.0f} objects)")
+        L += ["", "Spread over layouts per route, coefficient of variation, median over the scene's routes: "
+              + "; ".join(spread) + "."]
     sm = r["summary"]
     met = sm["frac_target_capacity_scenes_held_out"] >= r["targets"]["fraction"]
     L += ["", f"Totals: collected {sm['collected']:.0f}, simulated delivered {sm['delivered_sim']:.0f}, "
@@ -474,7 +532,7 @@ def to_markdown(r):
           "not), so the ratio on whole routes would be of the same order; full-route C-engine rates are in the "
           "next line.",
           "", "Physics runs of the route table (C engine, cold, including scoring): " + "; ".join(
-        f"{k}: {v['routes']} routes x {v['ticks']} ticks, {v['particle_bodies']} particle bodies, {v['wall_s']:.1f} s "
+        f"{k}: {v['routes']} routes x {v.get('layouts', 1)} layouts x {v['ticks']} ticks, {v['particle_bodies']} particle bodies, {v['wall_s']:.1f} s "
         f"({v['route_steps_per_s']:,.0f} route-steps/s)" for k, v in r["physics_runs"].items()) + ".",
         f"Total script time {r['total_s']:.0f} s.", ""]
     return "\n".join(L)

@@ -336,7 +336,7 @@ def _episode_summary(scene, spec, params, spill, ep, episode) -> dict:
         "median_rebuild_ms": totals["median_rebuild_ms"],
         "params": _params_dict(params),
         "spill": {"lam": float(spill.lam), "threshold": float(spill.threshold),
-                  "samples_per_step": spill.samples_per_step},
+                  "samples_per_step": spill.samples_per_step, "spline_alpha": spill.spline_alpha},
         "episode": {"rearrange_margin": float(ep.rearrange_margin), "stop_fraction": float(ep.stop_fraction),
                     "max_pushes": ep.max_pushes, "source_rule": ep.source_rule, "reselect": ep.reselect},
         "notes": ("masses in objects; delivered/spilled/remaining are the final cumulative values; "

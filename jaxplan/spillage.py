@@ -1,8 +1,11 @@
 """Spillage along a pushed route: spline, curvature and ``Spill(P; Theta)`` (Section 3.2).
 
 A route's waypoints (cell centres, then the target cell it enters or its fallback point on the
-boundary) are joined by a uniform Catmull-Rom spline: it passes through every waypoint, is smooth,
-and is differentiable in the waypoints. Each segment between two waypoints is sampled at
+boundary) are joined by a centripetal Catmull-Rom spline (``SpillParams.spline_alpha = 0.5``; 0 gives
+the uniform one): it passes through every waypoint, is smooth, and is differentiable in the
+waypoints. The centripetal form scales each waypoint's tangent to the segments beside it, so a
+one-cell step next to a long fallback segment does not loop (the uniform form borrows half the long
+segment as the short one's tangent and does). Each segment between two waypoints is sampled at
 ``samples_per_step`` midpoints. At sample ``i`` the pusher carries ``load_i`` objects; it picks up a
 cell's objects at the first sample of the segment leaving that cell, and turning spills
 
@@ -29,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 _TINY = 1e-12   # guards |r'|^2 for a (degenerate) stationary spline point
+CENTRIPETAL = 0.5   # spline_alpha of the centripetal Catmull-Rom spline (0 = uniform, 1 = chordal)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,6 +46,8 @@ class SpillParams:
         so the spill is differentiable in ``threshold`` (``jaxplan.tune.spill`` fits with it).
     Static:
       samples_per_step: spline samples per segment between two waypoints (>= 1).
+      spline_alpha: knot exponent of the Catmull-Rom spline, in [0, 1]: 0.5 (default) centripetal,
+        0 uniform (loops beside long segments), 1 chordal.
       enabled: whether routes are selected by delivered mass (Eq. 6) rather than raw count (Eq. 5).
     """
 
@@ -50,13 +56,14 @@ class SpillParams:
     temperature: Any = 0.0
     samples_per_step: int = 8
     enabled: bool = True
+    spline_alpha: float = CENTRIPETAL
 
     def replace(self, **changes) -> "SpillParams":
         return dataclasses.replace(self, **changes)
 
 
 jax.tree_util.register_dataclass(SpillParams, data_fields=["lam", "threshold", "temperature"],
-                                 meta_fields=["samples_per_step", "enabled"])
+                                 meta_fields=["samples_per_step", "enabled", "spline_alpha"])
 
 
 def validate_spill_params(params: SpillParams) -> None:
@@ -73,6 +80,12 @@ def validate_spill_params(params: SpillParams) -> None:
             raise ValueError(f"SpillParams.{name}: must be finite and >= 0; got {value!r}.")
     if not isinstance(params.samples_per_step, (int, np.integer)) or params.samples_per_step < 1:
         raise ValueError(f"SpillParams.samples_per_step: must be an int >= 1; got {params.samples_per_step!r}.")
+    _check_alpha(params.spline_alpha, "SpillParams.spline_alpha")
+
+
+def _check_alpha(alpha, field):
+    if isinstance(alpha, bool) or not isinstance(alpha, (int, float, np.number)) or not 0.0 <= float(alpha) <= 1.0:
+        raise ValueError(f"{field}: must be a number in [0, 1] (0.5 centripetal, 0 uniform); got {alpha!r}.")
 
 
 class PathSamples(NamedTuple):
@@ -107,32 +120,60 @@ def _control_points(waypoints, n_points):
     return jnp.stack([before, p1, p2, after], axis=1)
 
 
-def _catmull_rom(ctrl, t):
-    """Position, first and second derivative (per unit parameter) at ``t`` of segments ``ctrl``."""
-    p0, p1, p2, p3 = (ctrl[:, i][:, None, :] for i in range(4))
-    a = 2 * p1
-    b = p2 - p0
-    c = 2 * p0 - 5 * p1 + 4 * p2 - p3
-    d = 3 * p1 - p0 - 3 * p2 + p3
+def _knot_gap(a, b, alpha: float):
+    """``|b - a|^alpha`` over the last axis; 0 (with a finite gradient) where a = b."""
+    d2 = jnp.sum((b - a) ** 2, -1, keepdims=True)
+    apart = d2 > _TINY
+    return jnp.where(apart, jnp.where(apart, d2, 1.0) ** (0.5 * alpha), 0.0)
+
+
+def _safe_ratio(num, den):
+    """``num / den``, 0 where ``den`` is 0 (coincident waypoints), with finite gradients."""
+    nonzero = den > 0
+    return jnp.where(nonzero, num / jnp.where(nonzero, den, 1.0), 0.0)
+
+
+def _tangents(ctrl, alpha: float):
+    """Per-segment end tangents ``(m1, m2)``, each ``[S-1, 2]``, of the Catmull-Rom spline with knot
+    exponent ``alpha``, in the segment's own parameter t in [0, 1] (Barry-Goldman / Yuksel et al.).
+    At alpha 0 they are the uniform spline's ``(P2 - P0) / 2`` and ``(P3 - P1) / 2``."""
+    p0, p1, p2, p3 = (ctrl[:, i] for i in range(4))
+    d0, d1, d2 = _knot_gap(p0, p1, alpha), _knot_gap(p1, p2, alpha), _knot_gap(p2, p3, alpha)
+    m1 = (p2 - p1) + d1 * (_safe_ratio(p1 - p0, d0) - _safe_ratio(p2 - p0, d0 + d1))
+    m2 = (p2 - p1) + d1 * (_safe_ratio(p3 - p2, d2) - _safe_ratio(p3 - p1, d1 + d2))
+    return m1, m2
+
+
+def _hermite(ctrl, t, alpha: float):
+    """Position, first and second derivative (per unit parameter) at ``t`` of segments ``ctrl``:
+    the cubic from P1 to P2 with the tangents of ``_tangents``."""
+    p1, p2 = ctrl[:, 1], ctrl[:, 2]
+    m1, m2 = _tangents(ctrl, alpha)
+    a, b = p1, m1
+    c = 3 * (p2 - p1) - 2 * m1 - m2
+    d = 2 * (p1 - p2) + m1 + m2
+    a, b, c, d = (x[:, None, :] for x in (a, b, c, d))
     t = t[None, :, None]
-    pos = 0.5 * (a + b * t + c * t ** 2 + d * t ** 3)
-    vel = 0.5 * (b + 2 * c * t + 3 * d * t ** 2)
-    acc = 0.5 * (2 * c + 6 * d * t)
+    pos = a + b * t + c * t ** 2 + d * t ** 3
+    vel = b + 2 * c * t + 3 * d * t ** 2
+    acc = 2 * c + 6 * d * t
     return pos, vel, acc
 
 
-def sample_route(waypoints, n_points, samples_per_step: int) -> PathSamples:
+def sample_route(waypoints, n_points, samples_per_step: int, alpha: float = CENTRIPETAL) -> PathSamples:
     """Sample the spline through ``waypoints[:n_points]`` at the midpoints of ``samples_per_step``
     equal parameter steps per segment.
 
-    waypoints: f32[S, 2] world (x, y), rows past ``n_points`` ignored; n_points: i32[] (>= 1).
+    waypoints: f32[S, 2] world (x, y), rows past ``n_points`` ignored; n_points: i32[] (>= 1);
+    alpha: the knot exponent (static; ``SpillParams.spline_alpha``).
     """
+    _check_alpha(alpha, "sample_route: alpha")
     waypoints = jnp.asarray(waypoints, jnp.float32)
     s = waypoints.shape[0]
     m = samples_per_step
     ctrl = _control_points(waypoints, n_points)
     t = (jnp.arange(m, dtype=jnp.float32) + 0.5) / m
-    pos, vel, acc = _catmull_rom(ctrl, t)                      # [S-1, m, 2]
+    pos, vel, acc = _hermite(ctrl, t, float(alpha))              # [S-1, m, 2]
     speed2 = jnp.sum(vel ** 2, -1)
     cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
     # kappa * ds = cross / |r'|^3 * |r'| dt
@@ -199,6 +240,6 @@ def evaluate_route(waypoints, n_points, waypoint_pickup, params: SpillParams,
     waypoints: f32[S, 2] world units; n_points: i32[]; waypoint_pickup: f32[S] objects collected at
     each waypoint (0 for the final target cell or fallback point and for repeated cells).
     """
-    samples = sample_route(waypoints, n_points, params.samples_per_step)
+    samples = sample_route(waypoints, n_points, params.samples_per_step, params.spline_alpha)
     delivered, spill = evaluator(samples, pickups_per_sample(samples, waypoint_pickup), params)
     return delivered, jnp.where(samples.valid, spill, 0.0), samples

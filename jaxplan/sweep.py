@@ -65,8 +65,8 @@ __all__ = ["METRICS", "SweepSpec", "bytes_per_table", "chunk_size_for", "columns
 # Traced fields read from the parameter classes, so a field added there is sweepable at once.
 FABRIC_TRACED = tuple(_params._TRACED)
 FABRIC_STATIC = tuple(_params._STATIC)
-SPILL_TRACED = tuple(f.name for f in dataclasses.fields(SpillParams) if f.name not in ("samples_per_step", "enabled"))
-SPILL_STATIC = ("samples_per_step", "enabled")
+SPILL_TRACED = tuple(p[0].name for p, _ in jax.tree_util.tree_flatten_with_path(SpillParams())[0])
+SPILL_STATIC = tuple(f.name for f in dataclasses.fields(SpillParams) if f.name not in SPILL_TRACED)
 _TOP_KEYS = ("scenes", "random_scenes", "fabric", "spill", "static", "metrics")
 
 METRICS = {

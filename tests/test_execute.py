@@ -74,6 +74,35 @@ def test_right_angle_turns_about_ninety_degrees():
     assert total == pytest.approx(np.pi / 2, rel=0.02)   # counter-clockwise: + sign
 
 
+def test_centripetal_spline_does_not_loop_before_a_long_fallback_segment():
+    # a one-cell step, a diagonal, then a 30-cell fallback segment: the uniform spline (alpha 0)
+    # takes half of the long segment as the short one's tangent and loops (more than 2 pi of turning)
+    points = jnp.array([[0.0, 0.0], [1.0, 0.0], [2.0, 1.0], [32.0, 6.0]])
+    uniform = sp.sample_route(points, 4, 16, alpha=0.0)
+    centripetal = sp.sample_route(points, 4, 16)
+    assert float(jnp.sum(jnp.abs(uniform.turn))) > 2 * np.pi
+    # the polyline turns 0.79 rad (45 deg) and then 0.62 rad back; a smooth curve without a loop turns
+    # little more than that
+    assert float(jnp.sum(jnp.abs(centripetal.turn))) < 2.5
+    assert float(jnp.sum(centripetal.ds)) == pytest.approx(float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1))),
+                                                           rel=0.02)
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2**16), n=st.integers(2, 7), alpha=st.sampled_from((0.0, 0.5, 1.0)))
+def test_spline_equals_reference(seed, n, alpha):
+    rng = np.random.default_rng(seed)
+    points = rng.integers(-4, 5, size=(n, 2)).astype(np.float64)   # grid-like, with repeats
+    got = sp.sample_route(jnp.asarray(points, jnp.float32), n, 4, alpha)
+    want = ref_ex.catmull_rom_samples([tuple(q) for q in points], 4, alpha)
+    k = len(want)
+    np.testing.assert_allclose(np.asarray(got.pos)[:k], [w["pos"] for w in want], atol=1e-4)
+    np.testing.assert_allclose(np.asarray(got.ds)[:k], [w["ds"] for w in want], atol=1e-4)
+    moving = np.array([w["ds"] for w in want]) > 1e-3     # the turn of a near-stationary sample is ill-conditioned
+    np.testing.assert_allclose(np.asarray(got.turn)[:k][moving], np.array([w["turn"] for w in want])[moving],
+                               atol=1e-3)
+
+
 def test_spill_grows_with_lambda_and_threshold_drops_small_losses(corner_scene):
     fab = build_fabric(corner_scene)
     route = _route(corner_scene, fab, (1, 1))
@@ -176,3 +205,5 @@ def test_bad_spill_params_name_the_field():
         sp.validate_spill_params(sp.SpillParams(lam=-1.0))
     with pytest.raises(ValueError, match="samples_per_step"):
         sp.validate_spill_params(sp.SpillParams(samples_per_step=0))
+    with pytest.raises(ValueError, match="SpillParams.spline_alpha"):
+        sp.validate_spill_params(sp.SpillParams(spline_alpha=2.0))

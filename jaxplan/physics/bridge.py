@@ -5,7 +5,7 @@ The paper's four steps, as functions of this module:
 (i)   :func:`rasterise` turns particle centroids (and the rover pose) into a grid ``obj``;
 (ii)  the planner (``build_fabric`` + ``extract_paths``; :func:`plan_routes`) gives routes;
 (iii) each route's waypoints become a smooth spline (``spillage.sample_route``, the same
-      Catmull-Rom spline the 2D spill model uses), tracked by a pure-pursuit controller
+      centripetal Catmull-Rom spline the 2D spill model uses), tracked by a pure-pursuit controller
       (:func:`pursuit_policy`) that steers the *blade* (its front-face midpoint) along it;
       :func:`check_routes` rolls out a batch of routes at once on either engine;
 (iv)  :func:`project` puts the final particles back on the grid so that
@@ -158,10 +158,12 @@ def _split_long_segments(way, max_length, piece):
     """``f[K, 2]``: the polyline ``way f[J, 2]`` with every segment longer than ``max_length`` cut
     into equal pieces no longer than ``piece`` (world units).
 
-    The uniform Catmull-Rom spline takes its tangent at a waypoint from the two neighbours, so a
-    one-cell step followed by a long fallback segment (tens of cells on ``sparse65``) got a tangent
-    of half the long segment and looped on the short one: the rover drove the loop and swept its
-    load out (3 of 20 objects delivered). Equal spacing keeps the spline on the polyline.
+    The uniform Catmull-Rom spline (the spill model's spline before it became centripetal) takes its
+    tangent at a waypoint from the two neighbours, so a one-cell step followed by a long fallback
+    segment (tens of cells on ``sparse65``) got a tangent of half the long segment and looped on the
+    short one: the rover drove the loop and swept its load out (3 of 20 objects delivered). The
+    centripetal spline does not loop but still bows off a long straight segment; equal spacing keeps
+    the tracked path on the polyline.
     """
     out = [way[0]]
     for a, b in zip(way[:-1], way[1:]):

@@ -11,8 +11,24 @@ import numpy as np
 QUANTUM = 2.0 ** -10   # as jaxplan.execute.QUANTUM: spills land on the grid in these units
 
 
-def catmull_rom_samples(points, samples_per_step: int):
-    """Samples of the uniform Catmull-Rom spline through ``points`` (list of (x, y)).
+def _tangents(p0, p1, p2, p3, alpha: float):
+    """End tangents of the segment p1 -> p2 of the Catmull-Rom spline with knot gaps |.|^alpha,
+    per unit of the segment's parameter (alpha 0: the uniform spline's (p2 - p0) / 2, (p3 - p1) / 2)."""
+    def gap(a, b):
+        return float(np.linalg.norm(b - a)) ** alpha if np.any(a != b) else 0.0
+
+    def ratio(v, d):
+        return v / d if d > 0 else np.zeros(2)
+
+    d0, d1, d2 = gap(p0, p1), gap(p1, p2), gap(p2, p3)
+    m1 = (p2 - p1) + d1 * (ratio(p1 - p0, d0) - ratio(p2 - p0, d0 + d1))
+    m2 = (p2 - p1) + d1 * (ratio(p3 - p2, d2) - ratio(p3 - p1, d1 + d2))
+    return m1, m2
+
+
+def catmull_rom_samples(points, samples_per_step: int, alpha: float = 0.5):
+    """Samples of the Catmull-Rom spline through ``points`` (list of (x, y)), knot exponent ``alpha``
+    (0.5 centripetal, as ``SpillParams.spline_alpha``; 0 uniform).
 
     Returns a list of dicts with ``pos``, ``tangent``, ``turn`` (signed radians), ``ds`` and
     ``segment``, ``first`` (first sample of its segment), in travel order.
@@ -24,13 +40,14 @@ def catmull_rom_samples(points, samples_per_step: int):
         p1, p2 = p[j], p[j + 1]
         p0 = p[j - 1] if j > 0 else 2 * p1 - p2
         p3 = p[j + 2] if j + 2 <= n - 1 else 2 * p2 - p1
+        m1, m2 = _tangents(p0, p1, p2, p3, alpha)
+        # the cubic Hermite segment p1 -> p2 with tangents m1, m2
         for q in range(samples_per_step):
             t = (q + 0.5) / samples_per_step
-            pos = 0.5 * (2 * p1 + (p2 - p0) * t + (2 * p0 - 5 * p1 + 4 * p2 - p3) * t ** 2
-                         + (3 * p1 - p0 - 3 * p2 + p3) * t ** 3)
-            vel = 0.5 * ((p2 - p0) + 2 * (2 * p0 - 5 * p1 + 4 * p2 - p3) * t
-                         + 3 * (3 * p1 - p0 - 3 * p2 + p3) * t ** 2)
-            acc = 0.5 * (2 * (2 * p0 - 5 * p1 + 4 * p2 - p3) + 6 * (3 * p1 - p0 - 3 * p2 + p3) * t)
+            h00, h10, h01, h11 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t, -2 * t**3 + 3 * t**2, t**3 - t**2
+            pos = h00 * p1 + h10 * m1 + h01 * p2 + h11 * m2
+            vel = (6 * t**2 - 6 * t) * p1 + (3 * t**2 - 4 * t + 1) * m1 + (6 * t - 6 * t**2) * p2 + (3 * t**2 - 2 * t) * m2
+            acc = (12 * t - 6) * p1 + (6 * t - 4) * m1 + (6 - 12 * t) * p2 + (6 * t - 2) * m2
             speed = math.hypot(vel[0], vel[1])
             cross = vel[0] * acc[1] - vel[1] * acc[0]
             turn = cross / speed ** 3 * speed / samples_per_step if speed > 0 else 0.0
@@ -60,7 +77,7 @@ def spill_along(samples, waypoint_pickup, lam: float, threshold: float, temperat
 
 
 def execute_route(obj, target_mask, dist, tvec, cell_size, origin, cells, fallback, *,
-                  lam: float, threshold: float, samples_per_step: int):
+                  lam: float, threshold: float, samples_per_step: int, spline_alpha: float = 0.5):
     """Push the route ``cells`` (list of (row, col)) on a copy of ``obj``.
 
     Returns ``(new_obj, info)`` with info keys ``collected``, ``spilled``, ``delivered`` (collected - spilled), ``residual_load`` (the
@@ -86,7 +103,7 @@ def execute_route(obj, target_mask, dist, tvec, cell_size, origin, cells, fallba
         seen.add(rc)
         pickup.append(obj[rc] if take else 0.0)
     pickup.append(0.0)
-    samples = catmull_rom_samples(points, samples_per_step)
+    samples = catmull_rom_samples(points, samples_per_step, spline_alpha)
     delivered, spills = spill_along(samples, pickup, lam, threshold)
     spills = [round(v / QUANTUM) * QUANTUM for v in spills]   # what lands on the grid
     collected = sum(pickup)
