@@ -265,15 +265,14 @@ def main(argv=None):
                     help=f"cells the blade drives on past each route's end (default {PUSH_IN})")
     ap.add_argument("--fit-steps", type=int, default=300, help="Adam steps of the capacity fit")
     ap.add_argument("--noise-reps", type=int, default=6, help="particle layouts of the noise-floor route")
-    ap.add_argument("--layouts", type=int, default=3,
+    ap.add_argument("--layouts", type=int, default=None,
                     help="particle layouts per route in the route table; a route's simulated delivery is their "
                          "mean (default 3, 2 with --quick)")
     args = ap.parse_args(argv)
     n_routes = args.routes or (2 if args.quick else 6)
-    if args.quick and "--layouts" not in (argv if argv is not None else sys.argv[1:]):
-        args.layouts = 2
-    if args.layouts < 1:
+    if args.layouts is not None and args.layouts < 1:
         ap.error("--layouts: must be >= 1")
+    args.layouts = args.layouts or (2 if args.quick else 3)
 
     import jax
 
@@ -474,6 +473,10 @@ def to_markdown(r):
     for model in ("curvature", "capacity", "constant"):
         for split in ("in_sample", "routes_held_out", "scenes_held_out"):
             L.append(line(model, split.replace("_", " "), f[model][split]))
+    cap = f["capacity"]["in_sample"]["params"][0]
+    L += ["", "To predict (or plan) with the in-sample capacity fit: `jaxplan rover --lam {lam:.4g} --mu {mu:.4g} "
+          "--capacity {capacity:.4g}` (the same for `episode` and `demo`; temperature {temperature:g}, the "
+          "model's default).".format(**cap)]
     nf = r["noise_floor"]
     L += ["", f"Noise floor: the first route of `{nf['scene']}` (source {tuple(nf['source'])}, {nf['collected']:.0f} "
           f"objects) rolled out with {len(nf['delivered'])} particle layouts (same counts, different jitter) delivered "

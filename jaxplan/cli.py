@@ -7,6 +7,7 @@ name, an out-of-range parameter) prints one ``error: ...`` line to stderr and ex
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -247,11 +248,41 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+_NO_CAPACITY = 1e9   # objects: the capacity-aware model without a binding cap (--mu alone)
+
+
+def _spill_dict(spill) -> dict:
+    """The spill model of a summary.json: its type and every field (traced ones as floats)."""
+    out = {"model": type(spill).__name__}
+    for f in dataclasses.fields(spill):
+        value = getattr(spill, f.name)
+        out[f.name] = value if isinstance(value, (bool, int, str)) else float(value)
+    return out
+
+
 def _spill_params(args):
+    """``SpillParams`` from the spill options; ``CapacitySpillParams`` when ``--capacity`` or ``--mu``
+    is given (its evaluator, ``capacity_spill``, follows from the type: ``spill_capacity.evaluator_for``)."""
     from jaxplan.spillage import SpillParams, validate_spill_params
 
-    spill = SpillParams(lam=args.lam, threshold=args.spill_threshold)
-    validate_spill_params(spill)
+    capacity, mu = getattr(args, "capacity", None), getattr(args, "mu", None)
+    if capacity is None and mu is None:
+        spill = SpillParams(lam=args.lam, threshold=args.spill_threshold)
+        validate_spill_params(spill)
+        return spill
+    from jaxplan.spill_capacity import CapacitySpillParams, validate_capacity_params
+
+    for flag, value in (("--capacity", capacity), ("--mu", mu)):
+        if value is not None and not math.isfinite(value):
+            raise CLIError(f"{flag}: must be a finite number; got {value}.")
+    spill = CapacitySpillParams(lam=args.lam, threshold=args.spill_threshold,
+                                capacity=_NO_CAPACITY if capacity is None else capacity,
+                                mu=0.0 if mu is None else mu)
+    try:
+        validate_capacity_params(spill)
+    except ValueError as exc:
+        flag = {"capacity": "--capacity", "mu": "--mu"}.get(str(exc).split(":")[0].rsplit(".", 1)[-1])
+        raise CLIError(f"{flag}: {exc}" if flag else str(exc)) from None
     return spill
 
 
@@ -310,8 +341,9 @@ def _episode_files(scene, episode, out_dir: Path, *, animate: bool, fps: int) ->
 
 def _run_episode(scene, params, spill, ep, *, record: bool):
     from jaxplan.episode import run_episode
+    from jaxplan.spill_capacity import evaluator_for
 
-    return run_episode(scene, params, spill, ep, record=record, progress=True)
+    return run_episode(scene, params, spill, ep, record=record, progress=True, evaluator=evaluator_for(spill))
 
 
 def _episode_summary(scene, spec, params, spill, ep, episode) -> dict:
@@ -335,8 +367,7 @@ def _episode_summary(scene, spec, params, spill, ep, episode) -> dict:
         "median_plan_ms": totals["median_plan_ms"],
         "median_rebuild_ms": totals["median_rebuild_ms"],
         "params": _params_dict(params),
-        "spill": {"lam": float(spill.lam), "threshold": float(spill.threshold),
-                  "samples_per_step": spill.samples_per_step, "spline_alpha": spill.spline_alpha},
+        "spill": _spill_dict(spill),
         "episode": {"rearrange_margin": float(ep.rearrange_margin), "stop_fraction": float(ep.stop_fraction),
                     "max_pushes": ep.max_pushes, "source_rule": ep.source_rule, "reselect": ep.reselect},
         "notes": ("masses in objects; delivered/spilled/remaining are the final cumulative values; "
@@ -468,7 +499,7 @@ def _cmd_rover(args) -> int:
         "throughput_route_steps_per_s": round(b * check.n_ticks * check.world.config.substeps / rollout_s, 1),
         "speed_cells_per_s": args.speed,
         "friction": check.world.config.friction if args.friction is None else args.friction,
-        "spill": {"lam": float(spill.lam), "threshold": float(spill.threshold)},
+        "spill": _spill_dict(spill),
         "notes": ("masses in objects (1 particle = 1 object); predicted_* from the 2D push "
                   "(execute.execute); lateral errors in cells, blade point to spline; rollout_seconds "
                   "includes compilation on MJX"),
@@ -826,6 +857,13 @@ def _add_spill_options(p) -> None:
                         "default 0.05 (0 = no spillage)")
     p.add_argument("--spill-threshold", type=float, default=1e-3, metavar="OBJ",
                    help="per-sample spills below this many objects are ignored, >= 0; default 0.001")
+    p.add_argument("--capacity", type=float, default=None, metavar="OBJ",
+                   help="use the capacity-aware spill model (jaxplan.spill_capacity): the blade carries at "
+                        "most this many objects, > 0; default: the curvature model (no capacity)")
+    p.add_argument("--mu", type=float, default=None, metavar="X",
+                   help="capacity-aware model: fraction of the load lost per world unit driven, >= 0 "
+                        "(implies the capacity-aware model, uncapped unless --capacity is given); "
+                        "experiments/bench_rover.py fits lam, mu and capacity to the rover's physics")
 
 
 def _add_episode_options(p) -> None:

@@ -37,8 +37,8 @@ import numpy as np
 
 from jaxplan import spillage
 
-__all__ = ["CapacityFit", "CapacitySpillParams", "capacity_spill", "fit_capacity", "predict_delivered",
-           "validate_capacity_params"]
+__all__ = ["CapacityFit", "CapacitySpillParams", "capacity_spill", "evaluator_for", "fit_capacity",
+           "predict_delivered", "validate_capacity_params"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,6 +128,12 @@ def capacity_spill(samples: spillage.PathSamples, pickup, params: CapacitySpillP
 
     delivered, spill = jax.lax.scan(step, jnp.float32(0.0), (pickup, frac))
     return delivered, spill
+
+
+def evaluator_for(params: spillage.SpillParams) -> spillage.Evaluator:
+    """The evaluator that reads ``params``: ``capacity_spill`` for ``CapacitySpillParams``, else
+    ``spillage.curvature_spill`` (which would silently ignore capacity and mu)."""
+    return capacity_spill if isinstance(params, CapacitySpillParams) else spillage.curvature_spill
 
 
 # --------------------------------------------------------------------------------------------------

@@ -172,3 +172,8 @@ def test_capacity_params_are_a_spill_params_pytree():
     leaves, tree = jax.tree_util.tree_flatten(p)
     back = jax.tree_util.tree_unflatten(tree, leaves)
     assert back == p and back.samples_per_step == 4 and 7.0 in leaves
+
+
+def test_evaluator_for_picks_the_model_the_params_are_for():
+    assert sc.evaluator_for(sc.CapacitySpillParams(capacity=5.0)) is sc.capacity_spill
+    assert sc.evaluator_for(sp.SpillParams()) is sp.curvature_spill

@@ -21,9 +21,13 @@ def _tiny_file(tmp_path):
 def test_rover_writes_summary_table_and_figure(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["rover", "--scene", str(_tiny_file(tmp_path)), "--routes", "1", "--backend", "c",
-                 "--friction", "0.8", "--no-render", "--out", str(out)]) == 0
+                 "--friction", "0.8", "--capacity", "3", "--mu", "0.02", "--no-render", "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["friction"] == 0.8
+    # --capacity / --mu select the capacity-aware 2D model for the prediction: 5 objects collected,
+    # a 3-object blade (soft limit, temperature 0.5) delivers about 3 of them
+    assert summary["spill"]["model"] == "CapacitySpillParams" and summary["spill"]["capacity"] == 3.0
+    assert 2.0 < summary["routes"][0]["predicted_delivered"] < 3.5
     (route,) = summary["routes"]
     for key in ("predicted_delivered", "delivered", "mean_lateral", "max_lateral", "finite", "collected"):
         assert key in route
@@ -37,7 +41,8 @@ def test_rover_writes_summary_table_and_figure(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, field", [(["--routes", "0"], "--routes"), (["--speed", "-1"], "--speed"),
                                          (["--scene", "nope.json"], "--scene"), (["--lam", "-1"], "lam"),
-                                         (["--friction", "0"], "--friction")])
+                                         (["--friction", "0"], "--friction"), (["--capacity", "0"], "--capacity"),
+                                         (["--mu", "-1"], "--mu"), (["--mu", "nan"], "--mu")])
 def test_rover_bad_input_exits_2(tmp_path, capsys, argv, field):
     with pytest.raises(SystemExit) as info:
         main(["rover", "--out", str(tmp_path / "o"), *argv])

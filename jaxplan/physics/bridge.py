@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxplan import execute, spillage
+from jaxplan import execute, spill_capacity, spillage
 from jaxplan.physics import rover as rover_mod
 from jaxplan.physics.rollout import Simulator, Trajectory
 
@@ -295,11 +295,15 @@ def plan_routes(scene, params=None, n_routes: int = 4):
 
 
 def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig | None = None,
-                 spill: spillage.SpillParams | None = None, speed=0.8, lookahead: float = 0.8,
+                 spill: spillage.SpillParams | None = None, evaluator: spillage.Evaluator | None = None,
+                 speed=0.8, lookahead: float = 0.8,
                  backend: str = "auto", horizon_factor: float = 1.5, n_ticks: int | None = None,
                  push_in: float = PUSH_IN, friction=None,
                  simulator: Simulator | None = None, world: rover_mod.World | None = None) -> Check:
     """Roll out every route of ``routes`` (leading axis B) in one batch and score it.
+
+    spill / evaluator: the 2D model of ``predicted_delivered`` (default ``SpillParams()``; the
+    evaluator defaults to the one ``spill`` is for: ``capacity_spill`` for ``CapacitySpillParams``).
 
     friction: None (the world's, ``RoverConfig.friction``) or sliding friction per route (scalar or
     f[B]) of the floor, the particles and the hull; the wheels keep theirs. Per element on both
@@ -313,6 +317,7 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
     """
     cfg = rover_mod.RoverConfig() if config is None else config
     spill = spillage.SpillParams() if spill is None else spill
+    evaluator = spill_capacity.evaluator_for(spill) if evaluator is None else evaluator
     s = float(np.asarray(scene.cell_size))
     b = int(np.asarray(routes.n_cells).shape[0])
     masks, layouts = [], []
@@ -347,7 +352,7 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
         n_ticks = int(math.ceil(horizon_factor * longest / simulator.tick_seconds)) + 20
     traj = simulator.run(q0, qv0, params, pstate0, n_ticks,
                          model_fields=None if friction is None else _friction_fields(world, friction, b))
-    outcome = _score(scene, routes, world, traj, paths, layouts, masks, spill)
+    outcome = _score(scene, routes, world, traj, paths, layouts, masks, spill, evaluator)
     return Check(outcome, traj, world, params, [lay[1] for lay in layouts], [lay[2] for lay in layouts],
                  np.stack(masks), n_ticks)
 
@@ -374,7 +379,7 @@ def _pad_paths(paths):
     return [(pad(p[0]), pad(p[1])) + tuple(p[2:]) for p in paths]
 
 
-def _score(scene, routes, world, traj: Trajectory, paths, layouts, masks, spill) -> RouteOutcome:
+def _score(scene, routes, world, traj: Trajectory, paths, layouts, masks, spill, evaluator) -> RouteOutcome:
     s = float(np.asarray(scene.cell_size))
     ppo = world.config.particles_per_object
     target = np.asarray(scene.target_mask)
@@ -399,7 +404,7 @@ def _score(scene, routes, world, traj: Trajectory, paths, layouts, masks, spill)
         track = blade[: last + 1]
         good = np.all(np.isfinite(track), -1)
         lateral = _point_polyline_distance(track[good], path[0]) / s if good.any() else np.array([np.nan])
-        pushed, push = execute.execute_jit(scene, _index(routes, i), spill, spillage.curvature_spill)
+        pushed, push = execute.execute_jit(scene, _index(routes, i), spill, evaluator)
         del pushed
         cols["collected"].append(mass.sum())
         cols["delivered"].append(mass[delivered].sum())
