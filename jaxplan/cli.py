@@ -272,16 +272,14 @@ def _spill_params(args):
         return spill
     from jaxplan.spill_capacity import CapacitySpillParams, validate_capacity_params
 
-    for flag, value in (("--capacity", capacity), ("--mu", mu)):
-        if value is not None and not math.isfinite(value):
-            raise CLIError(f"{flag}: must be a finite number; got {value}.")
     spill = CapacitySpillParams(lam=args.lam, threshold=args.spill_threshold,
                                 capacity=_NO_CAPACITY if capacity is None else capacity,
                                 mu=0.0 if mu is None else mu)
     try:
-        validate_capacity_params(spill)
+        validate_capacity_params(spill)   # also rejects NaN and inf
     except ValueError as exc:
-        flag = {"capacity": "--capacity", "mu": "--mu"}.get(str(exc).split(":")[0].rsplit(".", 1)[-1])
+        field = str(exc).split(":")[0].rsplit(".", 1)[-1]   # "CapacitySpillParams.mu: ..." -> "mu"
+        flag = {"capacity": "--capacity", "mu": "--mu"}.get(field)
         raise CLIError(f"{flag}: {exc}" if flag else str(exc)) from None
     return spill
 

@@ -147,7 +147,7 @@ def route_path(scene, route: execute.Route, world_geom: rover_mod.Geometry, push
     m = (len(pts) + 1) * _SAMPLES + 2
     if poly.shape[0] > m:
         m = _PATH_PAD * -(-poly.shape[0] // _PATH_PAD)
-    poly = np.concatenate([poly, np.repeat(stop[None], m - poly.shape[0], 0)], 0)
+    poly = _pad_end(poly, m)
     seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(seg)])
     axle = start - dir0 * world_geom.blade_front
@@ -372,11 +372,15 @@ def _friction_fields(world: rover_mod.World, friction, b: int) -> dict:
     return {"geom_friction": table}
 
 
+def _pad_end(a, m: int):
+    """``a`` (leading axis >= 1) extended to length ``m`` by repeating its last row."""
+    return np.concatenate([a, np.repeat(a[-1:], m - a.shape[0], 0)], 0)
+
+
 def _pad_paths(paths):
     """Route paths (``route_path``) padded to one length by repeating their end point."""
     m = max(p[0].shape[0] for p in paths)
-    pad = lambda a: np.concatenate([a, np.repeat(a[-1:], m - a.shape[0], 0)], 0)  # noqa: E731
-    return [(pad(p[0]), pad(p[1])) + tuple(p[2:]) for p in paths]
+    return [(_pad_end(p[0], m), _pad_end(p[1], m)) + tuple(p[2:]) for p in paths]
 
 
 def _score(scene, routes, world, traj: Trajectory, paths, layouts, masks, spill, evaluator) -> RouteOutcome:
