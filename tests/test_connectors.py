@@ -9,6 +9,19 @@ from jaxplan import FabricParams, build_fabric, builtin_scene, plan_connectors
 from tests._scenes import has_borderline_step, reference_of, scenes
 
 
+def _anchor_near_tie(ref, cell_size, anchor_lambda, rel=1e-5) -> bool:
+    """Whether some root's two best anchor scores (Eq. 12, from the reference's float64 heat) are
+    within float32 rounding: equal heats summed in another order may then pick either anchor."""
+    cand = np.argwhere(ref.highways & ref.occupied)
+    roots = np.argwhere(ref.occupied & ~ref.highways)
+    if len(cand) < 2 or len(roots) == 0:
+        return False
+    dist = np.linalg.norm(roots[:, None, :] - cand[None, :, :], axis=-1) * cell_size
+    score = ref.heat[cand[:, 0], cand[:, 1]][None, :] - anchor_lambda * dist
+    top2 = -np.sort(-score, axis=1)[:, :2]
+    return bool(np.any(top2[:, 0] - top2[:, 1] <= rel * (1.0 + np.abs(top2[:, 0]))))
+
+
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scene=scenes(max_side=16, integer_counts=False), theta=st.sampled_from((45.0, 60.0, 90.0)),
        lam=st.sampled_from((0.0, 0.5, 2.0)), tau_h=st.sampled_from((0.3, 0.6)))
@@ -20,6 +33,8 @@ def test_anchors_and_connectors_equal_reference(scene, theta, lam, tau_h):
     ref = reference_of(scene, params)
     if not np.all(ref.unique_first_hop[ref.occupied]):
         return  # ties change the heatmap, and with it the anchors; first hops are tested elsewhere
+    if _anchor_near_tie(ref, float(scene.cell_size), lam):
+        return  # two anchors score equal up to rounding; float32 and float64 may pick either
     conn = plan_connectors(scene, params, fab, max_anchors=64)
     assert not bool(conn.truncated)
     np.testing.assert_array_equal(np.asarray(fab.highways), ref.highways)
