@@ -2,13 +2,18 @@
 import mujoco
 import numpy as np
 import pytest
+import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from shapely.geometry import Point, box
 
 from jaxplan.pusharound import shapes
 from jaxplan.pusharound.physics import PushPhysicsConfig, build_push_world, initial_state, movable_poses
 from jaxplan.pusharound.push import (PushTask, direction_tasks, face_contacts, free_components, make_push_simulator,
-                                     push_cost, quick_pass, simulate_pushes, stack_tasks)
+                                     push_cost, quick_pass, simulate_pushes, stack_tasks, swept_hulls)
+from jaxplan.pusharound.scenarios import random_shape
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene
+from jaxplan.reference.pusharound import swept_polygon
 
 
 def _movable(name, shape, pose, mass):
@@ -149,6 +154,21 @@ def test_quick_pass(world, batch):
     assert "fixed obstacle" in qp.reason[1]
     inside = quick_pass(world, stack_tasks([_task(world, (1, 0), (0.3, 0, 0), flip=True)]))
     assert not inside.ok[0] and "overlaps" in inside.reason[0]
+
+
+@settings(max_examples=40, deadline=None)
+@given(shape_seed=st.integers(0, 10_000), pose=st.tuples(st.floats(-3, 3), st.floats(-3, 3), st.floats(-4, 4)),
+       velocity=st.tuples(st.floats(-0.6, 0.6), st.floats(-0.6, 0.6), st.floats(-1, 1)),
+       duration=st.floats(0.05, 2.0))
+def test_swept_hulls_cover_the_reference_sweep(shape_seed, pose, velocity, duration):
+    """The quick-pass's vectorised sweep (convex pieces) has the serial reference's union as its union."""
+    shape = random_shape(np.random.default_rng(shape_seed))
+    mov = Movable("m", shape.pieces, pose, 8.0, shapes.polygon_inertia(shape.outline, 8.0))
+    hulls = swept_hulls(mov, np.asarray(pose), np.asarray(velocity), duration)
+    assert len(hulls) == 7 * len(shape.pieces) and all(h.geom_type == "Polygon" for h in hulls)
+    union = shapely.union_all(hulls)
+    ref = swept_polygon(mov, pose, velocity, duration)
+    assert union.symmetric_difference(ref).area <= 1e-9 * max(ref.area, 1.0)
 
 
 def test_push_cost_eq11(world, batch, c_out):

@@ -36,7 +36,7 @@ from jaxplan.pusharound.kernels import pair_distances, point_distances
 from jaxplan.pusharound.physics import PushWorld, initial_state, movable_poses
 
 __all__ = ["MAX_BATCH", "PushTask", "PushOutcome", "QuickPass", "direction_tasks", "face_contacts", "make_push_simulator",
-           "push_cost", "push_policy", "quick_pass", "simulate_pushes", "stack_tasks"]
+           "push_cost", "push_policy", "quick_pass", "simulate_pushes", "stack_tasks", "swept_hulls"]
 
 MAX_BATCH = 64      # candidates per physics call (the paper's 64 per expansion)
 _SWEEP_SAMPLES = 8  # poses along a push for the swept-polygon quick-pass
@@ -474,6 +474,8 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
     poses = scene.poses if poses is None else np.asarray(poses, np.float64)
     r = float(scene.robot_radius)
     ws = scene.workspace_polygon
+    ws_loose = ws.buffer(1e-9)
+    shapely.prepare(ws_loose)
     fixed = shapely.union_all([f.polygon for f in scene.fixed]) if scene.fixed else None
     starts = _start_positions(world, tasks, poses)
     placed_scene = scene.with_poses(poses)
@@ -488,16 +490,12 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
     ok, reasons, walled = [], [], []
     for i in range(len(tasks.movable)):
         m = int(tasks.movable[i])
-        mov = placed_scene.movables[m]
-        ts = np.linspace(0.0, float(tasks.duration[i]), _SWEEP_SAMPLES)
-        pose_seq = poses[m][None] + tasks.velocity[i][None] * ts[:, None]
-        placed = [mov.world_pieces(tuple(p)) for p in pose_seq]
-        sweep = shapely.union_all([shapely.union_all([a, b]).convex_hull
-                                   for k in range(len(placed) - 1) for a, b in zip(placed[k], placed[k + 1])])
+        hulls = swept_hulls(scene.movables[m], poses[m], tasks.velocity[i], float(tasks.duration[i]))
         reason, walled_off = "", False
-        if fixed is not None and fixed.intersects(sweep) and sweep.intersection(fixed).area > 1e-9:
+        hit = shapely.intersects(fixed, hulls) if fixed is not None else np.zeros(len(hulls), bool)
+        if np.any(hit) and shapely.union_all(hulls[hit]).intersection(fixed).area > 1e-9:
             reason = "sweep hits a fixed obstacle"
-        elif not ws.buffer(1e-9).contains(sweep):
+        elif not np.all(shapely.contains(ws_loose, hulls)):
             reason = "sweep leaves the workspace"
         else:
             act = np.nonzero(tasks.active[i])[0]
@@ -528,6 +526,37 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
         reasons.append(reason)
         walled.append(walled_off)
     return QuickPass(np.asarray(ok, bool), reasons, np.asarray(walled, bool))
+
+
+def swept_hulls(movable, pose0, velocity, duration: float, samples: int = _SWEEP_SAMPLES) -> np.ndarray:
+    """The region a movable sweeps along a constant-velocity push, as convex pieces.
+
+    movable: a :class:`~jaxplan.pusharound.scene.Movable` (convex body-frame pieces); pose0 f[3] its
+    pose (x [m], y [m], yaw [rad]); velocity f[3] its body velocity ([m/s], [m/s], [rad/s]) over
+    ``duration`` [s]. Returns an object array of ``(samples - 1) x pieces`` polygons: per piece and
+    pair of consecutive poses of ``samples`` evenly spaced ones, the convex hull of the piece at both.
+    Their union is the swept polygon (``jaxplan.reference.pusharound.swept_polygon``); built with one
+    vectorised shapely call instead of a union, since the quick-pass needs only intersection and
+    containment tests, which distribute over the pieces.
+    """
+    ts = np.linspace(0.0, float(duration), samples)
+    seq = np.asarray(pose0, np.float64)[None] + np.asarray(velocity, np.float64)[None] * ts[:, None]   # [S, 3]
+    c, s = np.cos(seq[:, 2])[:, None], np.sin(seq[:, 2])[:, None]
+    points, owner = [], []
+    for k, local in enumerate(_piece_vertices(movable)):
+        x = seq[:, 0:1] + c * local[None, :, 0] - s * local[None, :, 1]    # [S, V]
+        y = seq[:, 1:2] + s * local[None, :, 0] + c * local[None, :, 1]
+        world = np.stack([x, y], -1)                                      # [S, V, 2]
+        pairs = np.concatenate([world[:-1], world[1:]], axis=1)            # [S-1, 2V, 2]
+        points.append(pairs.reshape(-1, 2))
+        owner.append(np.repeat(k * (samples - 1) + np.arange(samples - 1), pairs.shape[1]))
+    clouds = shapely.multipoints(np.concatenate(points), indices=np.concatenate(owner))
+    return shapely.convex_hull(clouds)
+
+
+def _piece_vertices(movable) -> tuple:
+    """Body-frame vertices f[V, 2] of each convex piece of ``movable``."""
+    return tuple(shapely.get_coordinates(p.exterior)[:-1] for p in movable.pieces)
 
 
 def _robot_reference_np(pose0, tasks, i, n, t, offset):

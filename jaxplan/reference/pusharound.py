@@ -6,6 +6,8 @@
 - :func:`path_clearance`: the smallest distance from a polyline to any obstacle or to the workspace
   boundary; a path is W-clear iff it lies in the workspace and this is >= W/2.
 - :func:`reference_pair_distances`: component distances with one shapely call per pair.
+- :func:`swept_polygon`: the region a movable sweeps along a push, placed pose by pose with shapely's
+  affine transforms and merged with one union (the peer of ``push.swept_hulls``).
 
 Tolerance: shapely buffers approximate the disk by a polygon whose vertices lie on the circle (here 64
 per quarter), so ``F_W`` is too large by at most ``W/2 (1 - cos(pi/256)) ~ 4e-5 W``; scenes with a gap
@@ -19,7 +21,7 @@ from shapely.geometry import LineString, Point
 from shapely.geometry import box as _box
 
 __all__ = ["free_space", "path_clearance", "reference_connected", "reference_gap_costs",
-           "reference_pair_distances"]
+           "reference_pair_distances", "swept_polygon"]
 
 _QUAD_SEGS = 64
 
@@ -118,3 +120,13 @@ def reference_gap_costs(scene, params, g=None) -> dict:
                 costs[gap.bodies] = lt * c_t + lp * c_p + min(pool) + penalty
                 break
     return costs
+
+
+def swept_polygon(movable, pose0, velocity, duration: float, samples: int = 8):
+    """The union over consecutive poses (``samples`` evenly spaced along ``pose0 + velocity t``,
+    ``t`` in [0, duration]) and pieces of the convex hull of the piece placed at both poses."""
+    ts = np.linspace(0.0, float(duration), samples)
+    placed = [movable.world_pieces(tuple(np.asarray(pose0, np.float64) + np.asarray(velocity, np.float64) * t))
+              for t in ts]
+    return shapely.union_all([shapely.union_all([a, b]).convex_hull
+                              for k in range(samples - 1) for a, b in zip(placed[k], placed[k + 1])])
