@@ -115,6 +115,13 @@ def pursuit_policy(p: PursuitParams, pstate, qpos, qvel, time):
     return jnp.where(done, 0.0, wheels), (progress, done)
 
 
+# Compiled once per shape: run eagerly, these dozens of tiny array operations cost ~20 ms per route,
+# which at a batch of 1,024 routes outweighed the physics itself (docs/physics.md, "On a GPU").
+_waypoints_jit = jax.jit(execute.waypoints)
+_sample_route_jit = jax.jit(spillage.sample_route, static_argnums=2)
+_WAY_PAD = 16           # spline inputs are padded to a multiple of this many waypoints (fewer compiles)
+
+
 def route_path(scene, route: execute.Route, world_geom: rover_mod.Geometry, push_in: float = 0.0):
     """The tracked path of one route: ``(path f[M, 2], arc f[M], total, end_dir f[2], start_xy, yaw)``.
 
@@ -128,14 +135,15 @@ def route_path(scene, route: execute.Route, world_geom: rover_mod.Geometry, push
     next multiple of ``_PATH_PAD`` above the sample count where the split made more.
     """
     s = float(np.asarray(scene.cell_size))
-    pts, n = execute.waypoints(scene, route)
+    pts, n = _waypoints_jit(scene, route)
     pts, n = np.asarray(pts, np.float64), int(n)
     first = pts[1] - pts[0] if n > 1 else np.asarray(route.end, np.float64) - pts[0]
     norm = np.linalg.norm(first)
     dir0 = first / norm if norm > 0 else np.array([1.0, 0.0])
     start = pts[0] - dir0 * (_TIP_GAP * s + world_geom.wing_reach)
     way = _split_long_segments(np.concatenate([start[None], pts[:n]], 0), _MAX_SEGMENT * s, s)
-    samples = spillage.sample_route(jnp.asarray(way, jnp.float32), way.shape[0], _SAMPLES)
+    padded = _pad_end(way, _WAY_PAD * -(-way.shape[0] // _WAY_PAD))   # rows past n_points are ignored
+    samples = _sample_route_jit(jnp.asarray(padded, jnp.float32), way.shape[0], _SAMPLES)
     pos = np.asarray(samples.pos, np.float64)
     valid = np.asarray(samples.valid)
     end = way[-1]
@@ -319,7 +327,8 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
     spill = spillage.SpillParams() if spill is None else spill
     evaluator = spill_capacity.evaluator_for(spill) if evaluator is None else evaluator
     s = float(np.asarray(scene.cell_size))
-    b = int(np.asarray(routes.n_cells).shape[0])
+    routes = jax.tree_util.tree_map(np.asarray, routes)   # per-route slices below: numpy, not device ops
+    b = int(routes.n_cells.shape[0])
     masks, layouts = [], []
     for i in range(b):
         mask = _route_mask(scene, _index(routes, i))
