@@ -1,14 +1,9 @@
 """The batch-size throughput benchmark (experiments/bench_rover_throughput.py) on a tiny run."""
 import json
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from experiments import bench_rover_throughput as bench  # noqa: E402
+from experiments import bench_rover_throughput as bench
 
 
 def test_small_scene_c_engine_run_writes_results(tmp_path):
