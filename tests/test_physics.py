@@ -4,6 +4,7 @@ single rollouts. Tiny scenes and short horizons; each engine compiles/builds onc
 from __future__ import annotations
 
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
@@ -180,10 +181,17 @@ def test_tracked_path_does_not_loop_before_a_long_fallback_segment():
 
 
 @pytest.mark.parametrize("field, value", [("wing_length", 0.0), ("particle_radius", -0.1),
-                                          ("timestep", float("nan")), ("substeps", 0)])
+                                          ("timestep", float("nan")), ("substeps", 0), ("solver", "PGS")])
 def test_rover_config_rejects_bad_values(field, value):
     with pytest.raises(ValueError, match=f"RoverConfig.{field}"):
         rover.RoverConfig().replace(**{field: value})
+
+
+def test_world_runs_the_configured_solver():
+    scene = builtin_scene("default")
+    for name, code in (("CG", mujoco.mjtSolver.mjSOL_CG), ("Newton", mujoco.mjtSolver.mjSOL_NEWTON)):
+        world = rover.build_world(scene, 2, rover.RoverConfig(solver=name))
+        assert world.model.opt.solver == code
 
 
 _SLIDER = """<mujoco><option timestep="0.005"/><worldbody><geom type="plane" size="5 5 .1"/>
