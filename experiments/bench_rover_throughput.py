@@ -84,8 +84,8 @@ def _measure(scene, routes, world, backend, n_ticks, repeats):
         whole.append(time.perf_counter() - t0)
         physics.append(sim.last_s)
     o = chk.outcome
-    return {"ticks": chk.n_ticks, "cold_s": cold, "cold_physics_s": cold_physics, "warm_physics_s": physics, "warm_check_s": whole,
-            "physics_median_s": float(np.median(physics)), "check_median_s": float(np.median(whole)),
+    return {"ticks": chk.n_ticks, "cold_s": cold, "cold_physics_s": cold_physics,
+            "warm_physics_s": physics, "warm_check_s": whole, "physics_median_s": float(np.median(physics)), "check_median_s": float(np.median(whole)),
             "finite": float(np.mean(o.finite)), "reached": float(np.mean(o.reached)),
             "delivered": np.asarray(o.delivered, float).tolist(),
             "mean_lateral": np.asarray(o.mean_lateral, float).tolist()}
@@ -108,7 +108,8 @@ def to_markdown(r):
          f"{r['date']}, {r['host']['platform']}, {r['host']['cpus']} CPUs, jax {r['host']['jax']}, "
          f"mujoco {r['host']['mujoco']}, devices {r['host']['jax_devices']}.", "",
          f"Scene `{r['scene']}`, its first {r['routes']} routes tiled to the batch, {r['ticks']} control ticks x "
-         f"{r['substeps']} substeps, {r['particle_bodies']} particle bodies (nq {r['nq']}). Physics = "
+         f"{r['substeps']} substeps, {r['particle_bodies']} particle bodies (nq {r['nq']}), "
+         f"{r.get('solver', 'Newton')} solver. Physics = "
          "`Simulator.run` alone (median of warm repeats); check = the whole `check_routes` call (route setup, "
          "physics, scoring); cold = the first call (MJX: compilation for this batch size). The C engine uses "
          f"all {r['host']['cpus']} CPU threads.", "",
@@ -191,7 +192,8 @@ def main(argv=None):
                        "jax": jax.__version__, "jax_devices": [str(d) for d in jax.devices()],
                        "mujoco": mujoco.__version__},
               "scene": args.scene, "routes": n_distinct, "ticks": args.ticks or "whole routes", "substeps": sub,
-              "particle_bodies": world.n_particles, "nq": int(world.model.nq), "rows": []}
+              "particle_bodies": world.n_particles, "nq": int(world.model.nq), "solver": world.config.solver,
+              "rows": []}
     args.results_dir.mkdir(parents=True, exist_ok=True)
     stem = args.results_dir / f"rover_throughput_{device}"
     for batch in args.batches:
