@@ -16,8 +16,11 @@ the same host code for both engines), and of the whole ``check_routes`` call.
 Throughput = B x ticks x substeps / warm physics time. The C engine uses every CPU core
 (``Simulator(nthread=None)``); batches over ``--c-max-batch`` are skipped for it (time).
 
-Results: ``experiments/results/rover_throughput_<device>.json`` and ``.md`` (device ``gpu`` when
-JAX sees one, else ``cpu``; ``--results-dir`` to write elsewhere), each written after every batch so
+``--solver Newton`` builds the world with MuJoCo's Newton solver instead of CG (the A/B behind the
+solver choice, docs/physics.md).
+
+Results: ``experiments/results/rover_throughput_<device>[_newton].json`` and ``.md`` (device ``gpu``
+when JAX sees one, else ``cpu``; ``--results-dir`` to write elsewhere), written after every engine so
 that an interrupted run keeps what it measured.
 
 Examples::
@@ -157,6 +160,8 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=2, help="warm repeats per engine and batch (default 2)")
     ap.add_argument("--engines", nargs="+", default=["c", "mjx"], choices=["c", "mjx"])
     ap.add_argument("--c-max-batch", type=int, default=256, help="largest batch run on the C engine (time)")
+    ap.add_argument("--solver", default="CG", choices=["CG", "Newton"],
+                    help="the rover world's constraint solver (RoverConfig.solver; default CG)")
     ap.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     args = ap.parse_args(argv)
     if args.ticks < 0:
@@ -170,22 +175,18 @@ def main(argv=None):
     import jax
     import mujoco
 
+    from experiments.bench_rover import _small_scene, world_for
     from jaxplan import builtin_scene
-    from jaxplan.physics import bridge, rover
+    from jaxplan.physics import bridge
+    from jaxplan.physics.rover import RoverConfig
 
     t_start = time.perf_counter()
     gpu = any(d.platform == "gpu" for d in jax.devices())
     device = "gpu" if gpu else "cpu"
-    if args.scene == "small":
-        from experiments.bench_rover import _small_scene
-        scene = _small_scene()
-    else:
-        scene = builtin_scene(args.scene)
+    scene = _small_scene() if args.scene == "small" else builtin_scene(args.scene)
     _, routes, _ = bridge.plan_routes(scene, n_routes=args.routes)
     n_distinct = int(np.asarray(routes.n_cells).shape[0])
-    need = max(len(rover.particle_layout(scene, bridge._route_mask(scene, bridge._index(routes, i)), seed=i)[0])
-               for i in range(n_distinct))
-    world = rover.build_world(scene, need)   # particle counts do not depend on the layout seed
+    world = world_for(scene, routes, RoverConfig(solver=args.solver))
     sub = world.config.substeps
     result = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "device": device,
               "host": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": os.cpu_count(),
@@ -195,7 +196,7 @@ def main(argv=None):
               "particle_bodies": world.n_particles, "nq": int(world.model.nq), "solver": world.config.solver,
               "rows": []}
     args.results_dir.mkdir(parents=True, exist_ok=True)
-    stem = args.results_dir / f"rover_throughput_{device}"
+    stem = args.results_dir / f"rover_throughput_{device}{'' if args.solver == 'CG' else '_' + args.solver.lower()}"
     for batch in args.batches:
         batch_routes = _tile(routes, batch)
         n_ticks = args.ticks or None   # None: the first engine's run fixes the whole-route horizon

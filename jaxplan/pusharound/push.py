@@ -32,7 +32,7 @@ import shapely
 from shapely.geometry import LineString, Point
 
 from jaxplan.physics.rollout import Simulator
-from jaxplan.pusharound.kernels import pair_distances, point_distances
+from jaxplan.pusharound.kernels import pack_polygons, pair_distances, point_distances
 from jaxplan.pusharound.physics import PushWorld, initial_state, movable_poses
 
 __all__ = ["MAX_BATCH", "PushTask", "PushOutcome", "QuickPass", "direction_tasks", "face_contacts", "make_push_simulator",
@@ -541,22 +541,11 @@ def swept_hulls(movable, pose0, velocity, duration: float, samples: int = _SWEEP
     """
     ts = np.linspace(0.0, float(duration), samples)
     seq = np.asarray(pose0, np.float64)[None] + np.asarray(velocity, np.float64)[None] * ts[:, None]   # [S, 3]
-    c, s = np.cos(seq[:, 2])[:, None], np.sin(seq[:, 2])[:, None]
-    points, owner = [], []
-    for k, local in enumerate(_piece_vertices(movable)):
-        x = seq[:, 0:1] + c * local[None, :, 0] - s * local[None, :, 1]    # [S, V]
-        y = seq[:, 1:2] + s * local[None, :, 0] + c * local[None, :, 1]
-        world = np.stack([x, y], -1)                                      # [S, V, 2]
-        pairs = np.concatenate([world[:-1], world[1:]], axis=1)            # [S-1, 2V, 2]
-        points.append(pairs.reshape(-1, 2))
-        owner.append(np.repeat(k * (samples - 1) + np.arange(samples - 1), pairs.shape[1]))
-    clouds = shapely.multipoints(np.concatenate(points), indices=np.concatenate(owner))
-    return shapely.convex_hull(clouds)
-
-
-def _piece_vertices(movable) -> tuple:
-    """Body-frame vertices f[V, 2] of each convex piece of ``movable``."""
-    return tuple(shapely.get_coordinates(p.exterior)[:-1] for p in movable.pieces)
+    body, _ = pack_polygons(movable.pieces)        # [P, V, 2]; padding repeats a vertex (same hull)
+    placed = _posed(body[:, None], seq[None])      # [P, S, V, 2]
+    pairs = np.concatenate([placed[:, :-1], placed[:, 1:]], axis=2)   # [P, S-1, 2V, 2]
+    owner = np.repeat(np.arange(pairs.shape[0] * pairs.shape[1]), pairs.shape[2])
+    return shapely.convex_hull(shapely.multipoints(pairs.reshape(-1, 2), indices=owner))
 
 
 def _robot_reference_np(pose0, tasks, i, n, t, offset):
