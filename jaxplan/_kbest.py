@@ -16,6 +16,8 @@ a DAG, which allows two shortcuts that give the same table in far fewer grid pas
    relative to J(X). The r-th best path has at most r sidetracks, so K-1 levels suffice: level m
    ranks, at every cell, the sidetracks into the neighbours' first m table entries, then takes the
    best m losses along each cell's tree path by pointer doubling (log2(hops) merges of two m-lists).
+   Every list is kept sorted, so ranks are taken by merging lists head by head (``merge_sorted``)
+   rather than ranking all their entries again.
 
 Lengths within ``1e-6 s (1 + len)`` are ties, broken by first-step direction, as in the wavefront.
 """
@@ -63,6 +65,58 @@ def select_top_k(raw, length, key, k: int, tol):
             out_key.append(jnp.where(used, best_key, -1))
         raw = [jnp.where(idx == i, -jnp.inf, r) for i, r in enumerate(raw)]
     return out_raw, out_len, (out_key if key is not None else None), out_idx
+
+
+def merge_sorted(lists, k: int, tol):
+    """The k best entries of several sorted lists, as ``select_top_k`` of their concatenation.
+
+    lists: a sequence of ``(raw, length, key)``, each a list of planes (key None in every list, or
+    in none), every list already in ``select_top_k`` order (as its own output, or a constant shift of
+    it). Each round then only compares the lists' heads and advances the winner's, instead of
+    ranking every entry again: with n lists of m entries a round reads n heads, not n*m candidates.
+    Ties go to the earlier list, which is ``select_top_k``'s index order on the concatenation.
+    Returns ``(raw, length, key, list_index)``, each k planes, unused entries as ``select_top_k``'s.
+    """
+    lists = [(_grid.planes(r), _grid.planes(ln), None if kk is None else _grid.planes(kk)) for r, ln, kk in lists]
+    keyed = lists[0][2] is not None
+    taken = [None] * len(lists)           # entries already output from each list (None: none yet)
+    out_raw, out_len, out_key, out_idx = [], [], [], []
+    for _ in range(k):
+        heads = [_head(entries, count) for entries, count in zip(lists, taken)]
+        best_raw = _grid.lead_max([h[0] for h in heads])
+        is_best = [h[0] == best_raw for h in heads]
+        best_len = _grid.lead_min([jnp.where(b, h[1], jnp.inf) for b, h in zip(is_best, heads)])
+        near = [b & (h[1] <= best_len + tol) for b, h in zip(is_best, heads)]
+        if keyed:
+            best_key = _grid.lead_min([jnp.where(n, h[2], jnp.iinfo(jnp.int32).max) for n, h in zip(near, heads)])
+            near = [n & (h[2] == best_key) for n, h in zip(near, heads)]
+        idx = _grid.materialize(_grid.first_true(near))
+        used = best_raw > -jnp.inf
+        out_raw.append(best_raw)
+        out_len.append(jnp.where(used, best_len, jnp.inf))
+        out_idx.append(jnp.where(used, idx, 0))
+        if keyed:
+            out_key.append(jnp.where(used, best_key, -1))
+        taken = [(idx == j).astype(jnp.int32) if count is None else _grid.materialize(count + (idx == j))
+                 for j, count in enumerate(taken)]
+    return out_raw, out_len, (out_key if keyed else None), out_idx
+
+
+def _head(entries, taken):
+    """``(raw, length, key)`` planes of a sorted list's first entry not yet output (``taken`` i32
+    planes, None for none); raw -inf, length +inf, key 0 past its end."""
+    raw, length, key = entries
+    if taken is None:
+        return raw[0], length[0], None if key is None else key[0]
+    head_raw, head_len, head_key = jnp.full_like(raw[0], -jnp.inf), jnp.full_like(length[0], jnp.inf), None
+    if key is not None:
+        head_key = jnp.zeros_like(key[0])
+    for r in reversed(range(len(raw))):
+        here = taken == r
+        head_raw, head_len = jnp.where(here, raw[r], head_raw), jnp.where(here, length[r], head_len)
+        if key is not None:
+            head_key = jnp.where(here, key[r], head_key)
+    return head_raw, head_len, head_key
 
 
 def length_tolerance(length, cell_size):
@@ -173,11 +227,12 @@ def best_paths(g, occupied, cell_size, max_iterations: int):
 
 # ------------------------------------------------------------------------------------ K-best table
 
-def _sidetrack_losses(neighbour, best_raw, best_len, policy, g, k: int, tol):
-    """The k best non-tree first steps at every cell, as losses against its own best path.
+def _sidetracks_into_entry(neighbour, best_raw, best_len, policy, g, r: int, count: int, tol):
+    """The ``count`` best non-tree first steps at every cell whose continuation is the neighbour's
+    entry r, as losses against the cell's own best path.
 
-    neighbour(d, r): the neighbours' entry r (r < k; exact at level k, as ``grid_neighbours``).
-    Returns loss raw / length and first-step direction, lists of k planes.
+    neighbour(d, r): the neighbours' entry r (exact). Returns loss raw / length and first-step
+    direction, lists of ``count`` planes.
     """
     raw, length = [], []
     # off the occupied set J = -inf; keep the subtraction finite there (nothing is feasible anyway)
@@ -186,14 +241,29 @@ def _sidetrack_losses(neighbour, best_raw, best_len, policy, g, k: int, tol):
     for d in range(_grid.N_DIRS):
         off_tree = g.feasible[d] & (policy != d)
         via_cell = off_tree & ~g.enters_goal[d]
-        for r in range(k):
-            nb_raw, nb_len = neighbour(d, r)
-            via_goal = (off_tree & g.enters_goal[d]) if r == 0 else False
-            raw.append(jnp.where(via_cell, g.obj + nb_raw, jnp.where(via_goal, g.obj, -jnp.inf)) - base_raw)
-            length.append(g.step_len[d] + (jnp.where(via_goal, 0.0, nb_len) if r == 0 else nb_len) - base_len)
-    # candidates are direction-major, so index order is the direction tie-break
-    loss_raw, loss_len, _, index = select_top_k(raw, length, None, k, tol)
-    return loss_raw, loss_len, [jnp.where(r > -jnp.inf, i // k, -1) for r, i in zip(loss_raw, index)]
+        nb_raw, nb_len = neighbour(d, r)
+        via_goal = (off_tree & g.enters_goal[d]) if r == 0 else False
+        raw.append(jnp.where(via_cell, g.obj + nb_raw, jnp.where(via_goal, g.obj, -jnp.inf)) - base_raw)
+        length.append(g.step_len[d] + (jnp.where(via_goal, 0.0, nb_len) if r == 0 else nb_len) - base_len)
+    # candidates in direction order, so the index is the direction tie-break
+    loss_raw, loss_len, _, direction = select_top_k(raw, length, None, count, tol)
+    return loss_raw, loss_len, [jnp.where(x > -jnp.inf, d, -1) for x, d in zip(loss_raw, direction)]
+
+
+def _sidetrack_losses(by_entry, k: int, tol):
+    """The k best non-tree first steps at every cell (losses, lists of k planes), from
+    ``by_entry[r]``: the best such steps into the neighbours' entry r, for r < k.
+
+    A step into entry r ranks behind the same step into entries 0..r-1, so it can only hold
+    position r or later: the k best need only the k - r best of each ``by_entry[r]``. Merged keyed
+    by direction, the earlier entry first among one direction's ties: the direction-major order of
+    ranking all 8k steps at once.
+    """
+    if k == 1:
+        return [p[:1] for p in by_entry[0]]
+    lists = [tuple(p[:k - r] for p in by_entry[r]) for r in range(k)]
+    loss_raw, loss_len, loss_dir, _ = merge_sorted(lists, k, tol)
+    return loss_raw, loss_len, loss_dir
 
 
 def _best_along_tree(loss_raw, loss_len, loss_dir, pointer, tree_dir, tol, k: int):
@@ -214,18 +284,23 @@ def _best_along_tree(loss_raw, loss_len, loss_dir, pointer, tree_dir, tol, k: in
     # entry to every plane (a concatenation would pull the selection into one fusion per output)
 
     def unfinished(carry):
-        return jnp.any(carry[3] != sink)
+        return jnp.any(carry[2] != sink)
 
     def merge(carry):
-        raw, length, direction, pointer = carry
-        down_raw = [jnp.take(r, pointer, mode="fill", fill_value=-jnp.inf) for r in raw]
-        down_len = [jnp.take(ln, pointer, mode="fill", fill_value=jnp.inf) for ln in length]
+        # the loop carries raw and length as one stacked array (and directions as another), not 3k
+        # planes: fewer loop buffers to copy each turn (the whole build 13% faster at 65^2, ad hoc)
+        scores, direction, pointer = carry
+        # a filled (sink) entry has raw -inf, so its length is never read
+        down = [jnp.take(row, pointer, mode="fill", fill_value=-jnp.inf) for row in scores]
         # downstream exits start with P*'s step
-        raw, length, direction, _ = select_top_k([*raw, *down_raw], [*length, *down_len],
-                                                 [*direction, *own_dir], k, tol)
-        return tuple(raw), tuple(length), tuple(direction), jnp.take(pointer, pointer, mode="fill", fill_value=sink)
+        raw, length, direction, _ = merge_sorted([(scores[:k], scores[k:], direction),
+                                                  (down[:k], down[k:], own_dir)], k, tol)
+        return (jnp.stack([*raw, *length]), jnp.stack(direction),
+                jnp.take(pointer, pointer, mode="fill", fill_value=sink))
 
-    raw, length, direction, _ = jax.lax.while_loop(unfinished, merge, (raw, length, direction, pointer))
+    scores, direction, _ = jax.lax.while_loop(unfinished, merge, (jnp.stack([*raw, *length]), jnp.stack(direction),
+                                                                   pointer))
+    raw, length = scores[:k], scores[k:]
     unflat = lambda planes: [p.reshape(shape) for p in planes]  # noqa: E731
     return unflat(raw), unflat(length), unflat(direction)
 
@@ -244,16 +319,18 @@ def kbest_levels(best_raw, best_len, policy, g, occupied, pointer, neighbours, k
     tol = length_tolerance(best_len, cell_size)
     table_raw, table_len, table_dir = [best_raw], [best_len], [jnp.where(occupied, policy, -1)]
     zero = jnp.zeros(policy.shape)
+    by_entry = []
     for m in range(1, k):
-        loss_raw, loss_len, loss_dir = _sidetrack_losses(neighbours(table_raw, table_len), best_raw, best_len,
-                                                         policy, g, m, tol)
+        by_entry.append(_sidetracks_into_entry(neighbours(table_raw, table_len), best_raw, best_len, policy, g,
+                                               m - 1, k - m, tol))
+        loss_raw, loss_len, loss_dir = _sidetrack_losses(by_entry, m, tol)
         if downstream is not None:
             beyond_raw, beyond_len = downstream[0][:m], downstream[1][:m]
-            loss_raw, loss_len, loss_dir, _ = select_top_k([*loss_raw, *beyond_raw], [*loss_len, *beyond_len],
-                                                           [*loss_dir, *([policy] * m)], m, tol)
+            loss_raw, loss_len, loss_dir, _ = merge_sorted(
+                [(loss_raw, loss_len, loss_dir), (beyond_raw, beyond_len, [policy] * m)], m, tol)
         loss_raw, loss_len, loss_dir = _best_along_tree(loss_raw, loss_len, loss_dir, pointer, policy, tol, m)
-        loss_raw, loss_len, loss_dir, _ = select_top_k(
-            [zero, *loss_raw], [zero, *loss_len], [policy, *loss_dir], m + 1, tol)
+        loss_raw, loss_len, loss_dir, _ = merge_sorted(
+            [([zero], [zero], [policy]), (loss_raw, loss_len, loss_dir)], m + 1, tol)
         table_raw = [jnp.where(occupied, best_raw + r, -jnp.inf) for r in loss_raw]
         table_len = [jnp.where(r > -jnp.inf, best_len + ln, jnp.inf) for r, ln in zip(table_raw, loss_len)]
         table_dir = [jnp.where(r > -jnp.inf, d, -1) for r, d in zip(table_raw, loss_dir)]
