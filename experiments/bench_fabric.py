@@ -525,14 +525,14 @@ def main(argv=None) -> int:
         print(targets_line(json.loads(json_path.read_text())))
         return 0
 
-    if args.single_cpu:
-        if not hasattr(os, "sched_setaffinity"):
-            print("error: --single-cpu needs os.sched_setaffinity (Linux)", file=sys.stderr)
-            return 2
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    import jax  # noqa: F401  (imported after pinning, so XLA sees one core)
+    from jaxplan import FabricParams, single_cpu
 
-    from jaxplan import FabricParams
+    if args.single_cpu:
+        try:
+            single_cpu()   # before the first JAX computation, so XLA sizes its thread pool to one core
+        except RuntimeError as exc:
+            print(f"error: --single-cpu: {exc}", file=sys.stderr)
+            return 2
 
     def log(msg):
         print(msg, file=sys.stderr, flush=True)

@@ -7,6 +7,7 @@ Public API::
     fabric = jaxplan.build_fabric(scene, jaxplan.FabricParams(theta_tol_deg=60.0))
     episode = jaxplan.run_episode(scene)      # plan, push, spill, rebuild until delivered
 """
+from jaxplan._compile import single_cpu
 from jaxplan.connectors import Connectors, plan_connectors
 from jaxplan.episode import Episode, EpisodeParams, run_episode
 from jaxplan.execute import Push, Route
@@ -34,7 +35,7 @@ __all__ = [
     "SiteParams", "SoftFabric", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
     "circle", "connectivity", "extract_paths", "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes",
     "random_sites", "rank_gaps", "refresh_connectors", "reselect", "run_episode", "run_sites", "select_routes", "selective_rebuild",
-    "simulate_site", "sweep", "tune",
+    "simulate_site", "single_cpu", "sweep", "tune",
 ]
 __version__ = "0.1.0"
 

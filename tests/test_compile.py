@@ -1,9 +1,14 @@
-"""grid_jit: the code generator is picked by grid size, and both give the same fabric."""
+"""grid_jit: the code generator is picked by grid size, and both give the same fabric; single_cpu."""
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from jaxplan import FabricParams, _compile, build_fabric, fabric
 from jaxplan.scene import builtin_scene
@@ -47,3 +52,35 @@ def test_both_code_generators_build_the_same_fabric():
     older = build_fabric(scene, params)
     for a, b in zip(jax.tree.leaves(older), jax.tree.leaves(newer(scene, params))):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+_PIN_CHECK = """
+import os, warnings
+import jaxplan
+core = jaxplan.single_cpu()
+assert os.sched_getaffinity(0) == {core}, os.sched_getaffinity(0)
+fabric = jaxplan.build_fabric(jaxplan.builtin_scene("default"))
+assert float(fabric.value.max()) > 0
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    jaxplan.single_cpu()          # too late now: XLA's thread pool exists
+assert any("thread pool is already" in str(w.message) for w in caught), caught
+print("ok")
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs os.sched_setaffinity (Linux)")
+def test_single_cpu_pins_a_fresh_process_and_warns_when_called_late():
+    # a fresh process: pinning this test worker would slow the rest of the suite
+    done = subprocess.run([sys.executable, "-c", _PIN_CHECK], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().endswith("ok")
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs os.sched_setaffinity (Linux)")
+def test_cli_single_cpu_flag_runs_a_command_pinned():
+    code = ("import os, sys; from jaxplan.cli import main; rc = main(['--single-cpu', 'scenes']); "
+            "print('cores', len(os.sched_getaffinity(0))); sys.exit(rc)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "cores 1" in done.stdout
