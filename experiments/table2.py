@@ -273,7 +273,8 @@ def _ci(t, fmt="{:.2f}"):
 
 def markdown(result) -> str:
     lines = ["# Table 2 reproduction: full build vs selective update", "",
-             f"{result['environment']['cpu_model']}, {result['environment']['cpus_available']} cores, "
+             f"{result['environment']['cpu_model']}, {result['environment']['cpus_available']} cores"
+             f"{' (pinned to one core: --single-cpu)' if result['environment'].get('single_cpu') else ''}, "
              f"jax {result['environment']['jax_version']} ({result['environment']['backend']}); "
              f"{result['environment']['timestamp']}. Medians across instances (95% bootstrap CI). "
              "Paper: Python, single CPU.", "",
@@ -381,7 +382,7 @@ def memory_probe(n: int, args) -> dict:
 def memory_only(args) -> int:
     """``--memory-only``: the peak-memory probes alone, against the paper's figure."""
     probes = [memory_probe(n, args) for n in args.sizes]
-    result = {"environment": environment(False), "config": {"sizes": args.sizes, "ticks": args.ticks,
+    result = {"environment": environment(args.single_cpu), "config": {"sizes": args.sizes, "ticks": args.ticks,
                                                             "repeats": args.repeats},
               "paper_peak_mb": PAPER["peak_mb"], "memory_probes": probes}
     lines = ["# Table 2: peak memory of one planning process", "",
@@ -415,6 +416,9 @@ def parse_args(argv=None):
     p.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     p.add_argument("--memory-only", action="store_true",
                    help="only the peak-memory probes of the paper grids (--sizes); writes table2_memory.{json,md}")
+    p.add_argument("--single-cpu", action="store_true",
+                   help="pin the process (and its memory probes) to one CPU core before JAX starts "
+                        "(jaxplan.single_cpu; the paper's runs are single-CPU)")
     p.add_argument("--probe", type=int, default=None, help=argparse.SUPPRESS)   # child of memory_probe
     args = p.parse_args(argv)
     if args.quick:
@@ -425,6 +429,10 @@ def parse_args(argv=None):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    if args.single_cpu:   # before any JAX computation; the probes' processes inherit the pinning
+        from jaxplan import single_cpu
+
+        single_cpu()
     if args.probe is not None:
         return _probe(args.probe, args)
     if args.memory_only:
@@ -437,7 +445,7 @@ def main(argv=None) -> int:
     params = FabricParams(theta_tol_deg=args.theta_tol)
     spill = SpillParams(lam=0.05)
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
-    env = environment(False)
+    env = environment(args.single_cpu)
     log(f"jax {jax.__version__} on {env['backend']}, {env['cpus_available']} cores")
     rows = []
     t0 = time.perf_counter()
