@@ -79,8 +79,10 @@ def single_cpu() -> int:
     the paper's grids the programs are hundreds of tiny operations, and handing them between two
     threads costs more than it gains: on this project's 2-core CPU the 65^2 build took 1.97 ms pinned
     against 2.40 ms on both cores (``experiments/bench_fabric.py`` with and without ``--single-cpu``,
-    medians over 15 instances), while 1024^2 took 0.99 s against 0.79 s. So pin when re-planning
-    small grids, not large ones. Also ``jaxplan --single-cpu COMMAND`` or ``taskset -c 0 python ...``.
+    medians over 15 instances), while 1024^2 took 0.99 s against 0.79 s, and XLA then compiles on
+    one core too (the first 25^2 build: 4.0 against 2.7 s). So pin for long re-planning runs on
+    small grids, not for large grids or one-off calls. Also ``jaxplan --single-cpu COMMAND`` or
+    ``taskset -c 0 python ...``.
     """
     if not hasattr(os, "sched_setaffinity"):
         raise RuntimeError("single_cpu needs os.sched_setaffinity (Linux); use the OS's own pinning "
