@@ -432,7 +432,11 @@ def main(argv=None) -> int:
     if args.single_cpu:   # before any JAX computation; the probes' processes inherit the pinning
         from jaxplan import single_cpu
 
-        single_cpu()
+        try:
+            single_cpu()
+        except RuntimeError as exc:
+            print(f"error: --single-cpu: {exc}", file=sys.stderr)
+            return 2
     if args.probe is not None:
         return _probe(args.probe, args)
     if args.memory_only:

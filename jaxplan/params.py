@@ -93,8 +93,8 @@ def _check_range(name: str, value, lo: float, hi: float, lo_open: bool, hi_open:
     if not _concrete(value):
         return
     if isinstance(value, (int, float)):   # the common case, without numpy's per-call cost (~8 us)
-        arr = float(value)
-        bad = not math.isfinite(arr) or (arr <= lo if lo_open else arr < lo) or (arr >= hi if hi_open else arr > hi)
+        x = float(value)
+        bad = not math.isfinite(x) or (x <= lo if lo_open else x < lo) or (x >= hi if hi_open else x > hi)
     else:
         arr = np.asarray(value, dtype=np.float64)
         bad_lo = arr <= lo if lo_open else arr < lo
