@@ -464,7 +464,7 @@ def main(argv=None) -> int:
                     rows.append(row)
                     log(f"{n}x{n} d={density:g} s={seed}: full {row['full_ms']:.2f} ms, selective "
                         f"{row['selective_ms']:.3f} ms, speedup {row['speedup']:.1f}x, dirty {row['dirty_median']:.0f}, "
-                        f"equal {row['all_equal']}" + (f", reuse -{row['ablation']['reduction_pct']:.1f}%"
+                        f"equal {row['all_equal']}" + (f", reference time with reuse {-row['ablation']['reduction_pct']:+.1f}%"
                                                        if ablate else ""))
         connectors = [time_connectors(n, params) for n in args.sizes + args.big_sizes if n <= 128]
     probes = [memory_probe(n, args) for n in args.sizes]
