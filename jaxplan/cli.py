@@ -288,7 +288,8 @@ def _episode_params(args):
     from jaxplan.episode import EpisodeParams, validate_episode_params
 
     ep = EpisodeParams(rearrange_margin=args.rearrange_margin, stop_fraction=args.stop_fraction,
-                       max_pushes=args.max_pushes, source_rule=args.source_rule, reselect=args.reselect)
+                       max_pushes=args.max_pushes, source_rule=args.source_rule, reselect=args.reselect,
+                       rebuild=args.rebuild)
     validate_episode_params(ep)
     return ep
 
@@ -367,7 +368,9 @@ def _episode_summary(scene, spec, params, spill, ep, episode) -> dict:
         "params": _params_dict(params),
         "spill": _spill_dict(spill),
         "episode": {"rearrange_margin": float(ep.rearrange_margin), "stop_fraction": float(ep.stop_fraction),
-                    "max_pushes": ep.max_pushes, "source_rule": ep.source_rule, "reselect": ep.reselect},
+                    "max_pushes": ep.max_pushes, "source_rule": ep.source_rule, "reselect": ep.reselect,
+                    "rebuild": ep.rebuild},
+        "rebuild": totals["rebuild"],
         "notes": ("masses in objects; delivered/spilled/remaining are the final cumulative values; "
                   "spilled mass stays on the grid and may be pushed again; the first tick's "
                   "plan/rebuild times include compilation (medians are robust to it)"),
@@ -381,7 +384,7 @@ def _print_episode(summary: dict) -> None:
     print(f"mass: initial {summary['initial_mass']:g}, delivered {summary['delivered']:.2f}, "
           f"spilled (cumulative) {summary['spilled']:.2f}, remaining {summary['remaining']:.2f}")
     if summary["median_plan_ms"] is not None:
-        print(f"per tick (median): plan {summary['median_plan_ms']:.2f} ms, selective rebuild "
+        print(f"per tick (median): plan {summary['median_plan_ms']:.2f} ms, {summary['rebuild']} rebuild "
               f"{summary['median_rebuild_ms']:.2f} ms")
 
 
@@ -882,6 +885,11 @@ def _add_episode_options(p) -> None:
                         "headings, psi, the heatmap and highways follow those routes, as the paper does "
                         "(default: they follow the raw-count optimum, Eq. 5; the pushed route is the Eq. 6 "
                         "choice either way). Costs a spill evaluation of every source's candidate routes per tick")
+    p.add_argument("--rebuild", default="auto", choices=("auto", "selective", "full"),
+                   help="how the fabric is refreshed after each push; all give the same fabric: selective "
+                        "(recompute only the cells a push can change), full (build from scratch), or auto "
+                        "(default: full on a GPU and on CPU grids under 2,500 cells, where it is as fast or "
+                        "faster; selective otherwise)")
     p.add_argument("--fps", type=int, default=4, metavar="N", help="animation frames per second; default 4")
     p.add_argument("--no-animation", action="store_true", help="skip the GIF (faster)")
 
@@ -951,7 +959,7 @@ def _build_parser() -> argparse.ArgumentParser:
                           "source, chooses Deliver (its best route to the target under the spill "
                           "model) or Rearrange (a connector to a highway, then the highway), pushes "
                           "it on the grid (collect, spill beside the path, deposit in the target) and "
-                          "selectively rebuilds the fabric, until the mass outside the target falls "
+                          "rebuilds the fabric (--rebuild), until the mass outside the target falls "
                           "under --stop-fraction or --max-pushes is spent. Writes DIR/summary.json "
                           "(initial mass; final delivered, spilled, remaining), DIR/metrics.json and "
                           "DIR/metrics.csv (per tick: delivered, spilled, remaining, pushes, mode, "

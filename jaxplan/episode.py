@@ -12,7 +12,8 @@ One tick (``docs/conventions.md``, "Episodes"):
 4. **Choice**: Rearrange when ``via_raw > (1 + rearrange_margin) * raw(Deliver route)``, i.e. when
    going through the highway collects clearly more; otherwise Deliver. ``rearrange_margin`` is a
    traced parameter (``inf`` never rearranges).
-5. Push the route (``execute``), selectively rebuild the fabric (``rebuild``), record the metrics.
+5. Push the route (``execute``), rebuild the fabric (selectively, ``rebuild``, or in full; ``rebuild_mode``),
+   record the metrics.
 
 With ``reselect`` (and spillage on) every tick first applies Eq. 6 to every source
 (``selection.reselect``), so that headings, psi, the heatmap, highways and anchors follow the routes
@@ -39,6 +40,31 @@ from jaxplan.params import FabricParams, validate_params
 
 MODES = ("deliver", "rearrange")
 SOURCE_RULES = ("max_value", "nearest")
+REBUILD_MODES = ("auto", "selective", "full")
+# Grids below this many cells rebuild in full under rebuild="auto" on a CPU. Table 2 on the 2-core
+# CPU (experiments/results/table2.md and single_cpu/table2.md, paired medians): the selective update
+# is 0.6x the full build at 25x25, 1.0x at 45x45, 1.2-1.3x at 65x65 and 8-13x from 256x256 on; its
+# breadth-first listing and compact solver are a fixed number of small sequential steps.
+SELECTIVE_MIN_CELLS = 2_500
+
+
+def rebuild_mode(rebuild: str, shape, backend: str | None = None) -> str:
+    """The rebuild an episode runs: ``rebuild`` itself unless it is "auto".
+
+    "auto" is "full" on an accelerator (on an H100 the selective update was 0.6x the full build at
+    every grid from 25x25 to 512x512: the full build is launch-bound there and the selective update
+    launches more kernels, experiments/results/table2_gpu_*) and on CPU grids of fewer than
+    ``SELECTIVE_MIN_CELLS`` cells; otherwise "selective". shape: (H, W); backend: JAX's platform name,
+    default ``jax.default_backend()``. Both modes give the same fabric.
+    """
+    if rebuild not in REBUILD_MODES:
+        raise ValueError(f"EpisodeParams.rebuild: must be one of {REBUILD_MODES}; got {rebuild!r}.")
+    if rebuild != "auto":
+        return rebuild
+    backend = jax.default_backend() if backend is None else backend
+    if backend != "cpu":
+        return "full"
+    return "selective" if shape[0] * shape[1] >= SELECTIVE_MIN_CELLS else "full"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,7 +73,8 @@ class EpisodeParams:
 
     Traced: rearrange_margin: f32[] (>= 0), see the choice rule; stop_fraction: f32[] in [0, 1).
     Static: max_pushes (push budget, >= 0); source_rule ("max_value" or "nearest"); rebuild
-    ("selective" or "full": how the fabric is refreshed after a push; both give the same fabric);
+    ("auto", "selective" or "full": how the fabric is refreshed after a push; all give the same
+    fabric, only the time differs; "auto" picks by ``rebuild_mode``);
     reselect (apply Eq. 6 to every source before planning, module docstring; off by default: it
     costs a spill evaluation of every candidate route of every source with two or more per tick).
     """
@@ -56,7 +83,7 @@ class EpisodeParams:
     stop_fraction: Any = 0.02
     max_pushes: int = 200
     source_rule: str = "max_value"
-    rebuild: str = "selective"
+    rebuild: str = "auto"
     reselect: bool = False
 
     def replace(self, **changes) -> "EpisodeParams":
@@ -81,8 +108,8 @@ def validate_episode_params(ep: EpisodeParams) -> None:
         raise ValueError(f"EpisodeParams.max_pushes: must be an int >= 0; got {ep.max_pushes!r}.")
     if ep.source_rule not in SOURCE_RULES:
         raise ValueError(f"EpisodeParams.source_rule: must be one of {SOURCE_RULES}; got {ep.source_rule!r}.")
-    if ep.rebuild not in ("selective", "full"):
-        raise ValueError(f"EpisodeParams.rebuild: must be 'selective' or 'full'; got {ep.rebuild!r}.")
+    if ep.rebuild not in REBUILD_MODES:
+        raise ValueError(f"EpisodeParams.rebuild: must be one of {REBUILD_MODES}; got {ep.rebuild!r}.")
     if not isinstance(ep.reselect, (bool, np.bool_)):
         raise ValueError(f"EpisodeParams.reselect: must be a bool; got {ep.reselect!r}.")
 
@@ -203,6 +230,7 @@ class Episode:
     initial_mass: total objects; initial_remaining: objects outside the target at the start.
     stop_reason: "done" | "budget" | "no_material" | "no_route"; message: a sentence for people.
     final_obj: f32[H, W] counts at the end.  frames: per-tick snapshots when ``record=True``.
+    rebuild: the rebuild the ticks ran, "selective" or "full" (``rebuild_mode`` of EpisodeParams.rebuild).
     """
 
     delivered: np.ndarray
@@ -227,6 +255,7 @@ class Episode:
     message: str
     final_obj: np.ndarray
     frames: list = dataclasses.field(default_factory=list)
+    rebuild: str = "selective"
 
     @property
     def n_pushes(self) -> int:
@@ -239,7 +268,7 @@ class Episode:
                     delivered=last(self.delivered, 0.0), spilled=last(self.spilled, 0.0),
                     remaining=last(self.remaining, self.initial_remaining), pushes=self.n_pushes,
                     rearrange_pushes=int(np.sum(self.mode)), driven=last(self.driven, 0.0),
-                    stop_reason=self.stop_reason, message=self.message,
+                    stop_reason=self.stop_reason, message=self.message, rebuild=self.rebuild,
                     median_plan_ms=float(np.median(self.plan_ms)) if len(self.plan_ms) else None,
                     median_rebuild_ms=float(np.median(self.rebuild_ms)) if len(self.rebuild_ms) else None)
 
@@ -287,6 +316,7 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     centres = np.asarray(scene.cell_centers(), np.float64)
     rover = centres[np.asarray(scene.target_mask)].mean(axis=0)
     cap = _walk_cap(scene.shape)
+    mode = rebuild_mode(ep.rebuild, scene.shape)
     rows: list[dict] = []
     frames: list[dict] = []
     stop_reason, message = "budget", f"push budget of {ep.max_pushes} spent"
@@ -319,7 +349,7 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
                 break
             (new_obj, push), execute_ms = timed(lambda: execute.execute_jit(scene, plan.route, spill, evaluator))
             scene = scene.with_obj(new_obj)
-            if ep.rebuild == "selective":
+            if mode == "selective":
                 (fabric, affected), rebuild_ms = timed(lambda: rebuild.selective_rebuild(scene, params, fabric,
                                                                                             push.changed))
                 dirty, full = int(affected.n_dirty), bool(affected.full)
@@ -342,7 +372,7 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
             bar.update(1)
     finally:
         bar.close()
-    return _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, message, scene)
+    return _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, message, scene, mode)
 
 
 def _frame(fabric: Fabric, plan: Plan, push: execute.Push) -> dict:
@@ -355,7 +385,7 @@ def _frame(fabric: Fabric, plan: Plan, push: execute.Push) -> dict:
                 spline=np.asarray(push.samples.pos)[np.asarray(push.samples.valid)])
 
 
-def _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, message, scene) -> Episode:
+def _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, message, scene, mode) -> Episode:
     col = lambda key, dtype=np.float64: np.asarray([r[key] for r in rows], dtype)  # noqa: E731
     n = len(rows)
     pushed = col("route_length")
@@ -367,7 +397,7 @@ def _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, messag
         driven=np.cumsum(pushed + col("approach")), plan_ms=col("plan_ms"), rebuild_ms=col("rebuild_ms"),
         execute_ms=col("execute_ms"), dirty=col("dirty", np.int32), full_rebuild=col("full_rebuild", bool),
         initial_mass=initial_mass, initial_remaining=initial_remaining, stop_reason=stop_reason,
-        message=message, final_obj=np.asarray(scene.obj), frames=frames)
+        message=message, final_obj=np.asarray(scene.obj), frames=frames, rebuild=mode)
 
 
 def _progress(total: int, enabled: bool):

@@ -9,7 +9,7 @@ import pytest
 from jaxplan import FabricParams, Scene, box, build_fabric
 from jaxplan import selection
 from jaxplan import spillage as sp
-from jaxplan.episode import EpisodeParams, run_episode
+from jaxplan.episode import EpisodeParams, rebuild_mode, run_episode
 from jaxplan.fabric import table_hops
 from jaxplan.reference import execute as ref_ex
 
@@ -28,7 +28,9 @@ def site():
 
 @pytest.fixture(scope="module")
 def episode(site):
-    return run_episode(site, FabricParams(), sp.SpillParams(lam=0.1), EpisodeParams(max_pushes=25), record=True)
+    # selective explicitly: on a 14 x 14 grid rebuild="auto" would build in full
+    return run_episode(site, FabricParams(), sp.SpillParams(lam=0.1),
+                       EpisodeParams(max_pushes=25, rebuild="selective"), record=True)
 
 
 def test_bookkeeping_is_consistent(site, episode):
@@ -66,6 +68,24 @@ def test_selective_and_full_rebuild_run_the_same_episode(site, episode):
     np.testing.assert_array_equal(full.delivered, episode.delivered)
     np.testing.assert_array_equal(full.final_obj, episode.final_obj)
     assert np.all(full.full_rebuild) and not np.all(episode.full_rebuild)
+    assert (full.rebuild, episode.rebuild) == ("full", "selective")
+
+
+def test_auto_rebuild_picks_by_backend_and_grid_size():
+    small, large = (14, 14), (65, 65)
+    assert rebuild_mode("auto", small, "cpu") == "full"
+    assert rebuild_mode("auto", large, "cpu") == "selective"
+    assert rebuild_mode("auto", large, "gpu") == "full"
+    assert rebuild_mode("selective", small, "gpu") == "selective"    # an explicit choice is kept
+    assert rebuild_mode("full", large, "cpu") == "full"
+    with pytest.raises(ValueError, match="EpisodeParams.rebuild"):
+        rebuild_mode("fast", large, "cpu")
+
+
+def test_auto_rebuild_runs_the_resolved_mode(site):
+    ep = run_episode(site, episode=EpisodeParams(max_pushes=2))   # 196 cells: full on any backend
+    assert EpisodeParams().rebuild == "auto" and ep.rebuild == "full"
+    assert ep.n_pushes == 2 and np.all(ep.full_rebuild) and ep.totals()["rebuild"] == "full"
 
 
 def test_infinite_margin_never_rearranges(site):
@@ -110,6 +130,8 @@ def test_bad_episode_params_name_the_field(site):
         run_episode(site, episode=EpisodeParams(stop_fraction=1.0))
     with pytest.raises(ValueError, match="EpisodeParams.source_rule"):
         run_episode(site, episode=EpisodeParams(source_rule="random"))
+    with pytest.raises(ValueError, match="EpisodeParams.rebuild"):
+        run_episode(site, episode=EpisodeParams(rebuild="sometimes"))
 
 
 # --------------------------------------------------------------------------------- Eq. 6 selection
