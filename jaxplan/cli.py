@@ -908,8 +908,8 @@ def _build_parser() -> argparse.ArgumentParser:
                "  jaxplan sweep sweep.toml --out sweep.csv\n"
                "  jaxplan scenes\n\nRun 'jaxplan COMMAND --help' for the options of a command.")
     parser.add_argument("--single-cpu", action="store_true",
-                        help="run JAX on one CPU core (on the 2-core test machine as fast or faster up to 65x65, slower on "
-                             "large ones; see jaxplan.single_cpu)")
+                        help="run JAX on one CPU core (on the 2-core test machine about as fast up to "
+                             "65x65, slower on large grids; see jaxplan.single_cpu)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     p = sub.add_parser(
