@@ -21,9 +21,10 @@ def _tiny_file(tmp_path):
 def test_rover_writes_summary_table_and_figure(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["rover", "--scene", str(_tiny_file(tmp_path)), "--routes", "1", "--backend", "c",
-                 "--friction", "0.8", "--capacity", "3", "--mu", "0.02", "--no-render", "--out", str(out)]) == 0
+                 "--friction", "0.8", "--capacity", "3", "--mu", "0.02", "--no-render", "--solver", "Newton",
+                 "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["friction"] == 0.8
+    assert summary["friction"] == 0.8 and summary["solver"] == "Newton"
     # --capacity / --mu select the capacity-aware 2D model for the prediction: 5 objects collected,
     # a 3-object blade (soft limit, temperature 0.5) delivers about 3 of them
     assert summary["spill"]["model"] == "CapacitySpillParams" and summary["spill"]["capacity"] == 3.0
