@@ -205,17 +205,6 @@ def _small_scene():
     return Scene.from_arrays(obj, box(9.0, 0.0, 12.0, 6.0), name="small")
 
 
-def world_for(scene, routes, config=None):
-    """One rover world with as many particle bodies as the largest of ``routes`` needs (particle
-    counts follow the cells' counts, not the layout seed), shared by both engines' runs."""
-    from jaxplan.physics import bridge, rover
-
-    b = int(np.asarray(routes.n_cells).shape[0])
-    masks = [bridge._route_mask(scene, bridge._index(routes, i)) for i in range(b)]
-    need = max(len(rover.particle_layout(scene, m, config, seed=i)[0]) for i, m in enumerate(masks))
-    return rover.build_world(scene, need, config)
-
-
 def throughput(scene, n_routes, n_ticks, repeats, label):
     """Same routes, same world, both engines: cold and warm wall time, routes x steps per second.
 
@@ -226,7 +215,7 @@ def throughput(scene, n_routes, n_ticks, repeats, label):
 
     _, routes, _ = bridge.plan_routes(scene, n_routes=n_routes)
     b = int(np.asarray(routes.n_cells).shape[0])
-    world = world_for(scene, routes)
+    world = bridge.world_for_routes(scene, routes)
     sub = world.config.substeps
     res = {"label": label, "scene": scene.name, "routes": b, "ticks": n_ticks, "substeps": sub,
            "particle_bodies": world.n_particles, "nq": int(world.model.nq), "engines": {}}

@@ -175,7 +175,7 @@ def main(argv=None):
     import jax
     import mujoco
 
-    from experiments.bench_rover import _small_scene, world_for
+    from experiments.bench_rover import _small_scene
     from jaxplan import builtin_scene
     from jaxplan.physics import bridge
     from jaxplan.physics.rover import RoverConfig
@@ -186,7 +186,7 @@ def main(argv=None):
     scene = _small_scene() if args.scene == "small" else builtin_scene(args.scene)
     _, routes, _ = bridge.plan_routes(scene, n_routes=args.routes)
     n_distinct = int(np.asarray(routes.n_cells).shape[0])
-    world = world_for(scene, routes, RoverConfig(solver=args.solver))
+    world = bridge.world_for_routes(scene, routes, RoverConfig(solver=args.solver))
     sub = world.config.substeps
     result = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "device": device,
               "host": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": os.cpu_count(),

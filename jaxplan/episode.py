@@ -48,6 +48,11 @@ REBUILD_MODES = ("auto", "selective", "full")
 SELECTIVE_MIN_CELLS = 2_500
 
 
+def _check_rebuild(rebuild) -> None:
+    if rebuild not in REBUILD_MODES:
+        raise ValueError(f"EpisodeParams.rebuild: must be one of {REBUILD_MODES}; got {rebuild!r}.")
+
+
 def rebuild_mode(rebuild: str, shape, backend: str | None = None) -> str:
     """The rebuild an episode runs: ``rebuild`` itself unless it is "auto".
 
@@ -57,8 +62,7 @@ def rebuild_mode(rebuild: str, shape, backend: str | None = None) -> str:
     ``SELECTIVE_MIN_CELLS`` cells; otherwise "selective". shape: (H, W); backend: JAX's platform name,
     default ``jax.default_backend()``. Both modes give the same fabric.
     """
-    if rebuild not in REBUILD_MODES:
-        raise ValueError(f"EpisodeParams.rebuild: must be one of {REBUILD_MODES}; got {rebuild!r}.")
+    _check_rebuild(rebuild)
     if rebuild != "auto":
         return rebuild
     backend = jax.default_backend() if backend is None else backend
@@ -108,8 +112,7 @@ def validate_episode_params(ep: EpisodeParams) -> None:
         raise ValueError(f"EpisodeParams.max_pushes: must be an int >= 0; got {ep.max_pushes!r}.")
     if ep.source_rule not in SOURCE_RULES:
         raise ValueError(f"EpisodeParams.source_rule: must be one of {SOURCE_RULES}; got {ep.source_rule!r}.")
-    if ep.rebuild not in REBUILD_MODES:
-        raise ValueError(f"EpisodeParams.rebuild: must be one of {REBUILD_MODES}; got {ep.rebuild!r}.")
+    _check_rebuild(ep.rebuild)
     if not isinstance(ep.reselect, (bool, np.bool_)):
         raise ValueError(f"EpisodeParams.reselect: must be a bool; got {ep.reselect!r}.")
 

@@ -28,9 +28,7 @@ def _tiny_scene():
 def tiny():
     scene = _tiny_scene()
     _, routes, _ = bridge.plan_routes(scene, n_routes=2)
-    masks = [bridge._route_mask(scene, bridge._index(routes, i)) for i in range(2)]
-    need = max(len(rover.particle_layout(scene, m)[0]) for m in masks)
-    world = rover.build_world(scene, need)
+    world = bridge.world_for_routes(scene, routes)
     sims = {be: Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps,
                           bounds=world.bounds, backend=be) for be in ("c", "mjx")}
     checks = {be: bridge.check_routes(scene, routes, n_ticks=TICKS, world=world, simulator=sim)
@@ -101,6 +99,7 @@ def test_contact_caps_hold_the_pile_on_the_demo_scene():
     _, routes, _ = bridge.plan_routes(scene, n_routes=1)
     check = bridge.check_routes(scene, routes, backend="c", horizon_factor=1.2)
     world = check.world
+    assert bridge.world_for_routes(scene, routes).n_particles == world.n_particles   # the world check_routes built
     assert check.outcome.finite.all() and check.outcome.collected[0] > 30
     usage = rover.contact_usage(world, check.trajectory.qpos[0, ::5])
     caps = world.caps

@@ -32,7 +32,7 @@ from jaxplan.physics import rover as rover_mod
 from jaxplan.physics.rollout import Simulator, Trajectory
 
 __all__ = ["PursuitParams", "RouteOutcome", "Check", "pursuit_policy", "route_path", "check_routes",
-           "rasterise", "project", "plan_routes", "tracking_error", "PUSH_IN"]
+           "rasterise", "project", "plan_routes", "tracking_error", "world_for_routes", "PUSH_IN"]
 
 _SAMPLES = 8            # spline samples per waypoint segment (as spillage's default)
 _TIP_GAP = 0.68         # the shovel's wing tips start this many cells behind the source cell's
@@ -329,11 +329,7 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
     s = float(np.asarray(scene.cell_size))
     routes = jax.tree_util.tree_map(np.asarray, routes)   # per-route slices below: numpy, not device ops
     b = int(routes.n_cells.shape[0])
-    masks, layouts = [], []
-    for i in range(b):
-        mask = _route_mask(scene, _index(routes, i))
-        masks.append(mask)
-        layouts.append(rover_mod.particle_layout(scene, mask, cfg, seed=i))
+    masks, layouts = _route_layouts(scene, routes, cfg)
     need = max(len(lay[0]) for lay in layouts)
     if world is None:
         world = rover_mod.build_world(scene, need, cfg)
@@ -364,6 +360,21 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
     outcome = _score(scene, routes, world, traj, paths, layouts, masks, spill, evaluator)
     return Check(outcome, traj, world, params, [lay[1] for lay in layouts], [lay[2] for lay in layouts],
                  np.stack(masks), n_ticks)
+
+
+def _route_layouts(scene, routes: execute.Route, cfg: rover_mod.RoverConfig):
+    """Per route i of ``routes``: its cell mask and its particle layout (seeded by i)."""
+    masks = [_route_mask(scene, _index(routes, i)) for i in range(int(np.asarray(routes.n_cells).shape[0]))]
+    return masks, [rover_mod.particle_layout(scene, m, cfg, seed=i) for i, m in enumerate(masks)]
+
+
+def world_for_routes(scene, routes: execute.Route, config: rover_mod.RoverConfig | None = None) -> rover_mod.World:
+    """The rover world ``check_routes`` builds for ``routes``: as many particle bodies as the largest
+    route needs (particle counts follow the cells' counts, not the layout seed). Pass it as
+    ``check_routes(world=...)`` to share one world (and its compiled rollout) between calls."""
+    cfg = rover_mod.RoverConfig() if config is None else config
+    _, layouts = _route_layouts(scene, jax.tree_util.tree_map(np.asarray, routes), cfg)
+    return rover_mod.build_world(scene, max(len(lay[0]) for lay in layouts), cfg)
 
 
 def _friction_fields(world: rover_mod.World, friction, b: int) -> dict:

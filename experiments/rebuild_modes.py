@@ -1,0 +1,93 @@
+"""Whole episodes with the selective and the full rebuild, side by side, on the built-in scenes.
+
+``EpisodeParams(rebuild="auto")`` rebuilds in full on CPU grids under ``SELECTIVE_MIN_CELLS`` cells
+and selectively from there (``episode.rebuild_mode``). This measures what the rule decides: each
+scene's episode runs ``--repeats`` times with each rebuild, alternating, and reports the median
+rebuild time per tick (first tick excluded: it compiles), whether both rebuilds ran the same
+episode (sources and delivered mass per tick), and which one ``auto`` picks. Writes
+``experiments/results/rebuild_modes.{json,md}``.
+
+    python experiments/rebuild_modes.py
+    python experiments/rebuild_modes.py --scenes default sparse65 --repeats 3
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import platform
+import statistics
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxplan import BUILTIN_SCENES, builtin_scene, run_episode
+from jaxplan.episode import SELECTIVE_MIN_CELLS, EpisodeParams, rebuild_mode
+from jaxplan.spillage import SpillParams
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+MODES = ("selective", "full")
+
+
+def measure(name: str, repeats: int, max_pushes: int, lam: float) -> dict:
+    scene = builtin_scene(name)
+    per_tick = {m: [] for m in MODES}
+    episodes = {}
+    for _ in range(repeats):
+        for mode in MODES:   # alternate, so drifts of the machine hit both alike
+            ep = run_episode(scene, spill=SpillParams(lam=lam), episode=EpisodeParams(max_pushes=max_pushes, rebuild=mode))
+            per_tick[mode].append(float(np.median(ep.rebuild_ms[1:])) if ep.n_pushes > 1 else float("nan"))
+            episodes[mode] = ep
+    same = (np.array_equal(episodes["selective"].source, episodes["full"].source)
+            and np.array_equal(episodes["selective"].delivered, episodes["full"].delivered))
+    return {"scene": name, "shape": list(scene.shape), "cells": int(np.prod(scene.shape)),
+            "pushes": episodes["full"].n_pushes, "auto": rebuild_mode("auto", scene.shape),
+            "rebuild_ms": {m: per_tick[m] for m in MODES},
+            "median_rebuild_ms": {m: statistics.median(per_tick[m]) for m in MODES}, "same_episode": bool(same)}
+
+
+def markdown(result: dict) -> str:
+    lines = ["# Selective vs full rebuild in whole episodes", "",
+             f"{result['date']}, {result['host']}, jax {result['jax']} ({result['backend']}). Median rebuild time per "
+             f"tick (first tick excluded), each episode run {result['repeats']} times per rebuild, alternating; "
+             f"`auto` = `episode.rebuild_mode` (full below {SELECTIVE_MIN_CELLS} cells on a CPU).", "",
+             "| scene | grid | pushes | selective ms (runs) | full ms (runs) | full / selective | auto picks | same episode |",
+             "|---|---|---:|---|---|---:|---|---|"]
+    for r in result["scenes"]:
+        sel, full = r["median_rebuild_ms"]["selective"], r["median_rebuild_ms"]["full"]
+        runs = lambda m: ", ".join(f"{x:.2f}" for x in r["rebuild_ms"][m])  # noqa: E731
+        lines.append(f"| {r['scene']} | {r['shape'][0]}x{r['shape'][1]} | {r['pushes']} | {sel:.2f} ({runs('selective')}) | "
+                     f"{full:.2f} ({runs('full')}) | {full / sel:.2f} | {r['auto']} | {r['same_episode']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", nargs="+", default=list(BUILTIN_SCENES), choices=list(BUILTIN_SCENES))
+    ap.add_argument("--repeats", type=int, default=2, help="episodes per scene and rebuild (default 2)")
+    ap.add_argument("--max-pushes", type=int, default=30, help="push budget per episode (default 30)")
+    ap.add_argument("--lam", type=float, default=0.05, help="spill lambda (default 0.05)")
+    ap.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
+    args = ap.parse_args(argv)
+    if args.repeats < 1 or args.max_pushes < 2:
+        ap.error("--repeats must be >= 1 and --max-pushes >= 2")
+    scenes = []
+    for name in args.scenes:
+        scenes.append(measure(name, args.repeats, args.max_pushes, args.lam))
+        r = scenes[-1]
+        print(f"{name}: selective {r['median_rebuild_ms']['selective']:.2f} ms, full {r['median_rebuild_ms']['full']:.2f} ms "
+              f"per tick, auto -> {r['auto']}, same episode {r['same_episode']}", flush=True)
+    result = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "host": platform.platform(),
+              "jax": jax.__version__, "backend": jax.default_backend(), "repeats": args.repeats,
+              "max_pushes": args.max_pushes, "lam": args.lam, "scenes": scenes}
+    args.results_dir.mkdir(parents=True, exist_ok=True)
+    (args.results_dir / "rebuild_modes.json").write_text(json.dumps(result, indent=1) + "\n")
+    text = markdown(result)
+    (args.results_dir / "rebuild_modes.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
