@@ -252,21 +252,26 @@ _NO_CAPACITY = 1e9   # objects: the capacity-aware model without a binding cap (
 
 
 def _spill_dict(spill) -> dict:
-    """The spill model of a summary.json: its type and every field (traced ones as floats)."""
+    """The spill model of a summary.json: its type and every field (traced ones as floats; an infinite
+    one, such as the default ``turn_saturation``, as the string "inf": JSON has no infinity)."""
     out = {"model": type(spill).__name__}
     for f in dataclasses.fields(spill):
         value = getattr(spill, f.name)
-        out[f.name] = value if isinstance(value, (bool, int, str)) else float(value)
+        if not isinstance(value, (bool, int, str)):
+            value = float(value)
+            value = value if math.isfinite(value) else str(value)
+        out[f.name] = value
     return out
 
 
 def _spill_params(args):
-    """``SpillParams`` from the spill options; ``CapacitySpillParams`` when ``--capacity`` or ``--mu``
-    is given (its evaluator, ``capacity_spill``, follows from the type: ``spill_capacity.evaluator_for``)."""
+    """``SpillParams`` from the spill options; ``CapacitySpillParams`` when ``--capacity``, ``--mu``,
+    ``--miss`` or ``--turn-saturation`` is given (its evaluator, ``capacity_spill``, follows from the type: ``spill_capacity.evaluator_for``)."""
     from jaxplan.spillage import SpillParams, validate_spill_params
 
     capacity, mu = getattr(args, "capacity", None), getattr(args, "mu", None)
-    if capacity is None and mu is None:
+    miss, saturation = getattr(args, "miss", None), getattr(args, "turn_saturation", None)
+    if capacity is None and mu is None and miss is None and saturation is None:
         spill = SpillParams(lam=args.lam, threshold=args.spill_threshold)
         validate_spill_params(spill)
         return spill
@@ -274,12 +279,14 @@ def _spill_params(args):
 
     spill = CapacitySpillParams(lam=args.lam, threshold=args.spill_threshold,
                                 capacity=_NO_CAPACITY if capacity is None else capacity,
-                                mu=0.0 if mu is None else mu)
+                                mu=0.0 if mu is None else mu, miss=0.0 if miss is None else miss,
+                                turn_saturation=float("inf") if saturation is None else saturation)
     try:
         validate_capacity_params(spill)   # also rejects NaN and inf
     except ValueError as exc:
         field = str(exc).split(":")[0].rsplit(".", 1)[-1]   # "CapacitySpillParams.mu: ..." -> "mu"
-        flag = {"capacity": "--capacity", "mu": "--mu"}.get(field)
+        flag = {"capacity": "--capacity", "mu": "--mu", "miss": "--miss",
+                "turn_saturation": "--turn-saturation"}.get(field)
         raise CLIError(f"{flag}: {exc}" if flag else str(exc)) from None
     return spill
 
@@ -867,6 +874,12 @@ def _add_spill_options(p) -> None:
                    help="capacity-aware model: fraction of the load lost per world unit driven, >= 0 "
                         "(implies the capacity-aware model, uncapped unless --capacity is given); "
                         "experiments/bench_rover.py fits lam, mu and capacity to the rover's physics")
+    p.add_argument("--miss", type=float, default=None, metavar="X",
+                   help="capacity-aware model: fraction of a cell's objects the blade leaves behind per radian "
+                        "of turning at that cell, >= 0 (implies the capacity-aware model); default 0")
+    p.add_argument("--turn-saturation", type=float, default=None, metavar="OBJ",
+                   help="capacity-aware model: load at which the turning spill is half of lam x load per radian, "
+                        "> 0 (implies the capacity-aware model); default: none (proportional to the load)")
 
 
 def _add_episode_options(p) -> None:

@@ -28,6 +28,8 @@ def test_rover_writes_summary_table_and_figure(tmp_path, capsys):
     # --capacity / --mu select the capacity-aware 2D model for the prediction: 5 objects collected,
     # a 3-object blade (soft limit, temperature 0.5) delivers about 3 of them
     assert summary["spill"]["model"] == "CapacitySpillParams" and summary["spill"]["capacity"] == 3.0
+    # the turning terms stay off unless asked for; JSON has no infinity, so the saturation is "inf"
+    assert summary["spill"]["miss"] == 0.0 and summary["spill"]["turn_saturation"] == "inf"
     assert 2.0 < summary["routes"][0]["predicted_delivered"] < 3.5
     (route,) = summary["routes"]
     for key in ("predicted_delivered", "delivered", "mean_lateral", "max_lateral", "finite", "collected"):
@@ -43,10 +45,21 @@ def test_rover_writes_summary_table_and_figure(tmp_path, capsys):
 @pytest.mark.parametrize("argv, field", [(["--routes", "0"], "--routes"), (["--speed", "-1"], "--speed"),
                                          (["--scene", "nope.json"], "--scene"), (["--lam", "-1"], "lam"),
                                          (["--friction", "0"], "--friction"), (["--capacity", "0"], "--capacity"),
-                                         (["--mu", "-1"], "--mu"), (["--mu", "nan"], "--mu")])
+                                         (["--mu", "-1"], "--mu"), (["--mu", "nan"], "--mu"),
+                                         (["--miss", "-0.1"], "--miss"), (["--turn-saturation", "0"], "--turn-saturation"),
+                                         (["--turn-saturation", "nan"], "--turn-saturation")])
 def test_rover_bad_input_exits_2(tmp_path, capsys, argv, field):
     with pytest.raises(SystemExit) as info:
         main(["rover", "--out", str(tmp_path / "o"), *argv])
     assert info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and field in err[0]
+
+
+def test_turning_options_select_the_capacity_model():
+    from jaxplan.cli import _build_parser, _spill_params
+
+    args = _build_parser().parse_args(["rover", "--miss", "0.2", "--turn-saturation", "1.5"])
+    spill = _spill_params(args)
+    assert type(spill).__name__ == "CapacitySpillParams"
+    assert float(spill.miss) == 0.2 and float(spill.turn_saturation) == 1.5 and float(spill.mu) == 0.0
