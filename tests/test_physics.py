@@ -52,6 +52,34 @@ def test_backends_agree_on_verdicts(tiny):
     assert np.all(c.delivered == c.collected) and np.all(c.collected > 0)
 
 
+DEMO_TICKS = 120   # 6 s: the blade drives ~4 cells into the demo route and pushes ~20 particles
+
+
+def test_backends_agree_on_the_demo_route_while_it_pushes_gravel():
+    """The demo scene's first route (64 particles) on both engines, cut short: MJX on a CPU needs
+    minutes for the whole route. Tolerances of docs/physics.md ("Engine agreement")."""
+    scene = builtin_scene("default")
+    _, routes, _ = bridge.plan_routes(scene, n_routes=1)
+    world = bridge.world_for_routes(scene, routes)
+    runs = {be: bridge.check_routes(scene, routes, backend=be, n_ticks=DEMO_TICKS, world=world)
+            for be in ("c", "mjx")}
+    n = len(runs["c"].particle_cells[0])
+
+    def displacement(check):
+        q = check.trajectory.qpos[0]
+        return np.linalg.norm(world.particle_xyz(q[-1])[:n, :2] - world.particle_xyz(q[0])[:n, :2], axis=1)
+
+    c, m = runs["c"], runs["mjx"]
+    assert c.outcome.finite[0] and m.outcome.finite[0]
+    moved_c, moved_m = displacement(c), displacement(m)
+    assert (moved_c > 0.1 * world.cell_size).sum() >= 10          # the blade is in the pile
+    assert abs(int((moved_c > 0.1).sum()) - int((moved_m > 0.1).sum())) <= 4
+    assert abs(float(moved_c.mean()) - float(moved_m.mean())) <= 0.05 * world.cell_size
+    assert abs(float(c.outcome.mean_lateral[0]) - float(m.outcome.mean_lateral[0])) <= 0.005
+    pose = np.abs(c.trajectory.qpos[0, -1, :2] - m.trajectory.qpos[0, -1, :2])
+    assert np.max(pose) / world.cell_size < 0.02
+
+
 @pytest.mark.parametrize("backend", ["c", "mjx"])
 def test_divergence_is_flagged_not_fatal(tiny, backend):
     _, _, world, sims, checks = tiny
