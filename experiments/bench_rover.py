@@ -514,7 +514,9 @@ def to_markdown(r):
     cap = f["turning"]["in_sample"]["params"][0]
     L += ["", "To predict (or plan) with the in-sample fit of the turning model: `jaxplan rover --lam {lam:.4g} "
           "--mu {mu:.4g} --capacity {capacity:.4g} --miss {miss:.4g} --turn-saturation {turn_saturation:.4g}` "
-          "(the same for `episode` and `demo`; temperature {temperature:g}, the model's default).".format(**cap)]
+          "(the same for `episode` and `demo`; temperature {temperature:g}, the model's default). "
+          "`jaxplan.spill_capacity.ROVER_FIT` holds the fit this file was written with; after a re-run that "
+          "changes it, update ROVER_FIT (tests/test_rover_capacity.py compares the two).".format(**cap)]
     nf = r["noise_floor"]
     L += ["", f"Noise floor: the first route of `{nf['scene']}` (source {tuple(nf['source'])}, {nf['collected']:.0f} "
           f"objects) rolled out with {len(nf['delivered'])} particle layouts (same counts, different jitter) delivered "

@@ -264,20 +264,35 @@ def _spill_dict(spill) -> dict:
     return out
 
 
-def _spill_params(args):
+_DEFAULT_LAM = 0.05
+_DEFAULT_SPILL_THRESHOLD = 1e-3
+
+
+def _spill_options_given(args) -> bool:
+    named = ("lam", "capacity", "mu", "miss", "turn_saturation")
+    return (any(getattr(args, name, None) is not None for name in named)
+            or getattr(args, "spill_threshold", _DEFAULT_SPILL_THRESHOLD) != _DEFAULT_SPILL_THRESHOLD)
+
+
+def _spill_params(args, default=None):
     """``SpillParams`` from the spill options; ``CapacitySpillParams`` when ``--capacity``, ``--mu``,
-    ``--miss`` or ``--turn-saturation`` is given (its evaluator, ``capacity_spill``, follows from the type: ``spill_capacity.evaluator_for``)."""
+    ``--miss`` or ``--turn-saturation`` is given (its evaluator, ``capacity_spill``, follows from the
+    type: ``spill_capacity.evaluator_for``). default: the model when no spill option is given (None:
+    the curvature model with lam 0.05)."""
     from jaxplan.spillage import SpillParams, validate_spill_params
 
+    if default is not None and not _spill_options_given(args):
+        return default
+    lam = _DEFAULT_LAM if args.lam is None else args.lam
     capacity, mu = getattr(args, "capacity", None), getattr(args, "mu", None)
     miss, saturation = getattr(args, "miss", None), getattr(args, "turn_saturation", None)
     if capacity is None and mu is None and miss is None and saturation is None:
-        spill = SpillParams(lam=args.lam, threshold=args.spill_threshold)
+        spill = SpillParams(lam=lam, threshold=args.spill_threshold)
         validate_spill_params(spill)
         return spill
     from jaxplan.spill_capacity import CapacitySpillParams, validate_capacity_params
 
-    spill = CapacitySpillParams(lam=args.lam, threshold=args.spill_threshold,
+    spill = CapacitySpillParams(lam=lam, threshold=args.spill_threshold,
                                 capacity=_NO_CAPACITY if capacity is None else capacity,
                                 mu=0.0 if mu is None else mu, miss=0.0 if miss is None else miss,
                                 turn_saturation=float("inf") if saturation is None else saturation)
@@ -454,7 +469,10 @@ def _cmd_rover(args) -> int:
         raise CLIError(f"--speed: must be > 0 cells/s; got {args.speed}.")
     if args.friction is not None and not (math.isfinite(args.friction) and args.friction > 0):
         raise CLIError(f"--friction: must be a positive number; got {args.friction}.")
-    spill = _spill_params(args)
+    from jaxplan.spill_capacity import ROVER_FIT
+
+    # the prediction the physics is compared with: the model fitted to this rover unless asked otherwise
+    spill = _spill_params(args, default=ROVER_FIT)
     params = _params(args)
     scene = _load_scene(args.scene)
     out_dir = Path(args.out)
@@ -510,6 +528,7 @@ def _cmd_rover(args) -> int:
         "friction": check.world.config.friction if args.friction is None else args.friction,
         "solver": check.world.config.solver,
         "spill": _spill_dict(spill),
+        "spill_preset": "ROVER_FIT" if spill is ROVER_FIT else None,
         "notes": ("masses in objects (1 particle = 1 object); predicted_* from the 2D push "
                   "(execute.execute); lateral errors in cells, blade point to spline; rollout_seconds "
                   "includes compilation on MJX"),
@@ -862,10 +881,10 @@ def _add_theta_option(p) -> None:
 
 
 def _add_spill_options(p) -> None:
-    p.add_argument("--lam", type=float, default=0.05, metavar="X",
+    p.add_argument("--lam", type=float, default=None, metavar="X",
                    help="spill model lambda: fraction of the load spilled per radian of turning, >= 0; "
                         "default 0.05 (0 = no spillage)")
-    p.add_argument("--spill-threshold", type=float, default=1e-3, metavar="OBJ",
+    p.add_argument("--spill-threshold", type=float, default=_DEFAULT_SPILL_THRESHOLD, metavar="OBJ",
                    help="per-sample spills below this many objects are ignored, >= 0; default 0.001")
     p.add_argument("--capacity", type=float, default=None, metavar="OBJ",
                    help="use the capacity-aware spill model (jaxplan.spill_capacity): the blade carries at "
@@ -1027,7 +1046,10 @@ def _build_parser() -> argparse.ArgumentParser:
                           "DIR/routes.md (predicted vs simulated delivered mass, tracking error), "
                           "DIR/rover.png (top view before/after next to the 2D grids), "
                           "DIR/frames.png (rendered frames of route 0, when offscreen rendering "
-                          "works) and DIR/summary.json. See docs/physics.md."),
+                          "works) and DIR/summary.json. The predicted mass comes from the spill "
+                          "model fitted to this rover's physics (jaxplan.spill_capacity.ROVER_FIT) "
+                          "unless a spill option (--lam, --capacity, --mu, --miss, --turn-saturation, "
+                          "--spill-threshold) is given. See docs/physics.md."),
         epilog="example:\n  jaxplan rover --out out/rover\n"
                "  jaxplan rover --scene corridor --routes 2 --backend c --out out/rover_corridor")
     p.add_argument("--scene", default=DEFAULT_SCENE, metavar="NAME_OR_FILE",

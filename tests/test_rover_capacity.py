@@ -289,3 +289,15 @@ def test_execute_keeps_the_missed_objects_on_the_grid():
     outside = float(np.sum(np.where(target, 0.0, np.asarray(new_obj))))
     assert outside + float(push.delivered) == pytest.approx(float(obj.sum()), abs=1e-3)
     assert float(np.sum(new_obj)) == pytest.approx(float(obj.sum()), abs=1e-3)
+
+
+def test_rover_fit_is_the_benchmark_s_in_sample_fit():
+    """ROVER_FIT carries the committed benchmark's fit (experiments/results/rover.json) to 4 digits."""
+    import json
+    from pathlib import Path
+
+    results = Path(__file__).resolve().parents[1] / "experiments" / "results" / "rover.json"
+    fitted = json.loads(results.read_text())["fits"]["turning"]["in_sample"]["params"][0]
+    for field in ("capacity", "lam", "mu", "temperature", "miss", "turn_saturation"):
+        assert float(getattr(sc.ROVER_FIT, field)) == pytest.approx(fitted[field], rel=1e-3, abs=1e-6), field
+    sc.validate_capacity_params(sc.ROVER_FIT)

@@ -63,3 +63,16 @@ def test_turning_options_select_the_capacity_model():
     spill = _spill_params(args)
     assert type(spill).__name__ == "CapacitySpillParams"
     assert float(spill.miss) == 0.2 and float(spill.turn_saturation) == 1.5 and float(spill.mu) == 0.0
+
+
+def test_rover_predicts_with_the_fitted_model_unless_a_spill_option_is_given():
+    from jaxplan.cli import _build_parser, _spill_params
+    from jaxplan.spill_capacity import ROVER_FIT
+    from jaxplan.spillage import SpillParams
+
+    parse = _build_parser().parse_args
+    assert _spill_params(parse(["rover"]), default=ROVER_FIT) is ROVER_FIT
+    assert _spill_params(parse(["rover", "--lam", "0.05"]), default=ROVER_FIT) == SpillParams(lam=0.05)
+    assert _spill_params(parse(["rover", "--spill-threshold", "0.01"]), default=ROVER_FIT) != ROVER_FIT
+    # planning commands keep the paper's curvature model by default
+    assert _spill_params(parse(["episode", "--scene", "default", "--out", "x"])) == SpillParams(lam=0.05)
