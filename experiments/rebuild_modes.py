@@ -1,14 +1,18 @@
-"""Whole episodes with the selective and the full rebuild, side by side, on the built-in scenes.
+"""Whole episodes with the selective and the full rebuild, side by side, on the built-in scenes and
+on random grids of chosen sizes.
 
 ``EpisodeParams(rebuild="auto")`` rebuilds in full on CPU grids under ``SELECTIVE_MIN_CELLS`` cells
 and selectively from there (``episode.rebuild_mode``). This measures what the rule decides: each
 scene's episode runs ``--repeats`` times with each rebuild, alternating, and reports the median
 rebuild time per tick (first tick excluded: it compiles), whether both rebuilds ran the same
 episode (sources and delivered mass per tick), and which one ``auto`` picks. Writes
-``experiments/results/rebuild_modes.{json,md}``.
+``experiments/results/rebuild_modes.{json,md}``. ``--random N ...`` adds random N x N grids
+(``bench_fabric.make_scene``: the paper's protocol, density ``--density``, seed 0), named ``randomN``,
+to place the threshold between the built-in scenes' sizes.
 
     python experiments/rebuild_modes.py
     python experiments/rebuild_modes.py --scenes default sparse65 --repeats 3
+    python experiments/rebuild_modes.py --random 35 40 45 50 55
 """
 from __future__ import annotations
 
@@ -30,8 +34,16 @@ RESULTS_DIR = Path(__file__).resolve().parent / "results"
 MODES = ("selective", "full")
 
 
-def measure(name: str, repeats: int, max_pushes: int, lam: float) -> dict:
-    scene = builtin_scene(name)
+def _scene(name: str, density: float):
+    if name.startswith("random"):
+        from experiments.bench_fabric import make_scene
+
+        return make_scene(int(name[len("random"):]), density, 0)
+    return builtin_scene(name)
+
+
+def measure(name: str, repeats: int, max_pushes: int, lam: float, density: float = 0.4) -> dict:
+    scene = _scene(name, density)
     per_tick = {m: [] for m in MODES}
     episodes = {}
     for _ in range(repeats):
@@ -68,19 +80,24 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=2, help="episodes per scene and rebuild (default 2)")
     ap.add_argument("--max-pushes", type=int, default=30, help="push budget per episode (default 30)")
     ap.add_argument("--lam", type=float, default=0.05, help="spill lambda (default 0.05)")
+    ap.add_argument("--random", type=int, nargs="*", default=[], metavar="N",
+                    help="also random N x N grids (bench_fabric.make_scene, seed 0), e.g. 35 40 45 50 55")
+    ap.add_argument("--density", type=float, default=0.4, help="density of the random grids (default 0.4)")
     ap.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     args = ap.parse_args(argv)
     if args.repeats < 1 or args.max_pushes < 2:
         ap.error("--repeats must be >= 1 and --max-pushes >= 2")
+    if any(n < 4 for n in args.random) or not 0.0 < args.density <= 1.0:
+        ap.error("--random sizes must be >= 4 and --density in (0, 1]")
     scenes = []
-    for name in args.scenes:
-        scenes.append(measure(name, args.repeats, args.max_pushes, args.lam))
+    for name in [*args.scenes, *(f"random{n}" for n in args.random)]:
+        scenes.append(measure(name, args.repeats, args.max_pushes, args.lam, args.density))
         r = scenes[-1]
         print(f"{name}: selective {r['median_rebuild_ms']['selective']:.2f} ms, full {r['median_rebuild_ms']['full']:.2f} ms "
               f"per tick, auto -> {r['auto']}, same episode {r['same_episode']}", flush=True)
     result = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "host": platform.platform(),
               "jax": jax.__version__, "backend": jax.default_backend(), "repeats": args.repeats,
-              "max_pushes": args.max_pushes, "lam": args.lam, "scenes": scenes}
+              "max_pushes": args.max_pushes, "lam": args.lam, "random_density": args.density, "scenes": scenes}
     args.results_dir.mkdir(parents=True, exist_ok=True)
     (args.results_dir / "rebuild_modes.json").write_text(json.dumps(result, indent=1) + "\n")
     text = markdown(result)
