@@ -21,11 +21,11 @@ with the load. Sample by sample along the route's spline (as ``curvature_spill``
 ``dl_i`` is the distance from the previous sample's position (0 at the first sample): the route's
 length between its first and last sample. ``T = temperature`` (objects) makes the blade's limit a
 smooth saturation, so delivered mass is differentiable in ``capacity`` and in the load; as ``T -> 0``
-the overflow is the hard ``max(load - capacity, 0)``. The overflow is only taken at samples that pick
-something up (``pickup_i - missed_i > 0``): elsewhere the load can only fall, and applying the soft overflow at
-every sample would bleed about ``T * softplus(0)`` objects per sample from a full blade.
+the overflow is the hard ``max(load - capacity, 0)``. The overflow is only taken at samples that take
+something in (``pickup_i - missed_i > 0``): elsewhere the load can only fall, and applying the soft
+overflow at every sample would bleed about ``T * softplus(0)`` objects per sample from a full blade.
 
-The two turning terms come from the physics (docs/physics.md, "Misses and edge losses"): where the
+The two turning terms come from the physics (docs/physics.md, "The turning terms"): where the
 path turns at a cell, the spline cuts the cell's corner and the blade leaves the outer part of it
 behind (``miss``, a fraction of the cell's objects per radian), and a turn spills the pile's edge
 over the side plates, an amount that grows with the load only while the pile is small
@@ -52,9 +52,9 @@ import numpy as np
 
 from jaxplan import spillage
 
-__all__ = ["FIT_FIELDS", "FIT_GRID", "ROVER_FIT", "CapacityFit", "CapacitySpillParams", "capacity_spill", "evaluator_for",
-           "fit_capacity", "fit_miss", "missed_objects", "predict_missed", "turning_near_pickups",
-           "predict_delivered", "validate_capacity_params"]
+__all__ = ["FIT_FIELDS", "FIT_GRID", "ROVER_FIT", "CapacityFit", "CapacitySpillParams", "capacity_spill",
+           "evaluator_for", "fit_capacity", "fit_miss", "missed_objects", "predict_delivered", "predict_missed",
+           "turning_near_pickups", "validate_capacity_params"]
 
 
 @dataclasses.dataclass(frozen=True)
