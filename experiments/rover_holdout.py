@@ -1,0 +1,140 @@
+"""The fitted rover spill model on scenes it was never fitted to (issue 7, an out-of-sample check).
+
+``spill_capacity.ROVER_FIT`` is the in-sample fit of ``experiments/bench_rover.py`` on the four
+built-in scenes. This script plans on two random scenes of the fabric benchmark's generator
+(``bench_fabric.make_scene``, seed 1): a sparse one (light loads, like ``sparse65``) and a dense one
+(heavy loads), rolls out the first ``--routes`` routes of each under ``--layouts`` particle layouts
+on the C engine with the same protocol as ``bench_rover.py`` (blade pushed one cell past the end,
+a route's simulated delivery = the mean over its layouts), and scores the predictions of
+``ROVER_FIT`` and of the benchmark's three-term capacity fit (read from
+``experiments/results/rover.json``): within 10% of the simulated delivery, with mean lateral error
+under 0.25 cell, as the issue's target. Nothing here is fitted.
+
+Results: ``experiments/results/rover_holdout.{json,md}``.
+
+    python experiments/rover_holdout.py
+    python experiments/rover_holdout.py --routes 2 --layouts 2 --sparse 25 --dense 20
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from experiments.bench_fabric import make_scene
+from experiments.bench_rover import (PUSH_IN, RESULTS_DIR, TARGET_LATERAL, TARGET_REL, _route_inputs, layout_row,
+                                     stack_inputs)
+
+SEED = 1
+SPARSE_DENSITY = 0.15     # sparse65's share of occupied cells
+DENSE_DENSITY = 0.5
+
+
+def _models(results_dir: Path) -> dict:
+    from jaxplan import spill_capacity as sc
+
+    models = {"turning (ROVER_FIT)": sc.ROVER_FIT}
+    fitted = results_dir / "rover.json"
+    if fitted.exists():
+        p = json.loads(fitted.read_text())["fits"]["capacity"]["in_sample"]["params"][0]
+        models["three-term (rover.json, in sample)"] = sc.CapacitySpillParams(**p)
+    return models
+
+
+def run_scene(name: str, scene, routes_n: int, layouts: int, models: dict) -> list[dict]:
+    import jax
+
+    from jaxplan import spill_capacity as sc
+    from jaxplan.physics import bridge
+
+    _, routes, sources = bridge.plan_routes(scene, n_routes=routes_n)
+    b = int(np.asarray(routes.n_cells).shape[0])
+    batch = jax.tree.map(lambda a: np.repeat(np.asarray(a), layouts, 0), routes)
+    t0 = time.perf_counter()
+    chk = bridge.check_routes(scene, batch, backend="c", push_in=PUSH_IN)
+    wall = time.perf_counter() - t0
+    per_rollout = chk.outcome.rows()
+    stacked = stack_inputs(_route_inputs(scene, routes))
+    preds = {label: np.asarray(sc.predict_delivered(*stacked, params), np.float64) for label, params in models.items()}
+    rows = []
+    for i in range(b):
+        row = layout_row(per_rollout[i * layouts:(i + 1) * layouts])
+        row.update(scene=name, route_no=i, source=[int(v) for v in sources[i]],
+                   n_cells=int(np.asarray(routes.n_cells)[i]), physics_wall_s=wall)
+        row["predicted"] = {label: float(p[i]) for label, p in preds.items()}
+        row["within_10pct"] = {label: bool(abs(row["delivered"] - p[i]) <= TARGET_REL * max(p[i], 1e-9)
+                                           and row["mean_lateral"] < TARGET_LATERAL) for label, p in preds.items()}
+        rows.append(row)
+    print(f"{name}: {b} routes x {layouts} layouts, C engine {wall:.1f} s", flush=True)
+    return rows
+
+
+def _json_float(x):
+    """A float for JSON; an infinite one (the default ``turn_saturation``) as the string "inf"."""
+    x = float(x)
+    return x if np.isfinite(x) else str(x)
+
+
+def markdown(result: dict) -> str:
+    labels = list(result["models"])
+    lines = ["# The fitted rover spill model on scenes it was not fitted to", "",
+             f"{result['date']}, {result['host']}. Random scenes of `bench_fabric.make_scene` (seed {SEED}); first "
+             f"{result['routes']} routes by J, {result['layouts']} particle layouts each, C engine, blade pushed "
+             f"{PUSH_IN:g} cell past each route's end. 'ok' = within 10% of the simulated delivery (layout mean) and "
+             "mean lateral error < 0.25 cell. Nothing is fitted here.", "",
+             "| scene | route | cells | collected | sim delivered (layouts) | left behind | mean lat (cell) | "
+             + " | ".join(f"{m} | ok" for m in labels) + " |",
+             "|---|---|---|---|---|---|---|" + "---|---|" * len(labels)]
+    for r in result["rows"]:
+        lines.append(f"| {r['scene']} | {r['route_no']} | {r['n_cells']} | {r['collected']:.0f} | {r['delivered']:.1f} "
+                     f"({', '.join(f'{v:.0f}' for v in r['delivered_layouts'])}) | {r['left_behind']:.1f} | "
+                     f"{r['mean_lateral']:.3f} | "
+                     + " | ".join(f"{r['predicted'][m]:.1f} | {r['within_10pct'][m]}" for m in labels) + " |")
+    lines += ["", "| model | routes ok | share |", "|---|---|---|"]
+    for m in labels:
+        ok = [r["within_10pct"][m] for r in result["rows"]]
+        lines.append(f"| {m} | {sum(ok)}/{len(ok)} | {np.mean(ok):.2f} |")
+    lines += ["", f"Total script time {result['total_s']:.0f} s."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--routes", type=int, default=6, help="routes per scene (default 6)")
+    ap.add_argument("--layouts", type=int, default=6, help="particle layouts per route (default 6)")
+    ap.add_argument("--sparse", type=int, default=45, help=f"side of the sparse scene (density {SPARSE_DENSITY})")
+    ap.add_argument("--dense", type=int, default=35, help=f"side of the dense scene (density {DENSE_DENSITY})")
+    ap.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
+    args = ap.parse_args(argv)
+    if args.routes < 1 or args.layouts < 1 or min(args.sparse, args.dense) < 8:
+        ap.error("--routes and --layouts must be >= 1, scene sides >= 8")
+    import jax
+
+    t_start = time.perf_counter()
+    models = _models(RESULTS_DIR)
+    scenes = {f"random{args.sparse}_sparse": make_scene(args.sparse, SPARSE_DENSITY, SEED),
+              f"random{args.dense}_dense": make_scene(args.dense, DENSE_DENSITY, SEED)}
+    rows = []
+    for name, scene in scenes.items():
+        rows += run_scene(name, scene, args.routes, args.layouts, models)
+    result = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "host": platform.platform(),
+              "jax": jax.__version__, "routes": args.routes, "layouts": args.layouts,
+              "models": {label: {k: _json_float(getattr(p, k)) for k in ("capacity", "lam", "mu", "temperature",
+                                                                         "miss", "turn_saturation")}
+                         for label, p in models.items()},
+              "rows": rows, "total_s": time.perf_counter() - t_start}
+    args.results_dir.mkdir(parents=True, exist_ok=True)
+    (args.results_dir / "rover_holdout.json").write_text(json.dumps(result, indent=1) + "\n")
+    text = markdown(result)
+    (args.results_dir / "rover_holdout.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
