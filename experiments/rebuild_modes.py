@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import json
 import platform
 import statistics
 from pathlib import Path
@@ -26,6 +25,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from experiments._results import write_results
 from jaxplan import BUILTIN_SCENES, builtin_scene, run_episode
 from jaxplan.episode import SELECTIVE_MIN_CELLS, EpisodeParams, rebuild_mode
 from jaxplan.spillage import SpillParams
@@ -98,11 +98,8 @@ def main(argv=None) -> int:
     result = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "host": platform.platform(),
               "jax": jax.__version__, "backend": jax.default_backend(), "repeats": args.repeats,
               "max_pushes": args.max_pushes, "lam": args.lam, "random_density": args.density, "scenes": scenes}
-    args.results_dir.mkdir(parents=True, exist_ok=True)
-    (args.results_dir / "rebuild_modes.json").write_text(json.dumps(result, indent=1) + "\n")
-    text = markdown(result)
-    (args.results_dir / "rebuild_modes.md").write_text(text)
-    print(text)
+    # a run too short to time (one push) is NaN: kept as json writes it
+    write_results(args.results_dir, "rebuild_modes", result, markdown(result), allow_nan=True)
     return 0
 
 

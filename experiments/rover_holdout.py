@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments._results import write_results
 from experiments.bench_fabric import make_scene
 from experiments.bench_rover import (PUSH_IN, RESULTS_DIR, TARGET_LATERAL, TARGET_REL, _route_inputs, layout_row,
                                      stack_inputs)
@@ -128,11 +129,7 @@ def main(argv=None) -> int:
                                                                          "miss", "turn_saturation")}
                          for label, p in models.items()},
               "rows": rows, "total_s": time.perf_counter() - t_start}
-    args.results_dir.mkdir(parents=True, exist_ok=True)
-    (args.results_dir / "rover_holdout.json").write_text(json.dumps(result, indent=1) + "\n")
-    text = markdown(result)
-    (args.results_dir / "rover_holdout.md").write_text(text)
-    print(text)
+    write_results(args.results_dir, "rover_holdout", result, markdown(result))
     return 0
 
 
