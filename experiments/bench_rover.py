@@ -14,7 +14,8 @@ Part 2 (fits of the 2D spill model to the simulated deliveries). Models: the cur
 capacity-aware model (``spill_capacity.capacity_spill``: ``capacity``, ``lam``, ``mu`` by
 ``spill_capacity.fit_capacity``: coarse grid vmapped over parameter sets, then Adam), the same model
 with its two turning terms (``miss`` fitted to the objects left on the routes' cells, then
-``capacity``, ``lam``, ``mu``, ``turn_saturation`` to the deliveries), and a diagnostic constant (the training routes' mean delivery). Splits: in-sample; routes held out (fit on routes 0, 2,
+``capacity``, ``lam``, ``mu``, ``turn_saturation`` to the deliveries), and a diagnostic constant (the
+training routes' mean delivery). Splits: in-sample; routes held out (fit on routes 0, 2,
 4 of every scene, score on 1, 3, 5); scenes held out (leave one scene out). Scored: RMSE, mean
 |error| / simulated, and the issue's target fraction: routes with mean lateral error < 0.25 cell AND
 simulated delivered mass within 10% of the fitted prediction (|sim - pred| <= 0.1 pred), counted for
@@ -177,13 +178,19 @@ def layout_row(rollouts):
     return row
 
 
+def within_target(sim, pred):
+    """``bool[...]``: simulated delivery within ``TARGET_REL`` of the prediction (|sim - pred| <= 0.1 pred)."""
+    pred = np.asarray(pred, np.float64)
+    return np.abs(np.asarray(sim, np.float64) - pred) <= TARGET_REL * np.maximum(pred, 1e-9)
+
+
 def errors(pred, sim, lateral, idx, sim_layouts=None):
     """Scores of predictions ``pred f[R]`` against simulated ``sim f[R]`` (layout means) on routes
     ``idx``; with ``sim_layouts`` (R lists of single-rollout deliveries) also the fraction of single
     rollouts within 10% of their route's prediction."""
     idx = np.asarray(idx)
     p, s, lat = pred[idx], sim[idx], lateral[idx]
-    within = np.abs(s - p) <= TARGET_REL * np.maximum(p, 1e-9)
+    within = within_target(s, p)
     ok = within & (lat < TARGET_LATERAL)
     out = {
         "n": int(idx.size),
@@ -194,7 +201,7 @@ def errors(pred, sim, lateral, idx, sim_layouts=None):
         "frac_target": float(np.mean(ok)),
     }
     if sim_layouts is not None:
-        single = [abs(v - pred[i]) <= TARGET_REL * max(pred[i], 1e-9) for i in idx for v in sim_layouts[i]]
+        single = [within_target(v, pred[i]) for i in idx for v in sim_layouts[i]]
         out["frac_single_rollouts_within_10pct"] = float(np.mean(single))
     return out
 
@@ -385,8 +392,8 @@ def main(argv=None):
         r["pred_delivered_turning_fit"] = float(pred_turn[i])
         r["pred_left_behind_turning_fit"] = float(pred_left[i])
         r["pred_delivered_turning_scene_held_out"] = float(pred_turn_loso[i])
-        r["within_10pct_in_sample"] = bool(abs(sim[i] - pred_turn[i]) <= TARGET_REL * max(pred_turn[i], 1e-9))
-        r["within_10pct_held_out"] = bool(abs(sim[i] - pred_turn_loso[i]) <= TARGET_REL * max(pred_turn_loso[i], 1e-9))
+        r["within_10pct_in_sample"] = bool(within_target(sim[i], pred_turn[i]))
+        r["within_10pct_held_out"] = bool(within_target(sim[i], pred_turn_loso[i]))
         r["meets_target"] = bool(r["within_10pct_in_sample"] and lateral[i] < TARGET_LATERAL)
         r["meets_target_scene_held_out"] = bool(r["within_10pct_held_out"] and lateral[i] < TARGET_LATERAL)
     turn = []

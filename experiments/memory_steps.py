@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import json
 import platform
 import re
 from pathlib import Path
@@ -41,6 +40,7 @@ def main(argv=None) -> int:
     import jax
     import jax.numpy as jnp
 
+    from experiments._results import write_results
     from experiments.bench_fabric import make_scene
     from jaxplan import FabricParams, SpillParams, build_fabric, execute, extract_paths, rebuild
 
@@ -86,11 +86,7 @@ def main(argv=None) -> int:
         delta = "" if prev is None else f"{s['rss_mb'] - prev:+.0f}"
         lines.append(f"| {s['step']} | {s['rss_mb']:.0f} | {delta} | {s['peak_mb']:.0f} |")
         prev = s["rss_mb"]
-    text = "\n".join(lines) + "\n"
-    args.results_dir.mkdir(parents=True, exist_ok=True)
-    (args.results_dir / "memory_steps.json").write_text(json.dumps(result, indent=1) + "\n")
-    (args.results_dir / "memory_steps.md").write_text(text)
-    print(text)
+    write_results(args.results_dir, "memory_steps", result, "\n".join(lines) + "\n")
     return 0
 
 

@@ -173,7 +173,7 @@ def turning_near_pickups(samples: spillage.PathSamples, samples_per_step: int):
     objects are picked up there: the first half of the waypoint's own segment and the second half of
     the segment before it (``samples_per_step`` the sampling density, static)."""
     m = samples_per_step
-    turn = jnp.abs(jnp.where(samples.valid, samples.turn, 0.0)).reshape(-1, m)
+    turn = jnp.abs(samples.turn).reshape(-1, m)      # 0 on padding samples (sample_route)
     half = m // 2
     after, before = turn[:, :half].sum(1), turn[:, half:].sum(1)
     near = after + jnp.concatenate([jnp.zeros((1,), turn.dtype), before[:-1]])
@@ -237,18 +237,31 @@ class CapacityFit(NamedTuple):
     grid_best: CapacitySpillParams
 
 
+def _turning_and_pickups(waypoints, n_points, waypoint_pickup, samples_per_step: int, spline_alpha: float):
+    """``(near f32[R, N], pickup f32[R, N])`` of R routes: ``turning_near_pickups`` and the objects
+    picked up at each spline sample. Neither depends on ``miss``, so a fit samples the splines once."""
+    def one(p, n, k):
+        samples = spillage.sample_route(p, n, samples_per_step, spline_alpha)
+        return turning_near_pickups(samples, samples_per_step), spillage.pickups_per_sample(samples, k)
+    return jax.vmap(one)(jnp.asarray(waypoints, jnp.float32), jnp.asarray(n_points, jnp.int32),
+                         jnp.asarray(waypoint_pickup, jnp.float32))
+
+
+def _missed_totals(near, pickup, miss):
+    """``f32[..., R]``: objects missed per route for ``miss`` of any leading shape (``missed_objects``
+    summed over the samples of ``near``, ``pickup`` f32[R, N])."""
+    miss = jnp.asarray(miss, jnp.float32)[..., None, None]
+    return jnp.sum(jnp.clip(miss * near, 0.0, 1.0) * pickup, -1)
+
+
 def predict_missed(waypoints, n_points, waypoint_pickup, miss, samples_per_step: int = 8,
                    spline_alpha: float = spillage.CENTRIPETAL):
     """``f32[R]``: objects the blade leaves behind on each of R routes at ``miss`` (per radian).
 
     waypoints f32[R, S, 2], n_points i32[R], waypoint_pickup f32[R, S] as in :func:`predict_delivered`.
     """
-    def one(p, n, k):
-        samples = spillage.sample_route(p, n, samples_per_step, spline_alpha)
-        pick = spillage.pickups_per_sample(samples, k)
-        return jnp.sum(missed_objects(samples, pick, miss, samples_per_step))
-    return jax.vmap(one)(jnp.asarray(waypoints, jnp.float32), jnp.asarray(n_points, jnp.int32),
-                         jnp.asarray(waypoint_pickup, jnp.float32))
+    near, pickup = _turning_and_pickups(waypoints, n_points, waypoint_pickup, samples_per_step, spline_alpha)
+    return _missed_totals(near, pickup, miss)
 
 
 def fit_miss(waypoints, n_points, waypoint_pickup, left_behind, *, samples_per_step: int = 8,
@@ -258,13 +271,12 @@ def fit_miss(waypoints, n_points, waypoint_pickup, left_behind, *, samples_per_s
     left_behind: f[R] observed objects left on the routes' own cells (e.g. ``RouteOutcome.left_behind``
     of physics rollouts). The predicted mass is linear in ``miss`` until ``miss * near`` reaches 1 at
     a sharp turn, so the fit is a plain search: every multiple of ``resolution`` in ``[0, max_miss]``,
-    evaluated in one ``vmap``.
+    one array operation over the candidates (the splines are sampled once).
     """
-    obs = jnp.asarray(left_behind, jnp.float32)
+    near, pickup = _turning_and_pickups(waypoints, n_points, waypoint_pickup, samples_per_step, spline_alpha)
     candidates = jnp.arange(0.0, max_miss + resolution / 2, resolution, dtype=jnp.float32)
-    args = (waypoints, n_points, waypoint_pickup)
-    sse = jax.jit(jax.vmap(lambda m: jnp.sum((predict_missed(*args, m, samples_per_step, spline_alpha) - obs) ** 2)))
-    return float(candidates[int(jnp.argmin(sse(candidates)))])
+    sse = jnp.sum((_missed_totals(near, pickup, candidates) - jnp.asarray(left_behind, jnp.float32)) ** 2, -1)
+    return float(candidates[int(jnp.argmin(sse))])
 
 
 def _check_fit_fields(fields, grid):

@@ -47,8 +47,7 @@ def capacity_spill_along(samples, waypoint_pickup, *, capacity: float, lam: floa
         over = 0.0
         if collected > 0:   # the blade's limit acts where it takes something in
             over = min(max(temperature * _softplus((load - capacity) / temperature), 0.0), load)
-        turn_frac = min(1.0, lam * abs(s["turn"]) * (1.0 if math.isinf(turn_saturation)
-                                                      else turn_saturation / (turn_saturation + load)))
+        turn_frac = min(1.0, lam * abs(s["turn"]) / (1.0 + load / turn_saturation))   # S = inf: lam |turn|
         frac = 1.0 - (1.0 - turn_frac) * (1.0 - min(1.0, mu * dl))
         spill = over + frac * (load - over)
         if spill < threshold:
