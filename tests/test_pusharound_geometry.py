@@ -3,6 +3,7 @@ WCCG's Eq. 7 against the exact free-space cross-check, and W-clear paths."""
 from __future__ import annotations
 
 import copy
+import functools
 import math
 
 import matplotlib
@@ -178,6 +179,56 @@ def test_narrow_opening_disconnects_and_widening_connects():
     # Removing the bottleneck (a virtually widened gap) reconnects the narrow scene.
     g = build_wccg(narrow)
     assert connectivity(g, narrow.start, narrow.goal, removed=[(0, 1)]).same_face
+
+
+def _strip_union_holes(g, sk, c):
+    """The faces of cluster c the plain way: the pieces unioned with a thin polygon per bridge."""
+    from jaxplan.pusharound.wccg import _BRIDGE_EPS  # noqa: PLC0415
+    comps = np.nonzero(sk.labels == c)[0]
+    bridges = np.nonzero(sk.active & np.isin(g.bridge_uv[:, 0], comps))[0]
+    eps = _BRIDGE_EPS * g.width
+    strips = [shapely.buffer(shapely.LineString(g.bridge_pts[e]) if g.bridge_width[e] > 0
+                             else shapely.Point(g.bridge_pts[e, 0]), eps, quad_segs=1) for e in bridges]
+    region = shapely.union_all([g.pieces[i] for i in comps] + strips)
+    return region, shapely.union_all([shapely.Polygon(h) for h in region.interiors])
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_face_rings_equal_the_strip_union(seed):
+    """The polygonized faces (less the islands in them) cover what the strip union's holes cover,
+    and the exterior is the same, up to the strips' width."""
+    from jaxplan.pusharound.wccg import _cluster_region, _skeleton  # noqa: PLC0415
+    g = build_wccg(nominal_scene(seed))
+    sk = _skeleton(g)
+    for c in np.unique(sk.labels):
+        rings = _cluster_region(g, sk, int(c))
+        region, holes = _strip_union_holes(g, sk, int(c))
+        # faces and islands nest alternately (an island may enclose faces of its own): free space is
+        # what an odd number of them enclose
+        free = functools.reduce(shapely.symmetric_difference,
+                                [shapely.Polygon(r) for r in rings.interiors + rings.islands], shapely.Polygon())
+        assert free.symmetric_difference(holes).area < 1e-4
+        assert shapely.Polygon(rings.exterior).symmetric_difference(shapely.Polygon(region.exterior)).area < 1e-4
+
+
+def test_an_island_in_a_face_is_a_ring_of_its_own():
+    """A movable hanging off the bar by one bridge, inside the left room: its outline is a ring that
+    encloses obstacle, not a face, and the walk goes around it (the room is still closed)."""
+    d = _bar_scene(0.4, width=0.5)
+    d["movables"].append({"name": "island", "pieces": [_box(2.0, 2.6, 2.6, 3.2)], "mass": 5.0})
+    scene = PushScene.from_dict(d)
+    g = build_wccg(scene)
+    from jaxplan.pusharound.wccg import _cluster_region, _rings, _skeleton  # noqa: PLC0415
+    sk = _skeleton(g)
+    rings = [r for c in np.unique(sk.labels) for r in _rings(_cluster_region(g, sk, int(c)), int(c))]
+    island = [r for r in rings if not r.is_hole and r.region.contains(shapely.Point(2.3, 2.9))]
+    assert len(island) == 2    # its cluster's exterior and the island ring
+    assert min(r.region.area for r in island) == pytest.approx(0.36, abs=1e-5)
+    conn = connectivity(g, (1.0, 2.9), scene.goal)
+    assert not conn.connected and conn.frontier.encloses_start
+    # the island's own gap (to the bar) bounds no face: it is not a candidate on the room's loop
+    on_loop = {tuple(b) for b in g.bridge_bodies[frontier_bridges(g, conn.frontier)]}
+    assert (0, 1) not in on_loop and (0, 2) in on_loop
 
 
 def test_path_through_an_opening_a_hair_wider_than_w():
