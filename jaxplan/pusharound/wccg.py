@@ -265,7 +265,7 @@ def _face_rings(g: WCCG, comps: np.ndarray, bridges: np.ndarray) -> _FaceRings:
     # snap-rounded: a bridge end computed a rounding error off its piece's edge still meets the edge
     linework = shapely.union_all(np.concatenate([shapely.get_exterior_ring(pieces), segments]),
                                  grid_size=_NODING_GRID * g.width)
-    faces = np.asarray(shapely.get_parts(shapely.polygonize(shapely.get_parts(linework))), dtype=object)
+    faces = shapely.get_parts(shapely.polygonize([linework]))   # one multi-line input: no per-line objects
     inside = np.zeros(len(faces), bool)
     pi, _ = shapely.STRtree(pieces).query(shapely.point_on_surface(faces), predicate="within")
     inside[pi] = True
@@ -284,8 +284,10 @@ def _face_rings(g: WCCG, comps: np.ndarray, bridges: np.ndarray) -> _FaceRings:
     # the strip union's do, so a walk meets the ring it leaves before the one it enters.
     holes = shapely.get_parts(shapely.buffer(free, -eps, quad_segs=1, join_style="mitre"))
     holes = holes[~shapely.is_empty(holes)]
-    return _FaceRings(outline.exterior, list(shapely.get_exterior_ring(holes)),
-                      [ring for face in holes for ring in face.interiors])
+    n_islands = shapely.get_num_interior_rings(holes)
+    islands = [ring for k in range(int(n_islands.max(initial=0)))
+               for ring in shapely.get_interior_ring(holes[n_islands > k], k)]
+    return _FaceRings(outline.exterior, list(shapely.get_exterior_ring(holes)), islands)
 
 
 def _rings(region, c: int) -> list:
