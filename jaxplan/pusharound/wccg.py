@@ -15,8 +15,8 @@ Definitions (exact forms in ``docs/pusharound.md``):
 - **Clusters**: connected components of the skeleton (union-find over bottleneck bridges). A
   cluster's region ``K_c`` has rings: one exterior and its holes (the bounded faces of the planar
   arrangement of its pieces' boundaries and bridge segments, ``_face_rings``); **faces** are the
-  components of the plane minus all clusters. Two points lie in the same face iff no ring encloses exactly one of
-  them (Janiszewski's theorem: disjoint clusters separate independently).
+  components of the plane minus all clusters. Two points lie in the same face iff no ring encloses
+  exactly one of them (Janiszewski's theorem: disjoint clusters separate independently).
 - **Eq. 7**: connected iff start and goal are in the same face and both disks ``B(s, W/2)`` are
   free (clearance >= W/2 from every component, walls included).
 - **Frontier tracing** (BugPlanner): walk the segment start -> goal; at the first ring hit, either
