@@ -213,7 +213,7 @@ def test_face_rings_equal_the_strip_union(seed):
 
 def test_an_island_in_a_face_is_a_ring_of_its_own():
     """A movable hanging off the bar by one bridge, inside the left room: its outline is a ring that
-    encloses obstacle, not a face, and the walk goes around it (the room is still closed)."""
+    encloses obstacle, not a face, and the frontier loop of the room includes it."""
     d = _bar_scene(0.4, width=0.5)
     d["movables"].append({"name": "island", "pieces": [_box(2.0, 2.6, 2.6, 3.2)], "mass": 5.0})
     scene = PushScene.from_dict(d)
@@ -225,10 +225,12 @@ def test_an_island_in_a_face_is_a_ring_of_its_own():
     assert len(island) == 2    # its cluster's exterior and the island ring
     assert min(r.region.area for r in island) == pytest.approx(0.36, abs=1e-5)
     conn = connectivity(g, (1.0, 2.9), scene.goal)
-    assert not conn.connected and conn.frontier.encloses_start
-    # the island's own gap (to the bar) bounds no face: it is not a candidate on the room's loop
+    assert not conn.connected and conn.frontier.encloses_start and len(conn.frontier.islands) == 1
+    # the loop walks around the island as around any part of the room's boundary: the island's gap
+    # (to the upper bar) is on it with the opening, and the island is not part of the room's face
     on_loop = {tuple(b) for b in g.bridge_bodies[frontier_bridges(g, conn.frontier)]}
-    assert (0, 1) not in on_loop and (0, 2) in on_loop
+    assert (0, 1) in on_loop and (0, 2) in on_loop
+    assert not conn.frontier.region().contains(shapely.Point(2.3, 2.9))
 
 
 def test_path_through_an_opening_a_hair_wider_than_w():

@@ -144,7 +144,7 @@ def candidate_gaps(g: WCCG, frontier: Frontier, removed=()) -> list:
     bodies = g.bridge_bodies[br]
     kinds = g.body_kind[bodies]
     ok = (bodies[:, 0] != bodies[:, 1]) & np.any(kinds == MOVABLE, axis=1)
-    region = Polygon(frontier.ring)
+    region = frontier.region()
     gaps = []
     for pair in sorted({tuple(int(v) for v in b) for b in bodies[ok]}):
         mine = br[ok][np.all(bodies[ok] == pair, axis=1)]

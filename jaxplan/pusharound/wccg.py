@@ -202,6 +202,7 @@ class _Ring(NamedTuple):
     ring: shapely.LinearRing
     region: Polygon  # the ring's interior (holes ignored): containment = "enclosed by the ring"
     is_hole: bool
+    islands: tuple = ()  # a hole's islands (``_FaceRings``): LinearRings of the obstacle inside its face
 
 
 class _Skeleton(NamedTuple):
@@ -222,12 +223,13 @@ class _FaceRings(NamedTuple):
     encloses (K_c's holes); islands: LinearRings around obstacle material that lies inside one of
     those faces, joined to the face's boundary by bridges that close no loop (a hole ring of the
     strip union would detour around it; here it is a ring of its own, which encloses obstacle, not
-    a face).
+    a face); island_face: i64[len(islands)], the index in ``interiors`` of the face each lies in.
     """
 
     exterior: shapely.LinearRing
     interiors: list
     islands: list
+    island_face: np.ndarray
 
 
 def _cluster_region(g: WCCG, sk: _Skeleton, c: int, inflate: float = 0.0, quad_segs: int = _QUAD_SEGS):
@@ -255,7 +257,7 @@ def _face_rings(g: WCCG, comps: np.ndarray, bridges: np.ndarray) -> _FaceRings:
     lines) and polygonized. That is the zero-width skeleton itself. Unioning the pieces with a thin
     polygon per bridge instead gives the same faces up to the strips' width (1e-7 W), but crossing
     strips make it several times slower where bridges cross by the hundred (dense clutter: 784
-    bridges, 2,700 faces; ad hoc, 182 ms against 66 ms). The exterior is the outline of all
+    bridges, 2,700 faces; ad hoc, 182 ms against 63 ms). The exterior is the outline of all
     faces together with the strips of the bridges that are not inside them (bridges that close no
     loop on the outside, and touching pieces).
     """
@@ -285,19 +287,24 @@ def _face_rings(g: WCCG, comps: np.ndarray, bridges: np.ndarray) -> _FaceRings:
     holes = shapely.get_parts(shapely.buffer(free, -eps, quad_segs=1, join_style="mitre"))
     holes = holes[~shapely.is_empty(holes)]
     n_islands = shapely.get_num_interior_rings(holes)
-    islands = [ring for k in range(int(n_islands.max(initial=0)))
-               for ring in shapely.get_interior_ring(holes[n_islands > k], k)]
-    return _FaceRings(outline.exterior, list(shapely.get_exterior_ring(holes)), islands)
+    with_k = [np.nonzero(n_islands > k)[0] for k in range(int(n_islands.max(initial=0)))]
+    islands = [ring for k, faces_k in enumerate(with_k) for ring in shapely.get_interior_ring(holes[faces_k], k)]
+    island_face = np.concatenate([np.zeros(0, np.int64), *with_k])
+    return _FaceRings(outline.exterior, list(shapely.get_exterior_ring(holes)), islands, island_face)
 
 
 def _rings(region, c: int) -> list:
     """``_Ring``s of K_c (a ``_FaceRings``, or a Polygon: its exterior and holes)."""
     holes = list(region.interiors)
     islands = list(getattr(region, "islands", []))
+    in_face = [[] for _ in holes]
+    for ring, face in zip(islands, getattr(region, "island_face", [])):
+        in_face[face].append(ring)
     rings = [region.exterior] + holes + islands
     # One vectorised call builds every ring's interior (a cluster may have hundreds of sliver holes).
     polys = shapely.polygons(np.asarray(rings, dtype=object))
-    return [_Ring(c, r, p, 0 < k <= len(holes)) for k, (r, p) in enumerate(zip(rings, polys))]
+    return [_Ring(c, r, p, 0 < k <= len(holes), tuple(in_face[k - 1]) if 0 < k <= len(holes) else ())
+            for k, (r, p) in enumerate(zip(rings, polys))]
 
 
 def _segment_hits(seg: LineString, rings: list, s: np.ndarray, d: np.ndarray) -> list:
@@ -323,11 +330,18 @@ def _segment_hits(seg: LineString, rings: list, s: np.ndarray, d: np.ndarray) ->
 
 class Frontier(NamedTuple):
     """The blocking loop L: ``ring`` f64[K, 2] (closed, counter-clockwise), the ``cluster`` it bounds,
-    and ``encloses_start`` (True: the start is trapped inside L; False: L encloses the goal)."""
+    and ``encloses_start`` (True: the start is trapped inside L; False: L encloses the goal).
+    islands: tuple of f64[K_i, 2] rings of the obstacle lying inside L's face, hanging off L by bridges
+    that close no loop; they and those bridges count as part of L (the loop walks around them)."""
 
     ring: np.ndarray
     cluster: int
     encloses_start: bool
+    islands: tuple = ()
+
+    def region(self) -> Polygon:
+        """L's face: the polygon inside the ring, less its islands."""
+        return Polygon(self.ring, list(self.islands))
 
 
 class Connectivity(NamedTuple):
@@ -411,22 +425,28 @@ def connectivity(g: WCCG, start, goal, removed=(), _sk: _Skeleton | None = None)
         return Connectivity(start_clear and goal_clear, True, start_clear, goal_clear, None, tuple(pieces))
     rg = rings[blocking]
     ring = np.asarray(shapely.orient_polygons(rg.region, exterior_cw=False).exterior.coords)
+    islands = tuple(np.asarray(island.coords) for island in rg.islands)
     return Connectivity(False, False, start_clear, goal_clear,
-                        Frontier(ring, rg.cluster, enc_s[blocking]), ())
+                        Frontier(ring, rg.cluster, enc_s[blocking], islands), ())
 
 
 def frontier_bridges(g: WCCG, frontier: Frontier, removed=()) -> np.ndarray:
     """Indices of the active bottleneck bridges that lie on the frontier loop (i32[K]).
 
-    A bridge lies on L when L passes within 3 strip half-widths of its midpoint (the thin strip that
-    stands for the bridge in K_c is then part of L).
+    A bridge lies on L when L or one of its islands passes within 3 strip half-widths of its
+    midpoint (a face's ring runs 1e-7 W inside its bridges), or when its midpoint lies inside L's face:
+    a bridge that hangs an island off L, or a spur into the face (a walk around L goes along both).
     """
     act = np.nonzero(_active(g, removed))[0]
     if not len(act):
         return act
-    mid = g.bridge_pts[act].mean(axis=1)
-    ring = shapely.LinearRing(frontier.ring)
-    near = shapely.distance(ring, shapely.points(mid)) <= 3.0 * _BRIDGE_EPS * g.width
+    mid = shapely.points(g.bridge_pts[act].mean(axis=1))
+    tol = 3.0 * _BRIDGE_EPS * g.width
+    near = shapely.distance(shapely.LinearRing(frontier.ring), mid) <= tol
+    for island in frontier.islands:
+        near |= shapely.distance(shapely.LinearRing(island), mid) <= tol
+    if frontier.islands:
+        near |= shapely.contains(frontier.region(), mid)
     return act[near]
 
 
