@@ -167,11 +167,31 @@ def test_failed_push_triggers_an_online_replan(scene, world, planned):
     assert gave_up.replans == 1 and len(gave_up.executed) == 1
 
 
+def test_push_cap_counts_from_the_schedule_length(scene, world, planned, monkeypatch):
+    """``max_pushes=None`` allows the schedule's own pushes plus ``EXTRA_PUSHES`` for replanning, so
+    a long plan is never cut short; an explicit cap counts every executed push."""
+    from jaxplan.pusharound import execution
+
+    slow, _ = _push(world, 0.2, duration=0.6)
+    wrong = planned._replace(task=slow)
+    replan = lambda now: FakeResult(True, [planned._replace(poses_before=now.poses)])  # noqa: E731
+    monkeypatch.setattr(execution, "EXTRA_PUSHES", 0)
+    whole = execute_schedule(scene, [wrong, planned], world=world)   # two planned pushes, both run
+    assert len(whole.executed) == 2 and whole.reason != "max_pushes (2) reached"
+    capped = execute_schedule(scene, [wrong], world=world, replan=replan)   # no room for the replan's push
+    assert capped.replans == 1 and len(capped.executed) == 1 and capped.reason == "max_pushes (1) reached"
+    assert not capped.success
+    explicit = execute_schedule(scene, [wrong, planned], world=world, config=ExecutionConfig(max_pushes=1))
+    assert len(explicit.executed) == 1 and explicit.reason == "max_pushes (1) reached"
+
+
 def test_bad_execution_input_is_named(scene, planned):
     with pytest.raises(ValueError, match="record_every"):
         execute_schedule(scene, [planned], record_every=0)
     with pytest.raises(ValueError, match="max_replans"):
         execute_schedule(scene, [planned], config=ExecutionConfig(max_replans=-1))
+    with pytest.raises(ValueError, match="max_pushes"):
+        execute_schedule(scene, [planned], config=ExecutionConfig(max_pushes=0))
     with pytest.raises(ValueError, match="scene"):
         execute_schedule({"not": "a scene"}, [planned])
     other = build_push_world(PushScene.from_dict({**TINY, "robots": {"positions": [[0.5, 0.4]], "radius": 0.15}}))

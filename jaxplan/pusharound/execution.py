@@ -88,7 +88,8 @@ class ExecutionConfig:
     ``1 + brush_weight * depth / (r + transit_margin)`` for a path ``depth`` metres too close (inf:
     never; the straight segment is driven then); arrive_tol [m]: a robot within this of its
     push start point has arrived; transit_slack [s]: added to 1.5 x the path time for the timeout;
-    max_pushes: executed pushes at most (guards a replanner that never converges); open_loop: when a
+    max_pushes: executed pushes at most (guards a replanner that never converges); None: the
+    schedule's own length plus ``EXTRA_PUSHES``, so that a long plan is never cut short; open_loop: when a
     push fails and no replanning is left (no ``replan``, ``max_replans`` used, or a replan found
     nothing), carry on with the rest of the schedule (True) or stop there (False); retreat [m]: at
     the end the robots of the last push back off this far against their push directions (0: not);
@@ -108,7 +109,7 @@ class ExecutionConfig:
     arrive_tol: float = 0.03
     transit_slack: float = 4.0
     brush_weight: float = 10.0
-    max_pushes: int = 40
+    max_pushes: int | None = None
     open_loop: bool = True
     retreat: float = 0.1
     record_every: int = 4
@@ -408,6 +409,8 @@ class _State:
                 self.frames.append((self.tick, poses[k], robots[k], self.push_index, phase))
 
 
+# Pushes that replanning may add to a schedule before execution gives up (ExecutionConfig.max_pushes).
+EXTRA_PUSHES = 40
 _HARD_MARGIN = 0.01  # m: transit paths keep at least r + this from fixed obstacles, walls and idle robots
 _MEET_SLACK = 0.02   # m: robots that start touching (after a joint push) do not count as meeting
 
@@ -639,9 +642,13 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
                          f"got {cfg.brush_weight!r}.")
     if cfg.max_replans < 0:
         raise ValueError(f"config.max_replans: must be >= 0; got {cfg.max_replans!r}.")
+    if cfg.max_pushes is not None and cfg.max_pushes < 1:
+        raise ValueError(f"config.max_pushes: must be >= 1, or None (the schedule's length + {EXTRA_PUSHES}); "
+                         f"got {cfg.max_pushes!r}.")
     if not isinstance(scene, PushScene):
         raise ValueError(f"scene: expected a PushScene; got {type(scene).__name__}.")
     schedule = _scheduled(result_or_schedule)
+    max_pushes = len(schedule) + EXTRA_PUSHES if cfg.max_pushes is None else cfg.max_pushes
     world = build_push_world(scene) if world is None else world
     if len(world.mov_adr) != len(scene.movables) or len(world.robot_adr) != len(scene.robots):
         raise ValueError("world: built for another scene (movable or robot count differs); "
@@ -666,8 +673,8 @@ def execute_schedule(scene: PushScene, result_or_schedule, *, world: PushWorld |
         failed = None
         if not queue:
             failed = "schedule exhausted"
-        elif len(executed) >= cfg.max_pushes:
-            reason = f"max_pushes ({cfg.max_pushes}) reached"
+        elif len(executed) >= max_pushes:
+            reason = f"max_pushes ({max_pushes}) reached"
             break
         else:
             item = queue.pop(0)
