@@ -196,6 +196,9 @@ def summarise(records: list) -> list:
             "simulated_pushes": _ms([r["simulated_pushes"] for r in rs]),
             "pushes": _ms([r["pushes"] for r in ok]),
             "movables": _ms([r["n_movables"] for r in rs]),
+            # what the row was measured under: a report of recorded trials (--report-only) may mix runs
+            "time_limit_s": sorted({r["time_limit_s"] for r in rs}),
+            "code": sorted({r.get("code", "") for r in rs}),
         })
     return rows
 
@@ -246,15 +249,16 @@ def write_outputs(records: list, out: Path, args_dict: dict) -> dict:
              "#Sims = rollouts in planning (all trials), #Pushes = schedule length (successes). "
              "Paper column: Succ. (ICRA / RA-L) · PT · ET · #Sims · #Pushes as printed in the paper "
              "(a laptop i7 with PyBullet; not comparable in absolute time).", "",
-             "| Scene | Planner | Trials | Succ. | Exec. | +replan | PT (s) | PT median | ET (s) | #Sims | #Pushes "
-             "| Paper |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| Scene | Planner | Trials | Limit (s) | Succ. | Exec. | +replan | PT (s) | PT median | ET (s) | #Sims "
+             "| #Pushes | Paper |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         scene = r["scene"] + (f" N={r['density_n']}" if r["density_n"] else "")
         ex = "-" if r["exec_success_pct"] is None else f"{r['exec_success_pct']:.0f}"
         rp = "-" if r["replan_exec_success_pct"] is None else f"{r['replan_exec_success_pct']:.0f}"
         med = r["planning_time_s"]["median"]
-        lines.append(f"| {scene} | {r['planner']} | {r['trials']} | {r['success_pct']:.1f} | {ex} | {rp} | "
+        limit = "/".join(f"{t:g}" for t in r["time_limit_s"])
+        lines.append(f"| {scene} | {r['planner']} | {r['trials']} | {limit} | {r['success_pct']:.1f} | {ex} | {rp} | "
                      f"{_f(r['planning_time_s'])} | {med:.2f} | {_f(r['execution_time_s'])} | "
                      f"{_f(r['simulated_pushes'])} | {_f(r['pushes'])} | {_paper(r['planner'], r['scene'], r['density_n'])} |")
     (out / "table1.md").write_text("\n".join(lines) + "\n")
@@ -330,8 +334,10 @@ def main(argv=None) -> dict:
             fh.write(json.dumps(rec) + "\n")
         records.append(rec)
     wanted = {(p, s) for p in planners for s in scenes}
+    # a report of recorded trials has no run settings of its own: each row names its time limits and code
+    settings = {"report_only": True} if args.report_only else vars(args)
     doc = write_outputs([r for r in records if (r["planner"], r["scene"]) in wanted] if args.quick else records, out,
-                        vars(args))
+                        settings)
     print((out / "table1.md").read_text())
     return doc
 
