@@ -199,16 +199,24 @@ def improve_policy(start, evaluate, best_step, occupied, cell_size, max_iteratio
         return carry[2] & (carry[1] < max_iterations)
 
     def improve(carry):
-        policy, it, _ = carry
+        policy, it, _, _, _, _ = carry
         raw, length = evaluate(policy)
         top_raw, top_len, step = best_step(raw, length)
         better = (top_raw > raw) | ((top_raw == raw) & (top_len < length - length_tolerance(length, cell_size)))
         new = jnp.where(occupied & better, step, policy)
-        return new, it + 1, jnp.any(new != policy)
+        return new, it + 1, jnp.any(new != policy), raw, length, step
 
-    policy, iterations, _ = jax.lax.while_loop(improving, improve, (start, jnp.int32(0), jnp.bool_(True)))
-    raw, length = evaluate(policy)
-    _, _, policy = best_step(raw, length)
+    def final_pass(policy):
+        raw, length = evaluate(policy)
+        return raw, length, best_step(raw, length)[2]
+
+    # the entry's values are placeholders: the loop body runs at least once
+    start_carry = (start, jnp.int32(0), jnp.bool_(True), jnp.zeros(start.shape, jnp.float32),
+                   jnp.zeros(start.shape, jnp.float32), start)
+    policy, iterations, changed, raw, length, step = jax.lax.while_loop(improving, improve, start_carry)
+    # converged: the last round already evaluated ``policy`` and picked its steps, so reuse them;
+    # stopped at max_iterations with changes pending: evaluate the new policy once more
+    raw, length, policy = jax.lax.cond(changed, final_pass, lambda p: (raw, length, step), policy)
     policy = _grid.materialize(policy)   # stored once: its consumers would each recompute the selection
     return raw, length, jnp.where(occupied, policy, -1), iterations
 

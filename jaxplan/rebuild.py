@@ -238,10 +238,30 @@ def _flow(scene, params: FabricParams, old: Fabric, own: Fabric, hop_len, cells,
     return jax.lax.cond(everywhere, lambda _: with_flow(scene, params, own, hop_len), nearby, None)
 
 
-def _dirty_cells(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
-    """Step 1 of the module docstring: ``(cells i32[capacity], count, dirty bool[H, W])``."""
+DENSE_LISTING_CELLS = 128 * 128
+"""Grids of at most this many cells list their dirty cells by whole-grid dilation
+(``upstream_closure``, then ``_grid.true_indices``); larger ones by the breadth-first queue, whose
+work grows with the dirty set rather than the grid. Ad hoc, paired in one process on the 2-core CPU,
+medians over 12 pushes (densities 0.4): 45^2 0.14 vs 0.27 ms, 65^2 0.19-0.21 vs 0.29-0.31 ms,
+128^2 0.50-0.58 vs 0.69-0.79 ms, 256^2 1.62 vs 1.01 ms (dilation vs queue). Both give the same set."""
+
+
+def dense_listing_default(shape) -> bool:
+    """Whether ``selective_rebuild`` lists the dirty cells by whole-grid dilation (``DENSE_LISTING_CELLS``)."""
+    return shape[0] * shape[1] <= DENSE_LISTING_CELLS
+
+
+def _dirty_cells(scene, params: FabricParams, fabric: Fabric, changed, capacity: int, dense: bool):
+    """Step 1 of the module docstring: ``(cells i32[capacity], count, dirty bool[H, W])``. With
+    ``dense`` (static) the cells are listed in raster order from a whole-grid dilation, else
+    breadth-first by the queue; the solver does not depend on the order."""
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
+    if dense:
+        feasible = visibility.feasible_successors(~target & (obj > 0), target, scene.dist, scene.tvec,
+                                                  params.theta_tol_deg, params.monotone, scene.cell_size)
+        dirty = upstream_closure(changed, jnp.moveaxis(fabric.feasible, -1, 0), feasible)
+        return _grid.true_indices(dirty.reshape(-1), capacity), jnp.sum(dirty, dtype=jnp.int32), dirty
     return _upstream_queue(changed, fabric.feasible, ~target & (obj > 0), target, scene.dist, scene.tvec,
                            visibility.cone_cos(params.theta_tol_deg), params.monotone, scene.cell_size, capacity)
 
@@ -273,10 +293,11 @@ def _finish(scene, params, fabric, changed, cells, count, dirty, bucket: int | N
     return rebuilt, Affected(changed, dirty, count, rebuilt.rounds, jnp.bool_(bucket is None))
 
 
-def _selective_switch(scene, params: FabricParams, fabric: Fabric, changed, capacity: int, local: bool):
+def _selective_switch(scene, params: FabricParams, fabric: Fabric, changed, capacity: int, local: bool,
+                      dense: bool):
     """All of it in one traced program: every buffer size is compiled and ``lax.switch`` picks the
     smallest that holds the dirty set (usable inside a caller's ``jit``)."""
-    cells, count, dirty = _dirty_cells(scene, params, fabric, changed, capacity)
+    cells, count, dirty = _dirty_cells(scene, params, fabric, changed, capacity, dense)
     buckets = capacity_buckets(capacity)
 
     def partial_with(size):
@@ -328,25 +349,25 @@ def default_capacity(shape) -> int:
     return max(1, min(n // 2, max(256, n // 8)))
 
 
-def _rebuild(scene, params: FabricParams, fabric: Fabric, changed, capacity: int, local: bool):
+def _rebuild(scene, params: FabricParams, fabric: Fabric, changed, capacity: int, local: bool, dense: bool):
     if not params.monotone:
         return _full_only(scene, params, changed)
-    return _selective_switch(scene, params, fabric, changed, capacity, local)
+    return _selective_switch(scene, params, fabric, changed, capacity, local, dense)
 
 
-def _listing(scene, params: FabricParams, fabric: Fabric, changed, capacity: int):
+def _listing(scene, params: FabricParams, fabric: Fabric, changed, capacity: int, dense: bool):
     """``_dirty_cells`` and whether the old fabric follows Eq. 6 entries somewhere (such a fabric
     cannot be patched), computed together so that the host reads both at once."""
-    return (*_dirty_cells(scene, params, fabric, changed, capacity), jnp.any(fabric.selected != 0))
+    return (*_dirty_cells(scene, params, fabric, changed, capacity, dense), jnp.any(fabric.selected != 0))
 
 
-_listing_jit = grid_jit(_listing, static_argnums=4)
+_listing_jit = grid_jit(_listing, static_argnums=(4, 5))
 _finish_jit = grid_jit(_finish, static_argnums=(7, 8, 9))
 _full_only_jit = grid_jit(_full_only)
 
 
 def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, capacity: int | None = None,
-                      local_flow: bool | None = None):
+                      local_flow: bool | None = None, dense_listing: bool | None = None):
     """Update ``fabric`` (built for the counts before a push) to ``scene``'s counts after it.
 
     scene: the scene after the push; fabric: the fabric before it; changed: bool[H, W], A_exec
@@ -354,7 +375,9 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
     ``build_fabric(scene, params)`` (``rounds`` aside). capacity: the largest dirty-buffer size
     (default ``default_capacity``); a larger dirty set triggers a full build. local_flow: refresh
     psi and the heatmap only along the changed paths (default ``local_flow_default``: on grids of
-    128^2 and more); the result is the same either way.
+    128^2 and more); the result is the same either way. dense_listing: list the dirty cells by
+    whole-grid dilation rather than the breadth-first queue (default ``dense_listing_default``: on
+    grids of up to 128^2); the same set either way.
 
     Called with concrete arrays, it lists the dirty cells (jitted), reads their number on the host
     and runs the jitted compact solver for the smallest buffer of 64, 128, 256, ... cells that holds
@@ -365,11 +388,12 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
     capacity = default_capacity(scene.shape) if capacity is None else int(capacity)
     changed = jnp.asarray(changed, bool)
     local = local_flow_default(scene.shape) if local_flow is None else bool(local_flow)
+    dense = dense_listing_default(scene.shape) if dense_listing is None else bool(dense_listing)
     if traced(scene, params, fabric, changed):
-        return _rebuild(scene, params, fabric, changed, capacity, local)
+        return _rebuild(scene, params, fabric, changed, capacity, local, dense)
     if not params.monotone:
         return _full_only_jit(scene, params, changed)
-    cells, count, dirty, reselected = _listing_jit(scene, params, fabric, changed, capacity)
+    cells, count, dirty, reselected = _listing_jit(scene, params, fabric, changed, capacity, dense)
     # read on the host, so that each program holds one buffer size and one way of finishing
     n_dirty, reselected = (int(v) for v in jax.device_get((count, reselected)))
     fitting = [c for c in capacity_buckets(capacity) if c >= n_dirty]

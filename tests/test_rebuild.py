@@ -48,8 +48,10 @@ def _push(scene, fabric, source, rank, spill):
 @SETTINGS
 @given(scene=scenes(max_side=13, integer_counts=False), theta=st.sampled_from(ANGLES),
        lam=st.sampled_from((0.0, 0.05, 0.5)), pushes=st.lists(st.tuples(st.integers(0, 2**16), st.integers(0, 3)),
-                                                              min_size=1, max_size=4), local=st.booleans())
-def test_selective_rebuild_equals_full_build_after_random_pushes(scene, theta, lam, pushes, local):
+                                                              min_size=1, max_size=4), local=st.booleans(),
+       dense=st.booleans())
+def test_selective_rebuild_equals_full_build_after_random_pushes(scene, theta, lam, pushes, local, dense):
+    # dense: the dirty cells listed by whole-grid dilation (small grids' default) or by the queue
     scene = scene.with_obj(ex.quantize(scene.obj))   # exact sums: see execute.QUANTUM
     params = FabricParams(theta_tol_deg=theta)
     spill = sp.SpillParams(lam=lam, threshold=0.01)
@@ -63,7 +65,8 @@ def test_selective_rebuild_equals_full_build_after_random_pushes(scene, theta, l
         new_obj, push = _push(scene, fabric, source, rank, spill)
         old_feasible = fabric.feasible
         scene = scene.with_obj(new_obj)
-        fabric, affected = rb.selective_rebuild(scene, params, fabric, push.changed, local_flow=local)
+        fabric, affected = rb.selective_rebuild(scene, params, fabric, push.changed, local_flow=local,
+                                                dense_listing=dense)
         assert_same_fabric(fabric, build_fabric(scene, params))
         want_dirty = ref_rb.upstream_closure(np.asarray(push.changed), np.asarray(old_feasible),
                                              np.asarray(fabric.feasible))
