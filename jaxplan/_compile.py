@@ -45,9 +45,10 @@ class _GridJit:
     """Two ``jax.jit`` of one function, one per code generator; the call goes to the one for its
     grid size (to the default one under a caller's trace, where it is inlined anyway)."""
 
-    def __init__(self, fn, jit_kwargs):
+    def __init__(self, fn, jit_kwargs, cells_of=None):
         self._default = jax.jit(fn, **jit_kwargs)
         self._small = jax.jit(fn, compiler_options=_SMALL_GRID_OPTIONS, **jit_kwargs)
+        self._cells_of = cells_of
         functools.update_wrapper(self, fn)
 
     def _pick(self, args, kwargs):
@@ -55,7 +56,8 @@ class _GridJit:
         # under a caller's jit, vmap or grad the call is inlined, where compile options are refused
         if traced(leaves) or jax.default_backend() != "cpu":
             return self._default
-        return self._small if _grid_cells(leaves) <= SMALL_GRID_CELLS else self._default
+        cells = _grid_cells(leaves) if self._cells_of is None else self._cells_of(*args, **kwargs)
+        return self._small if cells <= SMALL_GRID_CELLS else self._default
 
     def __call__(self, *args, **kwargs):
         return self._pick(args, kwargs)(*args, **kwargs)
@@ -64,12 +66,14 @@ class _GridJit:
         return self._default._cache_size() + self._small._cache_size()
 
 
-def grid_jit(fn=None, **jit_kwargs):
+def grid_jit(fn=None, *, cells_of=None, **jit_kwargs):
     """``jax.jit(fn, **jit_kwargs)`` compiled with the code generator that suits the grid's size
-    (module docstring). Usable as ``grid_jit(fn, static_argnums=...)`` or as a decorator."""
+    (module docstring). Usable as ``grid_jit(fn, static_argnums=...)`` or as a decorator.
+    cells_of: ``(*args, **kwargs) -> int``, the grid's cells, where no array argument has the
+    grid's shape (default: the largest trailing 2-D size among the array arguments)."""
     if fn is None:
-        return functools.partial(grid_jit, **jit_kwargs)
-    return _GridJit(fn, jit_kwargs)
+        return functools.partial(grid_jit, cells_of=cells_of, **jit_kwargs)
+    return _GridJit(fn, jit_kwargs, cells_of)
 
 
 def single_cpu() -> int:

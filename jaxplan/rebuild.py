@@ -381,7 +381,8 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
 
     Called with concrete arrays, it lists the dirty cells (jitted), reads their number on the host
     and runs the jitted compact solver for the smallest buffer of 64, 128, 256, ... cells that holds
-    them; each size is compiled the first time it is needed. Inside a caller's ``jit`` (traced
+    them; each size is compiled the first time it is needed. With no dirty cell it returns
+    ``fabric`` itself (rounds 0). Inside a caller's ``jit`` (traced
     arguments) it runs one program with every size compiled behind a ``lax.switch``. Both give the
     same result.
     """
@@ -396,6 +397,10 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
     cells, count, dirty, reselected = _listing_jit(scene, params, fabric, changed, capacity, dense)
     # read on the host, so that each program holds one buffer size and one way of finishing
     n_dirty, reselected = (int(v) for v in jax.device_get((count, reselected)))
+    if n_dirty == 0 and not reselected:
+        # no table can change, so neither can anything derived from the tables (a push that moved
+        # nothing, or the target cells' counts only)
+        return fabric, Affected(changed, dirty, count, jnp.int32(0), jnp.bool_(False))
     fitting = [c for c in capacity_buckets(capacity) if c >= n_dirty]
     return _finish_jit(scene, params, fabric, changed, cells, count, dirty, fitting[0] if fitting else None, local,
                        bool(reselected))

@@ -36,6 +36,17 @@ def test_grid_size_is_the_largest_trailing_plane_of_any_argument():
     assert _compile._grid_cells(jax.tree.leaves((jnp.zeros(9), 3.0, {"k": 2}))) == 0
 
 
+def test_cells_of_sizes_the_grid_when_no_argument_has_its_shape():
+    # the scene geometry takes the grid's shape as a static tuple, its arrays are boundary segments
+    jitted = _compile.grid_jit(lambda a, shape: jnp.zeros(shape) + a[0, 0, 0], static_argnums=1,
+                               cells_of=lambda a, shape: shape[0] * shape[1])
+    side = int(np.sqrt(_compile.SMALL_GRID_CELLS))
+    segments = jnp.ones((3, 2, 2))
+    assert jitted._pick((segments, (side, side)), {}) is jitted._small
+    assert jitted._pick((segments, (side + 1, side)), {}) is jitted._default
+    np.testing.assert_array_equal(np.asarray(jitted(segments, (side + 1, side))), np.ones((side + 1, side)))
+
+
 def test_inside_a_caller_trace_the_call_inlines():
     jitted = _compile.grid_jit(_doubler())
     outer = jax.jit(lambda a: jitted(a) + 1.0)
