@@ -121,11 +121,12 @@ def best_paths(b: Buffer, warm_policy, cell_size, max_iterations: int):
     """Policy iteration on the buffer: ``(J f32[C], L f32[C], policy i32[C], iterations i32[])``.
 
     warm_policy: i32[C] a first guess (the old first steps); a step that is no longer allowed is
-    replaced by the best step against the values of falling back everywhere (any valid policy will do).
+    replaced by the first allowed one, or the fallback where none is (any valid policy will do, and
+    the few cells next to the push that need it cost an evaluation pass less than a better guess).
     """
     still_ok = (warm_policy >= 0) & jnp.where(warm_policy == _grid.FALLBACK, b.fallback,
                                                _along(b.feasible, warm_policy))
-    _, _, guess = _best_step(b, *_evaluate(b, jnp.full_like(warm_policy, _grid.FALLBACK)), cell_size)
+    guess = _grid.first_true(list(b.feasible))          # 8 = FALLBACK where no step is allowed
     start = jnp.where(b.occupied, jnp.where(still_ok, warm_policy, guess), -1)
     return _kbest.improve_policy(start, lambda policy: _evaluate(b, policy),
                                  lambda raw, length: _best_step(b, raw, length, cell_size), b.occupied, cell_size,

@@ -136,7 +136,9 @@ def lane_neighbours(cells, shape):
     step = jnp.asarray(DIRS_ARRAY)
     nr, nc = rows[None] + step[:, 0:1], cols[None] + step[:, 1:2]
     inside = (cells[None] < h * w) & (nr >= 0) & (nr < h) & (nc >= 0) & (nc < w)
-    return jnp.where(inside, nr * w + nc, h * w).astype(jnp.int32)
+    # stored once: its many consumers would each recompute it (the finish program at 65^2: 17,582 -> 16,056
+    # HLO lines, 59 -> 54 MB resident once compiled, about 4% faster; ad hoc)
+    return materialize(jnp.where(inside, nr * w + nc, h * w).astype(jnp.int32))
 
 
 def lane_predecessors(cells, shape):
