@@ -7,7 +7,7 @@ Public API::
     fabric = jaxplan.build_fabric(scene, jaxplan.FabricParams(theta_tol_deg=60.0))
     episode = jaxplan.run_episode(scene)      # plan, push, spill, rebuild until delivered
 """
-from jaxplan._compile import single_cpu
+from jaxplan._compile import limit_malloc_arenas, single_cpu
 from jaxplan.connectors import Connectors, plan_connectors
 from jaxplan.episode import Episode, EpisodeParams, run_episode
 from jaxplan.execute import Push, Route
@@ -33,7 +33,7 @@ __all__ = [
     "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "Fabric",
     "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "SearchConfig", "Route", "Scene", "Selection",
     "SiteParams", "SoftFabric", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
-    "circle", "connectivity", "extract_paths", "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes",
+    "circle", "connectivity", "extract_paths", "limit_malloc_arenas", "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes",
     "random_sites", "rank_gaps", "refresh_connectors", "reselect", "run_episode", "run_sites", "select_routes", "selective_rebuild",
     "simulate_site", "single_cpu", "sweep", "tune",
 ]

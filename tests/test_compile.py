@@ -95,3 +95,37 @@ def test_cli_single_cpu_flag_runs_a_command_pinned():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "cores 1" in done.stdout
+
+
+_ARENA_CHECK = """
+import warnings
+import jaxplan
+took = jaxplan.limit_malloc_arenas()
+fabric = jaxplan.build_fabric(jaxplan.builtin_scene("default"))
+assert float(fabric.value.max()) > 0
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    jaxplan.limit_malloc_arenas()     # too late now: JAX's threads have allocated
+assert any("keep their arenas" in str(w.message) for w in caught), caught
+print("took", took)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_limit_malloc_arenas_in_a_fresh_process_and_warns_when_called_late():
+    # a fresh process: the setting is process-wide
+    done = subprocess.run([sys.executable, "-c", _ARENA_CHECK], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().endswith("took True")
+
+
+def test_limit_malloc_arenas_refuses_fewer_than_one():
+    with pytest.raises(ValueError, match="arenas must be >= 1"):
+        _compile.limit_malloc_arenas(0)
+
+
+def test_cli_low_memory_flag_runs_a_command():
+    code = "import sys; from jaxplan.cli import main; sys.exit(main(['--low-memory', 'scenes']))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "default" in done.stdout
