@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     fabric = jax.block_until_ready(build_fabric(scene, params))
     record("build_fabric")
     jax.block_until_ready(rebuild.selective_rebuild(scene, params, fabric, jnp.zeros(scene.shape, bool)))
-    record("selective update, nothing changed (listing, smallest buffer)")
+    record("selective update, nothing changed (the listing only: nothing is dirty)")
     for t in range(args.ticks):
         source = jnp.unravel_index(jnp.argmax(jnp.where(fabric.occupied, fabric.value, -jnp.inf)), scene.shape)
         paths = extract_paths(fabric, jnp.stack(source)[None], max_steps=8 * n)

@@ -329,11 +329,11 @@ def markdown(result) -> str:
                   if e["mem_delta_mb"]["mean"] is not None) + " (paper: mean 1.48, range [-7.4, 14.7]).", "",
               "Targets: " + "; ".join(f"{c['target']}: {c['measured']} -> {'met' if c['met'] else 'NOT met'}"
                                       for c in result["targets"]), "",
-              "Selective update = the upstream closure of the changed cells, listed breadth-first + their "
-              "tables by the compact warm-started policy iteration and sidetracks + psi and heatmap "
-              "refreshed along their old and new paths (grids from 128^2; the whole grid below) and the "
-              "highways (docs/conventions.md). Connectors are not part of either column (timed separately "
-              "below).", ""]
+              "Selective update = the upstream closure of the changed cells (by whole-grid dilation up to "
+              "128^2, listed breadth-first above) + their tables by the compact warm-started policy "
+              "iteration and sidetracks + psi and heatmap refreshed along their old and new paths (grids "
+              "from 128^2; the whole grid below) and the highways (docs/conventions.md). Connectors are "
+              "not part of either column (timed separately below).", ""]
     if result.get("connectors"):
         lines.append("Connector planning (plan_connectors, all roots, up to 32 anchors), ms: " + "; ".join(
             f"{c['n']}^2 {c['ms']:.1f}" for c in result["connectors"]))

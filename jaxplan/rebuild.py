@@ -8,6 +8,7 @@ closure of ``A_exec`` (``Affected.dirty``). The rebuild
 
 1. lists the dirty cells breadth-first from ``A_exec`` against the successor steps (the old graph's,
    plus the new steps into each listed cell, tested on the spot), in work proportional to the set;
+   on grids of up to 128^2 cells by a whole-grid dilation instead (``DENSE_LISTING_CELLS``);
 2. gathers the dirty cells into a compact buffer of static ``capacity`` and solves for their
    tables there, reading the unchanged tables of all other cells (``jaxplan._compact``: policy
    iteration warm-started from the old first steps, then the sidetrack levels, as in the full
