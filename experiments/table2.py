@@ -127,7 +127,6 @@ def _same_fabric(a, b) -> bool:
 
 def run_instance(n: int, density: float, seed: int, args, params, spill) -> dict:
     import jax
-    import jax.numpy as jnp
 
     from jaxplan import build_fabric, execute, rebuild
 
@@ -135,8 +134,8 @@ def run_instance(n: int, density: float, seed: int, args, params, spill) -> dict
     scene = scene.with_obj(execute.quantize(scene.obj))
     objects = float(np.sum(np.where(np.asarray(scene.target_mask), 0.0, np.asarray(scene.obj))))
     fabric = jax.block_until_ready(build_fabric(scene, params))
-    # warm-up: compiles the rebuild's first stage and smallest buffer; larger buffers compile when first
-    # needed, inside a tick, where the median of the repeats keeps the compile out of the timing
+    # warm-up: compiles the rebuild's listing (nothing is dirty, so no buffer); the buffers compile when
+    # first needed, inside a tick, where the median of the repeats keeps the compile out of the timing
     jax.block_until_ready(rebuild.selective_rebuild(scene, params, fabric, np.zeros(scene.shape, bool)))
     with PeakMemory() as warm_peak:
         ticks = _ticks(scene, fabric, args, params, spill)
@@ -170,7 +169,6 @@ _best_route_jit = None
 def _ticks(scene, fabric, args, params, spill) -> list[dict]:
     """Push ``args.ticks`` routes; after each, time the full build and the selective update."""
     import jax
-    import jax.numpy as jnp
 
     from jaxplan import build_fabric, execute, rebuild
 

@@ -121,8 +121,8 @@ def best_paths(b: Buffer, warm_policy, cell_size, max_iterations: int):
     """Policy iteration on the buffer: ``(J f32[C], L f32[C], policy i32[C], iterations i32[])``.
 
     warm_policy: i32[C] a first guess (the old first steps); a step that is no longer allowed is
-    replaced by the first allowed one, or the fallback where none is (any valid policy will do, and
-    the few cells next to the push that need it cost an evaluation pass less than a better guess).
+    replaced by the first allowed one, or the fallback where none is. Any valid policy will do, and
+    the few cells that need it (next to the push) are not worth an evaluation and best-step pass.
     """
     still_ok = (warm_policy >= 0) & jnp.where(warm_policy == _grid.FALLBACK, b.fallback,
                                                _along(b.feasible, warm_policy))

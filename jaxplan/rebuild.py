@@ -243,7 +243,7 @@ DENSE_LISTING_CELLS = 128 * 128
 """Grids of at most this many cells list their dirty cells by whole-grid dilation
 (``upstream_closure``, then ``_grid.true_indices``); larger ones by the breadth-first queue, whose
 work grows with the dirty set rather than the grid. Ad hoc, paired in one process on the 2-core CPU,
-medians over 12 pushes (densities 0.4): 45^2 0.14 vs 0.27 ms, 65^2 0.19-0.21 vs 0.29-0.31 ms,
+medians over 12 pushes (density 0.4): 45^2 0.14 vs 0.27 ms, 65^2 0.19-0.21 vs 0.29-0.31 ms,
 128^2 0.50-0.58 vs 0.69-0.79 ms, 256^2 1.62 vs 1.01 ms (dilation vs queue). Both give the same set."""
 
 
