@@ -328,7 +328,7 @@ def markdown(result) -> str:
               "Targets: " + "; ".join(f"{c['target']}: {c['measured']} -> {'met' if c['met'] else 'NOT met'}"
                                       for c in result["targets"]), "",
               "Selective update = the upstream closure of the changed cells (by whole-grid dilation up to "
-              "128^2, listed breadth-first above) + their tables by the compact warm-started policy "
+              "80^2, listed breadth-first above) + their tables by the compact warm-started policy "
               "iteration and sidetracks + psi and heatmap refreshed along their old and new paths (grids "
               "from 128^2; the whole grid below) and the highways (docs/conventions.md). Connectors are "
               "not part of either column (timed separately below).", ""]

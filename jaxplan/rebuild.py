@@ -8,7 +8,7 @@ closure of ``A_exec`` (``Affected.dirty``). The rebuild
 
 1. lists the dirty cells breadth-first from ``A_exec`` against the successor steps (the old graph's,
    plus the new steps into each listed cell, tested on the spot), in work proportional to the set;
-   on grids of up to 128^2 cells by a whole-grid dilation instead (``DENSE_LISTING_CELLS``);
+   on grids of up to 80^2 cells by a whole-grid dilation instead (``DENSE_LISTING_CELLS``);
 2. gathers the dirty cells into a compact buffer of static ``capacity`` and solves for their
    tables there, reading the unchanged tables of all other cells (``jaxplan._compact``: policy
    iteration warm-started from the old first steps, then the sidetrack levels, as in the full
@@ -239,12 +239,12 @@ def _flow(scene, params: FabricParams, old: Fabric, own: Fabric, hop_len, cells,
     return jax.lax.cond(everywhere, lambda _: with_flow(scene, params, own, hop_len), nearby, None)
 
 
-DENSE_LISTING_CELLS = 128 * 128
+DENSE_LISTING_CELLS = 80 * 80
 """Grids of at most this many cells list their dirty cells by whole-grid dilation
 (``upstream_closure``, then ``_grid.true_indices``); larger ones by the breadth-first queue, whose
-work grows with the dirty set rather than the grid. Ad hoc, paired in one process on the 2-core CPU,
-medians over 12 pushes (density 0.4): 45^2 0.14 vs 0.27 ms, 65^2 0.19-0.21 vs 0.29-0.31 ms,
-128^2 0.50-0.58 vs 0.69-0.79 ms, 256^2 1.62 vs 1.01 ms (dilation vs queue). Both give the same set."""
+work grows with the dirty set rather than the grid. ``experiments/listing_ab.py`` (paired in one
+process, density 0.4, 12 pushes per grid; ``experiments/results/listing_ab.md``): dilation / queue
+0.69-0.74 at 45^2, 0.80-0.91 at 65^2, 1.04 at 96^2, 1.26-1.27 at 128^2, 1.97-2.23 at 256^2 (two runs). Both give the same set."""
 
 
 def dense_listing_default(shape) -> bool:
@@ -378,7 +378,7 @@ def selective_rebuild(scene, params: FabricParams, fabric: Fabric, changed, *, c
     psi and the heatmap only along the changed paths (default ``local_flow_default``: on grids of
     128^2 and more); the result is the same either way. dense_listing: list the dirty cells by
     whole-grid dilation rather than the breadth-first queue (default ``dense_listing_default``: on
-    grids of up to 128^2); the same set either way.
+    grids of up to 80^2); the same set either way.
 
     Called with concrete arrays, it lists the dirty cells (jitted), reads their number on the host
     and runs the jitted compact solver for the smallest buffer of 64, 128, 256, ... cells that holds
