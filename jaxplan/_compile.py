@@ -43,6 +43,13 @@ def _grid_cells(leaves) -> int:
     return cells
 
 
+@functools.cache
+def _on_cpu() -> bool:
+    """Whether JAX's default backend is the CPU (fixed once the backends have started, which this
+    call does; cached, as each grid program's call asks)."""
+    return jax.default_backend() == "cpu"
+
+
 class _GridJit:
     """Two ``jax.jit`` of one function, one per code generator; the call goes to the one for its
     grid size (to the default one under a caller's trace, where it is inlined anyway)."""
@@ -56,7 +63,7 @@ class _GridJit:
     def _pick(self, args, kwargs):
         leaves = jax.tree_util.tree_leaves((args, kwargs))
         # under a caller's jit, vmap or grad the call is inlined, where compile options are refused
-        if traced(leaves) or jax.default_backend() != "cpu":
+        if not _on_cpu() or any(isinstance(x, jax.core.Tracer) for x in leaves):
             return self._default
         cells = _grid_cells(leaves) if self._cells_of is None else self._cells_of(*args, **kwargs)
         return self._small if cells <= SMALL_GRID_CELLS else self._default

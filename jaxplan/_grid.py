@@ -84,6 +84,49 @@ def shift(a, dr: int, dc: int, fill):
     return padded[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
 
 
+def pad_flat(a, fill):
+    """``a: [H, W]`` with a border of ``fill``, flattened: ``[(H + 2) * (W + 2)]``.
+
+    On this layout every neighbour is a constant offset away, so the 8 neighbour reads of a stencil
+    are plain slices of one array (``padded_rows``) with no bounds test per element, which XLA's
+    CPU code vectorises. ``experiments/stencil_ab.py``, the look-back heatmap against ``shift``'s
+    pad-and-slice per direction: 2.7x / 4.8x faster at 65^2 / 256^2 on one core, 1.3x / 2.5x on two
+    (``experiments/results/stencil_ab.md``).
+    """
+    return jnp.pad(a, 1, constant_values=fill).reshape(-1)
+
+
+def padded_rows(flat, dr: int, dc: int, shape):
+    """The value at ``(r + dr, c + dc)`` for every position from cell (0, 0) to cell (H-1, W-1) of
+    ``pad_flat``'s layout, the border columns between them included: ``[H * (W + 2) - 2]``, the
+    "rows layout". Its border positions hold no cell: ``rows_to_grid`` drops them, and a caller must
+    not let them leak into a cell's value."""
+    h, w = shape
+    start = (w + 3) + dr * (w + 2) + dc
+    return jax.lax.slice(flat, (start,), (start + h * (w + 2) - 2,))
+
+
+def rows_to_grid(rows, shape):
+    """The cells ``[H, W]`` of an array in the rows layout (``padded_rows``)."""
+    h, w = shape
+    return jnp.pad(rows, 1).reshape(h, w + 2)[:, 1:-1]
+
+
+def rows_to_flat(rows, shape, fill):
+    """An array in the rows layout back in ``pad_flat``'s layout, the border rows ``fill``; its border
+    positions must already hold ``fill``."""
+    h, w = shape
+    return jnp.pad(rows, w + 3, constant_values=fill)
+
+
+def cell_columns(shape) -> np.ndarray:
+    """``bool[H * (W + 2) - 2]``: the positions of the rows layout that hold a cell."""
+    h, w = shape
+    inside = np.zeros((h, w + 2), dtype=bool)
+    inside[:, 1:-1] = True
+    return inside.reshape(-1)[1:-1]
+
+
 def neighbours(a, fill):
     """All 8 neighbour gathers stacked on a leading axis: ``[8, H, W, ...]`` (``DIRS`` order)."""
     return jnp.stack([shift(a, dr, dc, fill) for dr, dc in DIRS])

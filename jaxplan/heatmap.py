@@ -124,13 +124,16 @@ def heat(psi, occupied, heading, hop_len, target, cell_size):
     The near-field gate |x - c| <= |c1 - c| <= s*sqrt(2) means only the 8 neighbours of X can
     contribute, so each X looks back along the 8 directions at the source C = X - step.
     """
-    best = jnp.zeros_like(psi)
-    # per direction: score every source C for the neighbour X = C + step, then shift the plane onto X
-    # (one scalar plane per direction instead of gathering [8, H, W, 2] headings)
+    shape = psi.shape
+    # per direction: score every source C, then read the score of X's source by a constant offset
+    # (``_grid.pad_flat``; the padded grid scores 0, as psi is 0 there)
+    fields = [_grid.pad_flat(a, 0.0) for a in (_source_mass(psi, occupied, hop_len), heading[..., 0], heading[..., 1],
+                                                hop_len)]
+    best = None
     for d, (dr, dc) in enumerate(_grid.DIRS):
-        score = _look_back(d, psi, occupied, heading, hop_len, cell_size)
-        best = jnp.maximum(best, _grid.shift(score, -dr, -dc, 0.0))
-    return jnp.where(target, 0.0, best)
+        at_x = _grid.padded_rows(_look_back(d, *fields, cell_size), -dr, -dc, shape)
+        best = at_x if best is None else jnp.maximum(best, at_x)
+    return jnp.where(target, 0.0, jnp.maximum(_grid.rows_to_grid(best, shape), 0.0))
 
 
 def heat_at(cells, psi, occupied, heading, hop_len, target, cell_size):
@@ -140,20 +143,28 @@ def heat_at(cells, psi, occupied, heading, hop_len, target, cell_size):
     best = jnp.zeros(cells.shape, psi.dtype)
     for d in range(_grid.N_DIRS):
         at = lambda a, fill: _grid.take_cells(a, source[d], fill)  # noqa: E731, B023
-        score = _look_back(d, at(psi, 0.0), at(occupied, False), at(heading, 0.0), at(hop_len, 0.0), cell_size)
+        heading_at, hop_at = at(heading, 0.0), at(hop_len, 0.0)
+        score = _look_back(d, _source_mass(at(psi, 0.0), at(occupied, False), hop_at), heading_at[..., 0],
+                           heading_at[..., 1], hop_at, cell_size)
         best = jnp.maximum(best, score)
     return jnp.where(_grid.take_cells(target, cells, True), 0.0, best)
 
 
-def _look_back(d: int, psi, occupied, heading, hop_len, cell_size):
-    """What a source C (fields elementwise) gives the neighbour it steps onto by ``DIRS[d]``:
-    align * psi(C) when that neighbour is within its first hop and ahead of it (Eq. 10), else 0."""
+def _source_mass(psi, occupied, hop_len):
+    """psi(C) where C can be a source of the look-back (occupied, with a first hop), else 0."""
+    return jnp.where(occupied & (hop_len > 0), psi, 0.0)
+
+
+def _look_back(d: int, mass, heading_x, heading_y, hop_len, cell_size):
+    """What a source C (fields elementwise: ``_source_mass``, the components of v(C), the first
+    hop's length) gives the neighbour it steps onto by ``DIRS[d]``: align * psi(C) when that
+    neighbour is within its first hop and ahead of it (Eq. 10), else 0."""
     eps = _grid.GATE_EPS * cell_size
     ux, uy = (float(u) for u in _grid.STEP_UNIT[d])
     step = float(_grid.STEP_CELLS[d]) * cell_size                       # |x - c|
-    align = heading[..., 0] * ux + heading[..., 1] * uy                 # v(C) . unit(x - c)
-    gate = occupied & (hop_len > 0) & (step <= hop_len + eps) & (align * step > eps)   # forward-facing
-    return jnp.where(gate, align * psi, 0.0)
+    align = heading_x * ux + heading_y * uy                             # v(C) . unit(x - c)
+    gate = (step <= hop_len + eps) & (align * step > eps)               # forward-facing
+    return jnp.where(gate, align * mass, 0.0)
 
 
 def _smooth(h):

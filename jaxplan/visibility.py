@@ -54,11 +54,22 @@ def feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone: boo
     theta_tol_deg: f32[], cone half-angle, degrees. monotone: static; the strict monotone rule.
     cell_size: f32[], world units per cell.
     """
-    in_grid = jnp.asarray(_grid.in_grid(occupied.shape))
-    enterable = _grid.neighbours(occupied | goal, False)
-    nb_dist = _grid.neighbours(dist, jnp.inf) if monotone else None
-    return in_grid & step_feasible(occupied[None], enterable, cone_alignment(tvec), dist[None], nb_dist,
-                                   cone_cos(theta_tol_deg), monotone, cell_size)
+    shape = occupied.shape
+    # off the grid a neighbour is neither enterable nor nearer: the border of ``_grid.pad_flat``'s
+    # layout, where the 8 neighbour reads are constant offsets. experiments/stencil_ab.py against
+    # ``_grid.neighbours``: 1.8x / 1.2x faster at 65^2 / 256^2 on one core, 1.1x / 0.9x on two
+    own = lambda a, fill: _grid.padded_rows(_grid.pad_flat(a, fill), 0, 0, shape)  # noqa: E731
+    source, source_dist = own(occupied, False), own(dist, jnp.inf)
+    tvec_rows = jnp.stack([own(tvec[..., 0], 0.0), own(tvec[..., 1], 0.0)], -1)
+    enterable, nb_dist = _grid.pad_flat(occupied | goal, False), _grid.pad_flat(dist, jnp.inf)
+    cos_t = cone_cos(theta_tol_deg)
+    steps = []
+    for d, (dr, dc) in enumerate(_grid.DIRS):
+        ok = step_feasible(source, _grid.padded_rows(enterable, dr, dc, shape), step_alignment(tvec_rows, d),
+                           source_dist, _grid.padded_rows(nb_dist, dr, dc, shape) if monotone else None, cos_t,
+                           monotone, cell_size)
+        steps.append(_grid.rows_to_grid(ok, shape))
+    return jnp.stack(steps)
 
 
 def fallback_direction(tvec):

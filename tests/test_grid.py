@@ -40,3 +40,20 @@ def test_lane_neighbours_match_the_grid_shift():
         want = np.asarray(_grid.shift(index, dr, dc, h * w)).reshape(-1)
         np.testing.assert_array_equal(lanes[d, :-1], want)
     assert (lanes[:, -1] == h * w).all()
+
+
+@settings(max_examples=20, deadline=None)
+@given(h=st.integers(1, 7), w=st.integers(1, 7), seed=st.integers(0, 2**31 - 1))
+def test_padded_rows_equal_the_grid_shift(h, w, seed):
+    a = jnp.asarray(np.random.default_rng(seed).random((h, w)), jnp.float32)
+    flat = _grid.pad_flat(a, -1.0)
+    assert flat.shape == ((h + 2) * (w + 2),)
+    for dr, dc in _grid.DIRS + ((0, 0),):
+        rows = _grid.padded_rows(flat, dr, dc, (h, w))
+        np.testing.assert_array_equal(np.asarray(_grid.rows_to_grid(rows, (h, w))),
+                                      np.asarray(_grid.shift(a, dr, dc, -1.0)))
+    # unshifted, the positions without a cell read the border
+    own = _grid.padded_rows(flat, 0, 0, (h, w))
+    assert (np.asarray(own)[~_grid.cell_columns((h, w))] == -1.0).all()
+    back = _grid.rows_to_flat(own, (h, w), -1.0)
+    np.testing.assert_array_equal(np.asarray(back), np.asarray(flat))
