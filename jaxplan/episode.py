@@ -43,8 +43,9 @@ SOURCE_RULES = ("max_value", "nearest")
 REBUILD_MODES = ("auto", "selective", "full")
 # Grids below this many cells rebuild in full under rebuild="auto" on a CPU. Table 2 on the 2-core
 # CPU (experiments/results/table2.md and single_cpu/table2.md, paired medians): the selective update
-# is 0.6x the full build at 25x25, 1.0x at 45x45, 1.2-1.3x at 65x65 and 8-13x from 256x256 on (0.8x,
-# 1.3x, 1.5x and 7.5-13.8x in the run of 2026-12-01 20:57 UTC, not yet re-measured on episodes); its
+# is 0.6x the full build at 25x25, 0.9x at 45x45, 1.2x at 65x65 and 9.0-15.3x from 256x256 on (pinned
+# to one core 0.7x / 1.1x / 1.4x; 0.8x, 1.3x, 1.5x and 7.5-13.8x in the run of 2026-12-01 20:57 UTC;
+# not yet re-measured on episodes); its
 # breadth-first listing and compact solver are a fixed number of small sequential steps. Whole
 # episodes (experiments/results/rebuild_modes.md) put the crossover near 50-55 cells a side.
 SELECTIVE_MIN_CELLS = 2_500
