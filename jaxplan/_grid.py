@@ -99,8 +99,7 @@ def pad_flat(a, fill):
 def padded_rows(flat, dr: int, dc: int, shape):
     """The value at ``(r + dr, c + dc)`` for every position from cell (0, 0) to cell (H-1, W-1) of
     ``pad_flat``'s layout, the border columns between them included: ``[H * (W + 2) - 2]``, the
-    "rows layout". Its border positions hold no cell: ``rows_to_grid`` drops them, and a caller must
-    not let them leak into a cell's value."""
+    "rows layout". Its border positions hold no cell: ``rows_to_grid`` drops them."""
     h, w = shape
     start = (w + 3) + dr * (w + 2) + dc
     return jax.lax.slice(flat, (start,), (start + h * (w + 2) - 2,))
@@ -110,21 +109,6 @@ def rows_to_grid(rows, shape):
     """The cells ``[H, W]`` of an array in the rows layout (``padded_rows``)."""
     h, w = shape
     return jnp.pad(rows, 1).reshape(h, w + 2)[:, 1:-1]
-
-
-def rows_to_flat(rows, shape, fill):
-    """An array in the rows layout back in ``pad_flat``'s layout, the border rows ``fill``; its border
-    positions must already hold ``fill``."""
-    h, w = shape
-    return jnp.pad(rows, w + 3, constant_values=fill)
-
-
-def cell_columns(shape) -> np.ndarray:
-    """``bool[H * (W + 2) - 2]``: the positions of the rows layout that hold a cell."""
-    h, w = shape
-    inside = np.zeros((h, w + 2), dtype=bool)
-    inside[:, 1:-1] = True
-    return inside.reshape(-1)[1:-1]
 
 
 def neighbours(a, fill):
