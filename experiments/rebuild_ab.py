@@ -5,7 +5,8 @@ this compares code. Each commit is checked out into a temporary git worktree; th
 times, a fresh process of the base commit and one of the head commit each push Table 2's routes
 on 65^2 scenes (``bench_fabric.make_scene``, densities 0.2 / 0.4 / 0.6, seed 0, ``--ticks`` pushes
 each) and time, after every push, the selective update and the full build (``--repeats`` calls
-each, median). A process reports the median over its pushes. Writes
+each, median). A process reports the median over its pushes. Both commits need Table 2's route
+picking (``experiments.table2._best_route``, from 2026-12-01 on). Writes
 ``experiments/results/rebuild_ab.{json,md}``.
 
     python -m experiments.rebuild_ab --base c34d3b7~2 --head HEAD
@@ -37,16 +38,11 @@ def child(n: int, ticks: int, repeats: int) -> dict:
     import jax
 
     from experiments.bench_fabric import make_scene
-    from jaxplan import FabricParams, SpillParams, build_fabric, execute, extract_paths, rebuild
+    from experiments.table2 import _best_route
+    from jaxplan import FabricParams, SpillParams, build_fabric, execute, rebuild
 
     params, spill = FabricParams(), SpillParams(lam=0.05)
-
-    @jax.jit
-    def best_route(scene, fabric):
-        values = jax.numpy.where(fabric.occupied, fabric.value, -jax.numpy.inf)
-        source = jax.numpy.unravel_index(jax.numpy.argmax(values), scene.shape)
-        paths = extract_paths(fabric, jax.numpy.stack(source)[None], max_steps=8 * n)
-        return jax.tree.map(lambda a: a[0], execute.routes_from_paths(scene, paths))
+    best_route = jax.jit(_best_route, static_argnums=2)
 
     selective, full = [], []
     for density in (0.2, 0.4, 0.6):
@@ -54,7 +50,8 @@ def child(n: int, ticks: int, repeats: int) -> dict:
         scene = scene.with_obj(execute.quantize(scene.obj))
         fabric = build_fabric(scene, params)
         for _ in range(ticks):
-            new_obj, push = execute.execute_jit(scene, best_route(scene, fabric), spill)
+            route, _ = best_route(scene, fabric, 8 * n)
+            new_obj, push = execute.execute_jit(scene, route, spill)
             scene = scene.with_obj(new_obj)
             sel_t, full_t = [], []
             for _ in range(repeats):

@@ -63,7 +63,7 @@ class _GridJit:
     def _pick(self, args, kwargs):
         leaves = jax.tree_util.tree_leaves((args, kwargs))
         # under a caller's jit, vmap or grad the call is inlined, where compile options are refused
-        if not _on_cpu() or any(isinstance(x, jax.core.Tracer) for x in leaves):
+        if not _on_cpu() or traced(leaves):
             return self._default
         cells = _grid_cells(leaves) if self._cells_of is None else self._cells_of(*args, **kwargs)
         return self._small if cells <= SMALL_GRID_CELLS else self._default
