@@ -28,12 +28,18 @@ from pathlib import Path
 if __package__ in (None, ""):   # run as a script: make ``experiments`` importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-_TRACE_FLAG = "--xla_cpu_enable_xprof_traceme=true"
-if _TRACE_FLAG not in os.environ.get("XLA_FLAGS", ""):   # before JAX starts: XLA reads it once
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _TRACE_FLAG).strip()
-
 from experiments._results import write_results  # noqa: E402
 from experiments.bench_fabric import RESULTS_DIR, environment, make_scene  # noqa: E402
+
+_TRACE_FLAG = "--xla_cpu_enable_xprof_traceme=true"
+
+
+def enable_kernel_trace() -> None:
+    """Ask XLA to trace every kernel for the profiler. Call it before the process's first JAX
+    computation (XLA reads its flags once, when the backend starts), as ``main`` does; not at
+    import, so that importing this module (a test does) changes no flag."""
+    if _TRACE_FLAG not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _TRACE_FLAG).strip()
 
 
 def _section(hlo: str, title: str) -> list[str]:
@@ -140,6 +146,7 @@ def main(argv=None) -> int:
     p.add_argument("--calls", type=int, default=20, help="profiled calls of the finish program")
     p.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     args = p.parse_args(argv)
+    enable_kernel_trace()
     result = profile(args.n, args.density, args.calls)
     pinned = hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) == 1
     result["environment"] = environment(pinned)
