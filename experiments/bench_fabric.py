@@ -432,6 +432,14 @@ def markdown(result) -> str:
     return "\n".join(lines)
 
 
+def stamp() -> dict:
+    """``{"environment", "date"}`` of a result measured in this process; pinned when the process may
+    run on one CPU only (``taskset -c 0``, ``jaxplan.single_cpu``)."""
+    pinned = hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) == 1
+    return {"environment": environment(pinned),
+            "date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
+
+
 def environment(single_cpu: bool) -> dict:
     import jax
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import datetime as _dt
 import glob
 import gzip
 import json
@@ -29,7 +28,7 @@ if __package__ in (None, ""):   # run as a script: make ``experiments`` importab
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from experiments._results import write_results  # noqa: E402
-from experiments.bench_fabric import RESULTS_DIR, environment, make_scene  # noqa: E402
+from experiments.bench_fabric import RESULTS_DIR, make_scene, stamp  # noqa: E402
 
 _TRACE_FLAG = "--xla_cpu_enable_xprof_traceme=true"
 
@@ -147,10 +146,7 @@ def main(argv=None) -> int:
     p.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     args = p.parse_args(argv)
     enable_kernel_trace()
-    result = profile(args.n, args.density, args.calls)
-    pinned = hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) == 1
-    result["environment"] = environment(pinned)
-    result["date"] = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    result = {**profile(args.n, args.density, args.calls), **stamp()}
     write_results(args.results_dir, "profile_rebuild", result, markdown(result))
     return 0
 

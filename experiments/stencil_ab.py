@@ -14,8 +14,6 @@ emitters up to 65^2). Writes ``experiments/results/stencil_ab.{json,md}``.
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
-import os
 import statistics
 import sys
 import time
@@ -25,7 +23,7 @@ if __package__ in (None, ""):   # run as a script: make ``experiments`` importab
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from experiments._results import write_results  # noqa: E402
-from experiments.bench_fabric import RESULTS_DIR, environment, make_scene  # noqa: E402
+from experiments.bench_fabric import RESULTS_DIR, make_scene, stamp  # noqa: E402
 
 
 def _heat_by_shift(psi, occupied, heading, hop_len, target, cell_size):
@@ -123,9 +121,7 @@ def main(argv=None) -> int:
     p.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     args = p.parse_args(argv)
     rows = [measure(n, args.rounds) for n in args.sizes]
-    pinned = hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) == 1
-    result = {"environment": environment(pinned), "date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-              "rounds": args.rounds, "rows": rows}
+    result = {**stamp(), "rounds": args.rounds, "rows": rows}
     write_results(args.results_dir, "stencil_ab", result, markdown(result))
     return 0
 

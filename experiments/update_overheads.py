@@ -1,6 +1,6 @@
 """Where a 65^2 selective update spends its time outside the kernels: program launches and hand-offs.
 
-Two measurements, in one process, on a Table 2 scene (``bench_fabric.make_scene``, density 0.4):
+Three measurements, in one process, on a Table 2 scene (``bench_fabric.make_scene``, density 0.4):
 
 1. **One program against two.** ``selective_rebuild`` runs two programs (the dirty-cell listing,
    then the solver for the buffer size the host picks from the dirty count). The peer
@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import datetime as _dt
 import glob
 import gzip
 import json
@@ -44,7 +43,8 @@ if __package__ in (None, ""):   # run as a script: make ``experiments`` importab
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from experiments._results import write_results  # noqa: E402
-from experiments.bench_fabric import RESULTS_DIR, environment, make_scene  # noqa: E402
+from experiments.bench_fabric import RESULTS_DIR, stamp  # noqa: E402
+from experiments.listing_ab import _pushes  # noqa: E402
 from experiments.profile_rebuild import enable_kernel_trace, kernel_functions  # noqa: E402
 
 
@@ -75,23 +75,11 @@ def one_program(scene, params, fabric, changed, capacity: int, local: bool, dens
 
 
 def _pushed(n: int, seed: int, ticks: int):
-    """``(scene, fabric before, changed)`` after each of ``ticks`` Table 2 pushes."""
-    import jax
+    """``(scene after the push, fabric before it, changed)`` after each of ``ticks`` Table 2 pushes
+    on a density-0.4 scene (``listing_ab._pushes``)."""
+    from jaxplan import FabricParams, SpillParams
 
-    from experiments.table2 import _best_route
-    from jaxplan import FabricParams, SpillParams, build_fabric, execute, rebuild
-
-    params = FabricParams()
-    best_route = jax.jit(_best_route, static_argnums=2)
-    scene = make_scene(n, 0.4, seed)
-    scene = scene.with_obj(execute.quantize(scene.obj))
-    fabric = build_fabric(scene, params)
-    for _ in range(ticks):
-        route, _ = best_route(scene, fabric, 8 * n)
-        new_obj, push = execute.execute_jit(scene, route, SpillParams(lam=0.05))
-        scene = scene.with_obj(new_obj)
-        yield scene, fabric, push.changed
-        fabric, _ = rebuild.selective_rebuild(scene, params, fabric, push.changed)
+    return _pushes(n, seed, ticks, FabricParams(), SpillParams(lam=0.05))
 
 
 def _same(a, b) -> bool:
@@ -259,10 +247,7 @@ def main(argv=None) -> int:
     enable_kernel_trace()
     result = {"n": args.n, "programs": programs_ab(args.n, args.ticks, args.repeats),
               "launch": launch_timeline(args.n, args.calls),
-              "context_switches": context_switches(args.n, 10 * args.calls)}
-    pinned = hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) == 1
-    result["environment"] = environment(pinned)
-    result["date"] = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+              "context_switches": context_switches(args.n, 10 * args.calls), **stamp()}
     write_results(args.results_dir, "update_overheads", result, markdown(result))
     return 0
 
