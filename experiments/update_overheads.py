@@ -8,8 +8,8 @@ Three measurements, in one process, on a Table 2 scene (``bench_fabric.make_scen
    ``lax.switch`` and no read on the host (a design that was tried for the library and not kept).
    A third variant runs the peer and then reads its dirty count on the host, as a library path on
    it must (to fall back when the dirty set overflows). After each of ``--ticks`` pushes (seeds 0
-   and 1), the three run ``--repeats`` times, alternating, each call right after a full build as in
-   Table 2, once their fabrics are checked equal. Reported: medians over the pushes of each push's
+   and 1), the three run ``--repeats`` times, alternating in a rotating order, each call right
+   after a full build as in Table 2, once their fabrics are checked equal. Reported: medians over the pushes of each push's
    median, each variant's paired ratio to the library's, and the peer's compile time.
 2. **Launch timeline of the solver program** (``rebuild._finish_jit``), from XLA's per-kernel trace
    over ``--calls`` profiled calls, 2 ms apart (so XLA's threads sleep when each call starts): the
@@ -126,8 +126,11 @@ def programs_ab(n: int, ticks: int, repeats: int) -> dict:
             if not all(_same(outputs[0][0], other) for other in outputs[1:]):
                 raise SystemExit("update_overheads: the one-program peer differs from selective_rebuild")
             times = {name: [] for name in variants}
-            for _ in range(repeats):
-                for name, run in variants.items():   # alternate, so drifts hit both alike
+            order = list(variants.items())
+            for r in range(repeats):
+                # alternate, so drifts hit all alike, and rotate the order: a call runs measurably
+                # slower or faster depending on which variant ran before it
+                for name, run in order[r % len(order):] + order[:r % len(order)]:
                     jax.block_until_ready(build_fabric(scene, params))
                     start = time.perf_counter()
                     jax.block_until_ready(run(scene, fabric, changed))
