@@ -9,17 +9,18 @@ Three measurements, in one process, on a Table 2 scene (``bench_fabric.make_scen
    A third variant runs the peer and then reads its dirty count on the host, as a library path on
    it must (to fall back when the dirty set overflows). After each of ``--ticks`` pushes (seeds 0
    and 1), the three run ``--repeats`` times, alternating in a rotating order, each call right
-   after a full build as in Table 2, once their fabrics are checked equal. Reported: medians over the pushes of each push's
-   median, each variant's paired ratio to the library's, and the peer's compile time.
+   after a full build as in Table 2, once their fabrics are checked equal. Reported: medians over
+   the pushes of each push's median, each variant's paired ratio to the library's, and the peer's
+   compile time.
 2. **Launch timeline of the solver program** (``rebuild._finish_jit``), from XLA's per-kernel trace
    over ``--calls`` profiled calls, 2 ms apart (so XLA's threads sleep when each call starts): the
    time from the Python call to its first kernel (the launch: argument handling, buffer set-up, the
-   wake-up of XLA's thread), the span of its kernels, their
-   number, their summed duration, and the share of it on each XLA thread. The profiler inflates
-   kernel times (about 2x); the launch is measured before the first kernel, where it adds little.
+   wake-up of XLA's thread), the span of its kernels, their number, their summed duration, and the
+   share of it on each XLA thread. The profiler inflates kernel times (about 2x); the launch is
+   measured before the first kernel, where it adds little.
 3. **Thread sleeps per call**: the process's voluntary context switches (``getrusage``, all
-   threads) per selective update and per full build over ``--calls`` calls each. Each is a thread
-   that ran out of work and had to be woken again.
+   threads) per selective update and per full build, over 10 x ``--calls`` calls each. Each is a
+   thread that ran out of work and had to be woken again.
 
 Run it as it is (two cores) and under ``taskset -c 0`` (one core; then give ``--results-dir
 experiments/results/single_cpu``) to compare the two. Writes ``update_overheads.{json,md}``.
