@@ -195,6 +195,9 @@ def launch_timeline(n: int, calls: int) -> dict:
         busy.append(sum(e["dur"] for e in mine))
         for e in mine:
             by_thread[thread_names.get((e["pid"], e["tid"]), str(e["tid"])).split("/")[0]] += e["dur"]
+    if not launch:
+        raise SystemExit("update_overheads: the trace holds no kernel of the solver program; XLA's kernel "
+                         "tracing must be on before JAX starts (enable_kernel_trace, as main does)")
     total = sum(by_thread.values()) or 1.0
     return {"bucket": bucket, "dirty": int(count), "calls": len(launch),
             "launch_us": statistics.median(launch), "kernel_span_us": statistics.median(span),
