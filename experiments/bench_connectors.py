@@ -28,8 +28,10 @@ def run(n: int, repeats: int) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from jaxplan import FabricParams, SpillParams, build_fabric, execute, extract_paths, plan_connectors, rebuild
-    from jaxplan._timing import timed
+    from jaxplan import FabricParams, SpillParams, build_fabric, extract_paths, plan_connectors
+    from jaxplan.transport import execute
+    from jaxplan.transport import rebuild
+    from jaxplan.core.timing import timed
 
     params = FabricParams()
     scene = make_scene(n, 0.4, 0)

@@ -164,17 +164,10 @@ def _device_peak_mb(device):
 # --------------------------------------------------------------------------------------------------
 
 def make_scene(n: int, density: float, seed: int):
-    """Random n x n scene: counts 1..6 on a fraction ``density`` of the non-target cells, central
-    circular target of radius max(2.5, 0.1 n) cells, cell size 1."""
-    from jaxplan import Scene, circle
+    """Random n x n scene of the Table 2 protocol (``jaxplan.random_scene``, layout "uniform")."""
+    from jaxplan import random_scene
 
-    rng = np.random.default_rng([n, int(round(density * 1000)), seed])
-    target = circle((n / 2.0, n / 2.0), max(2.5, 0.1 * n))
-    empty = Scene.from_arrays(np.zeros((n, n), np.float32), target,
-                              name=f"random{n}_d{density:g}_s{seed}")
-    occupied = (rng.random((n, n)) < density) & ~np.asarray(empty.target_mask)
-    counts = rng.integers(1, 7, size=(n, n))
-    return empty.with_obj(np.where(occupied, counts, 0).astype(np.float32))
+    return random_scene(seed, (n, n), density)
 
 
 def time_jax(scene, params, repeats: int):

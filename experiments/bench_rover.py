@@ -1,4 +1,4 @@
-"""Benchmark of the rover bridge (issue 7, section 4): physics outcomes, lambda fit, throughput.
+"""Benchmark of the rover bridge: physics outcomes, lambda fit, throughput.
 
 Part 1 (physics outcomes, C engine): the first ``--routes`` routes (sources with the largest J, as
 ``bridge.plan_routes``) of the built-in scenes ``default``, ``corridor``, ``two_targets`` and
@@ -12,7 +12,7 @@ only the counts, can predict; the fraction of single rollouts within 10% is repo
 Part 2 (fits of the 2D spill model to the simulated deliveries). Models: the curvature model
 (``spillage.curvature_spill``, ``lam`` only, 1-D grid + golden section on the squared error), the
 capacity-aware model (``spill_capacity.capacity_spill``: ``capacity``, ``lam``, ``mu`` by
-``spill_capacity.fit_capacity``: coarse grid vmapped over parameter sets, then Adam), the same model
+``spill_fit.fit_capacity``: coarse grid vmapped over parameter sets, then Adam), the same model
 with its two turning terms (``miss`` fitted to the objects left on the routes' cells, then
 ``capacity``, ``lam``, ``mu``, ``turn_saturation`` to the deliveries), and a diagnostic constant (the
 training routes' mean delivery). Splits: in-sample; routes held out (fit on routes 0, 2,
@@ -71,8 +71,8 @@ TARGET_FRACTION = 0.95
 
 def _route_inputs(scene, routes):
     """Per route: ``(waypoints f32[S+1, 2], n_points, pickup f32[S+1])`` for ``evaluate_route``."""
-    from jaxplan import execute
-    from jaxplan.physics import bridge
+    from jaxplan.transport import execute
+    from jaxplan.transport.rover import bridge
 
     out = []
     for i in range(int(np.asarray(routes.n_cells).shape[0])):
@@ -88,7 +88,7 @@ def make_predictor(inputs):
     import jax
     import jax.numpy as jnp
 
-    from jaxplan import spillage
+    from jaxplan.transport import spillage
 
     s_max = max(p.shape[0] for p, _, _ in inputs)
 
@@ -117,19 +117,19 @@ def stack_inputs(inputs):
 
 
 def fit_capacity_model(stacked, sim, idx, steps, left=None):
-    """``(params, predict_all f[R])``: ``spill_capacity.fit_capacity`` on the routes ``idx``.
+    """``(params, predict_all f[R])``: ``spill_fit.fit_capacity`` on the routes ``idx``.
 
     left: None for the three-term model (capacity, lam, mu); else f[R] simulated objects left on the
     routes' cells, and the model with the turning terms: ``miss`` fitted to ``left`` first, then
     capacity, lam, mu and turn_saturation to the deliveries.
     """
-    from jaxplan import spill_capacity as sc
+    from jaxplan.transport.spillage import fit as spill_fit
 
     pts, n, pick = stacked
     idx = np.asarray(idx)
-    extra = {} if left is None else {"fields": sc.FIT_FIELDS, "left_behind": left[idx]}
-    fit = sc.fit_capacity(pts[idx], n[idx], pick[idx], sim[idx], temperature=TEMPERATURE, steps=steps, **extra)
-    pred = np.asarray(sc.predict_delivered(pts, n, pick, fit.params), np.float64)
+    extra = {} if left is None else {"fields": spill_fit.FIT_FIELDS, "left_behind": left[idx]}
+    fit = spill_fit.fit_capacity(pts[idx], n[idx], pick[idx], sim[idx], temperature=TEMPERATURE, steps=steps, **extra)
+    pred = np.asarray(spill_fit.predict_delivered(pts, n, pick, fit.params), np.float64)
     return fit, pred
 
 
@@ -211,7 +211,7 @@ def errors(pred, sim, lateral, idx, sim_layouts=None):
 # --------------------------------------------------------------------------------------------------
 
 def _small_scene():
-    from jaxplan.scene import Scene, box
+    from jaxplan.transport.scene import Scene, box
 
     obj = np.zeros((6, 12))
     obj[1, 2:5] = [1, 2, 1]
@@ -225,7 +225,7 @@ def throughput(scene, n_routes, n_ticks, repeats, label):
 
     n_ticks None: whole routes (``check_routes``' horizon, fixed by the first engine's run and reused).
     """
-    from jaxplan.physics import bridge
+    from jaxplan.transport.rover import bridge
     from jaxplan.physics.rollout import Simulator
 
     _, routes, _ = bridge.plan_routes(scene, n_routes=n_routes)
@@ -290,7 +290,7 @@ def main(argv=None):
     import jax
 
     from jaxplan import builtin_scene
-    from jaxplan.physics import bridge
+    from jaxplan.transport.rover import bridge
 
     t_start = time.perf_counter()
     rows, inputs, scene_of = [], [], []
@@ -368,9 +368,9 @@ def main(argv=None):
                                                   f"{fits[m][split]['frac_within_10pct']:.2f}" for m in fits),
               flush=True)
     # the miss term against what it was fitted to: objects left on the routes' own cells
-    from jaxplan import spill_capacity as _sc
+    from jaxplan.transport.spillage import fit as spill_fit
     miss_in = fits["turning"]["in_sample"]["params"][0]["miss"]
-    pred_left = np.asarray(_sc.predict_missed(*stacked, miss_in), np.float64)
+    pred_left = np.asarray(spill_fit.predict_missed(*stacked, miss_in), np.float64)
     fits["turning"]["in_sample"]["left_behind"] = {
         "miss": miss_in, "rmse": float(np.sqrt(np.mean((pred_left - left) ** 2))),
         "corr": float(np.corrcoef(pred_left, left)[0, 1]) if np.std(left) > 0 and np.std(pred_left) > 0 else None,
@@ -398,7 +398,7 @@ def main(argv=None):
         r["meets_target_scene_held_out"] = bool(r["within_10pct_held_out"] and lateral[i] < TARGET_LATERAL)
     turn = []
     for p, n, _ in inputs:
-        from jaxplan import spillage
+        from jaxplan.transport import spillage
         smp = spillage.sample_route(p, n, 8)
         turn.append(float(np.sum(np.abs(np.asarray(smp.turn)))))
     for r, t in zip(rows, turn):
@@ -438,10 +438,10 @@ def main(argv=None):
         "fit_method": {
             "curvature": "lam only: grid of 201 lam on [0, 5], then 60 golden-section iterations around the best "
                          "grid point; loss = sum of squared (2D predicted - simulated) delivered mass",
-            "capacity": f"spill_capacity.fit_capacity: capacity, lam, mu; temperature {TEMPERATURE} fixed; coarse "
+            "capacity": f"spill_fit.fit_capacity: capacity, lam, mu; temperature {TEMPERATURE} fixed; coarse "
                         f"grid (vmap over parameter sets) then {args.fit_steps} Adam steps (optax), mean squared error",
             "turning": "capacity model with the two turning terms: miss fitted to the simulated objects left on the "
-                       "routes' cells (spill_capacity.fit_miss, least squares), then capacity, lam, mu and "
+                       "routes' cells (spill_fit.fit_miss, least squares), then capacity, lam, mu and "
                        f"turn_saturation as above ({args.fit_steps} Adam steps)",
             "constant": "diagnostic, not a route model: the training routes' mean simulated delivery"},
         "splits": {"in_sample": "fit and score on every route",
@@ -473,7 +473,7 @@ def main(argv=None):
 
 
 def to_markdown(r):
-    L = [f"# Rover benchmark (issue 7) {'(quick)' if r['quick'] else ''}".rstrip(), "",
+    L = [f"# Rover benchmark {'(quick)' if r['quick'] else ''}".rstrip(), "",
          f"{r['date']}, {r['host']['platform']}, {r['host']['cpus']} CPUs (shared with other jobs while this ran), "
          f"jax {r['host']['jax']}, mujoco {r['host']['mujoco']}, devices {r['host']['jax_devices']}. "
          "No GPU lent: CPU only.", "",
@@ -522,8 +522,8 @@ def to_markdown(r):
     L += ["", "To predict (or plan) with the in-sample fit of the turning model: `jaxplan rover --lam {lam:.4g} "
           "--mu {mu:.4g} --capacity {capacity:.4g} --miss {miss:.4g} --turn-saturation {turn_saturation:.4g}` "
           "(the same for `episode` and `demo`; temperature {temperature:g}, the model's default). "
-          "`jaxplan.spill_capacity.ROVER_FIT` holds the fit this file was written with; after a re-run that "
-          "changes it, update ROVER_FIT (tests/test_rover_capacity.py compares the two).".format(**cap)]
+          "`jaxplan.transport.spillage.capacity.ROVER_FIT` holds the fit this file was written with; after a re-run that "
+          "changes it, update ROVER_FIT (tests/transport/test_spill_capacity.py compares the two).".format(**cap)]
     nf = r["noise_floor"]
     L += ["", f"Noise floor: the first route of `{nf['scene']}` (source {tuple(nf['source'])}, {nf['collected']:.0f} "
           f"objects) rolled out with {len(nf['delivered'])} particle layouts (same counts, different jitter) delivered "

@@ -71,7 +71,7 @@ def _tile(routes, batch):
 
 
 def _measure(scene, routes, world, backend, n_ticks, repeats):
-    from jaxplan.physics import bridge
+    from jaxplan.transport.rover import bridge
     from jaxplan.physics.rollout import Simulator
 
     sim = _TimedSimulator(Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps,
@@ -177,8 +177,8 @@ def main(argv=None):
 
     from experiments.bench_rover import _small_scene
     from jaxplan import builtin_scene
-    from jaxplan.physics import bridge
-    from jaxplan.physics.rover import RoverConfig
+    from jaxplan.transport.rover import bridge
+    from jaxplan.transport.rover.model import RoverConfig
 
     t_start = time.perf_counter()
     gpu = any(d.platform == "gpu" for d in jax.devices())

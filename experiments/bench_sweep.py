@@ -3,7 +3,7 @@
 One run measures, side by side and after compilation (every program is called once before timing):
 
 - **loop**: a Python loop over the settings calling the jitted single-setting program (``build_fabric``
-  plus the sweep's metrics, ``jaxplan.sweep._metrics``) once per setting; the calls are dispatched
+  plus the sweep's metrics, ``jaxplan.sweep.metrics_of``) once per setting; the calls are dispatched
   asynchronously and the loop waits for the last result (JAX's normal pipelining);
 - **loop (build_fabric only)**: the same loop over plain ``jaxplan.build_fabric`` (no metrics);
 - **vmapped**: ``jaxplan.sweep.evaluate_chunk`` on chunks of ``B`` settings (``jit(vmap(...))``, the
@@ -41,9 +41,10 @@ import numpy as np
 
 import jax.numpy as jnp
 
-from jaxplan import build_fabric, fabric, sweep
-from jaxplan.params import FabricParams
-from jaxplan.spillage import SpillParams
+from jaxplan import build_fabric, sweep
+from jaxplan.transport import fabric
+from jaxplan.transport.params import FabricParams
+from jaxplan.transport.spillage import SpillParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 TARGET_RATIO = 5.0
@@ -88,16 +89,16 @@ def run(args) -> dict:
     h, w = scenes[0].shape
     max_steps = h + w + 1
     top = args.top_sources
-    _, per_table = sweep._split(spec)
+    _, per_table = sweep.tables_of(spec)
 
-    single = jax.jit(lambda scene, fp, sp: sweep._metrics(scene, fp, sp, top, max_steps))
+    single = jax.jit(lambda scene, fp, sp: sweep.metrics_of(scene, fp, sp, top, max_steps))
     params = [(scenes[i], FabricParams(**dict(zip(fkeys, map(np.float32, f)))),
                SpillParams(**dict(zip(skeys, map(np.float32, s))))) for i, f, s in settings]
     tables = params[::per_table]
-    build = jax.jit(fabric._build)
-    after = jax.jit(lambda scene, fab, fp, sp: sweep._metrics(scene, fp, sp, top, max_steps,
-                                                              fab=sweep._with_highways(fab, scene, fp)))
-    plain = jax.jit(jax.vmap(lambda scene, fp, sp: sweep._metrics(scene, fp, sp, top, max_steps)))
+    build = jax.jit(fabric.fabric_of)
+    after = jax.jit(lambda scene, fab, fp, sp: sweep.metrics_of(scene, fp, sp, top, max_steps,
+                                                              fab=sweep.with_highways(fab, scene, fp)))
+    plain = jax.jit(jax.vmap(lambda scene, fp, sp: sweep.metrics_of(scene, fp, sp, top, max_steps)))
 
     def loop():
         return [single(*p) for p in params]
@@ -147,7 +148,7 @@ def run(args) -> dict:
                                                                    for i in range(0, n, chunk)]}
     for mode, tables_per_chunk in itertools.product(args.modes, args.chunks):   # the sweep's kernel
         budget = tables_per_chunk * sweep.bytes_per_table(scenes[0], None, per_table) / 2**20
-        plans = sweep._plan_chunks(spec, settings, budget)
+        plans = sweep.plan_chunks(spec, settings, budget)
         t0 = time.perf_counter()
         out = [sweep.evaluate_chunk(p.chunk, mode) for p in plans]
         comp = time.perf_counter() - t0

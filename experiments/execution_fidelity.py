@@ -9,8 +9,8 @@ execution's failure measure), the transit and push seconds (table: the worst pus
 failed search's partial schedule replays as well (the result file keeps it).
 
 The scene of each result file is rebuilt from its ``scene.source`` (``nominal_scene(seed=N)`` or a
-scene file path). Wall times are on whatever CPU runs the script (here: 2 cores shared with other
-sessions): indicative only; the ratio simulated / wall is printed side by side in one run.
+scene file path). Wall times are on whatever CPU runs the script: indicative only; the ratio
+simulated / wall is printed side by side in one run.
 
 Results: a markdown table on stdout, ``experiments/results/execution_fidelity.json`` and ``.md``.
 
@@ -100,7 +100,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     rows = [replay(p) for p in args.results]
     md = table(rows)
-    note = ("Replayed without replanning, C engine; wall clock on a 2-core CPU shared with other sessions "
+    note = ("Replayed without replanning, C engine; wall clock on this machine "
             "(indicative only); the first row includes the one-off jit of the two controllers.")
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
     meta = {"date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"), "python": sys.version.split()[0],

@@ -27,8 +27,8 @@ import numpy as np
 
 from experiments._results import write_results
 from jaxplan import BUILTIN_SCENES, builtin_scene, run_episode
-from jaxplan.episode import SELECTIVE_MIN_CELLS, EpisodeParams, rebuild_mode
-from jaxplan.spillage import SpillParams
+from jaxplan.transport.episode import SELECTIVE_MIN_CELLS, EpisodeParams, rebuild_mode
+from jaxplan.transport.spillage import SpillParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 MODES = ("selective", "full")

@@ -29,9 +29,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxplan import BUILTIN_SCENES, FabricParams, build_fabric, builtin_scene, run_episode, selection
-from jaxplan.episode import EpisodeParams, _walk_cap
-from jaxplan.spillage import SpillParams
+from jaxplan import BUILTIN_SCENES, FabricParams, build_fabric, builtin_scene, run_episode
+from jaxplan.transport import selection
+from jaxplan.transport.episode import EpisodeParams, _walk_cap
+from jaxplan.transport.spillage import SpillParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 COLUMNS = ("delivered", "spilled", "remaining", "pushes", "driven", "median_plan_ms", "stop_reason")

@@ -1,4 +1,4 @@
-"""The fitted rover spill model on scenes it was never fitted to (issue 7, an out-of-sample check).
+"""The fitted rover spill model on scenes it was never fitted to (an out-of-sample check).
 
 ``spill_capacity.ROVER_FIT`` is the in-sample fit of ``experiments/bench_rover.py`` on the four
 built-in scenes. This script plans on two random scenes of the fabric benchmark's generator
@@ -37,7 +37,7 @@ DENSE_DENSITY = 0.5
 
 
 def _models(results_dir: Path) -> dict:
-    from jaxplan import spill_capacity as sc
+    from jaxplan.transport.spillage import capacity as sc
 
     models = {"turning (ROVER_FIT)": sc.ROVER_FIT}
     fitted = results_dir / "rover.json"
@@ -50,8 +50,8 @@ def _models(results_dir: Path) -> dict:
 def run_scene(name: str, scene, routes_n: int, layouts: int, models: dict) -> list[dict]:
     import jax
 
-    from jaxplan import spill_capacity as sc
-    from jaxplan.physics import bridge
+    from jaxplan.transport.spillage import fit as spill_fit
+    from jaxplan.transport.rover import bridge
 
     _, routes, sources = bridge.plan_routes(scene, n_routes=routes_n)
     b = int(np.asarray(routes.n_cells).shape[0])
@@ -61,9 +61,9 @@ def run_scene(name: str, scene, routes_n: int, layouts: int, models: dict) -> li
     wall = time.perf_counter() - t0
     per_rollout = chk.outcome.rows()
     stacked = stack_inputs(_route_inputs(scene, routes))
-    preds = {label: np.asarray(sc.predict_delivered(*stacked, params), np.float64) for label, params in models.items()}
+    preds = {label: np.asarray(spill_fit.predict_delivered(*stacked, params), np.float64) for label, params in models.items()}
     # where the 2D model puts the rest: left on the route's cells (the miss term) and spilled
-    left = {label: np.asarray(sc.predict_missed(*stacked, params.miss), np.float64) for label, params in models.items()}
+    left = {label: np.asarray(spill_fit.predict_missed(*stacked, params.miss), np.float64) for label, params in models.items()}
     collected_2d = np.asarray(stacked[2], np.float64).sum(-1)
     rows = []
     for i in range(b):

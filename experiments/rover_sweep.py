@@ -1,4 +1,4 @@
-"""Sweep of the rover's physics parameters in one batched rollout (issue 7, section 2).
+"""Sweep of the rover's physics parameters in one batched rollout.
 
 One route (the first by J of ``--scene``) is rolled out once per (friction, speed) pair, all pairs
 in one ``bridge.check_routes`` call: the batch axis carries the route repeated, a sliding friction
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.scene import BUILTIN_SCENES
+from jaxplan.transport.scenes import BUILTIN_SCENES
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
@@ -56,7 +56,7 @@ def main(argv=None):
     import jax
 
     from jaxplan import builtin_scene
-    from jaxplan.physics import bridge
+    from jaxplan.transport.rover import bridge
 
     scene = builtin_scene(args.scene)
     _, routes, sources = bridge.plan_routes(scene, n_routes=1)

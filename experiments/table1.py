@@ -81,7 +81,7 @@ ABLATIONS = {"ours": {}, "w/o presearch": {"presearch": False}, "w/o ModeTable":
 PLANNERS = list(BASELINES) + list(ABLATIONS)
 SCENES = ("nominal", "dense30", "density", "corridor")
 # The paper's protocol stops a search by its time limit alone; SearchConfig's default cap of 200
-# expansions stopped a dense30 trial at 125 of its 180 s (session 16), so the harness lifts it.
+# expansions stopped a dense30 trial at 125 of its 180 s, so the harness lifts it.
 HARNESS_MAX_EXPANSIONS = 1_000_000
 
 

@@ -128,7 +128,9 @@ def _same_fabric(a, b) -> bool:
 def run_instance(n: int, density: float, seed: int, args, params, spill) -> dict:
     import jax
 
-    from jaxplan import build_fabric, execute, rebuild
+    from jaxplan import build_fabric
+    from jaxplan.transport import execute
+    from jaxplan.transport import rebuild
 
     scene = make_scene(n, density, seed)
     scene = scene.with_obj(execute.quantize(scene.obj))
@@ -156,7 +158,8 @@ def _best_route(scene, fabric, max_steps: int):
     import jax
     import jax.numpy as jnp
 
-    from jaxplan import execute, extract_paths
+    from jaxplan import extract_paths
+    from jaxplan.transport import execute
 
     source = jnp.unravel_index(jnp.argmax(jnp.where(fabric.occupied, fabric.value, -jnp.inf)), scene.shape)
     paths = extract_paths(fabric, jnp.stack(source)[None], max_steps=max_steps)
@@ -170,7 +173,9 @@ def _ticks(scene, fabric, args, params, spill) -> list[dict]:
     """Push ``args.ticks`` routes; after each, time the full build and the selective update."""
     import jax
 
-    from jaxplan import build_fabric, execute, rebuild
+    from jaxplan import build_fabric
+    from jaxplan.transport import execute
+    from jaxplan.transport import rebuild
 
     global _best_route_jit
     if _best_route_jit is None:
@@ -206,7 +211,7 @@ def _ticks(scene, fabric, args, params, spill) -> list[dict]:
 
 
 def reference_ablation(n: int, density: float, seed: int, args) -> dict:
-    from jaxplan import execute
+    from jaxplan.transport import execute
     from jaxplan.reference import reference_fabric
 
     scene = make_scene(n, density, seed)

@@ -24,7 +24,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxplan.spillage import SpillParams
+from jaxplan.transport.spillage import SpillParams
 from jaxplan.tune import fit_spill, synthetic_spill_data
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"

@@ -7,17 +7,12 @@ Public API::
     fabric = jaxplan.build_fabric(scene, jaxplan.FabricParams(theta_tol_deg=60.0))
     episode = jaxplan.run_episode(scene)      # plan, push, spill, rebuild until delivered
 """
-from jaxplan._compile import limit_malloc_arenas, single_cpu
-from jaxplan.connectors import Connectors, plan_connectors
-from jaxplan.episode import Episode, EpisodeParams, run_episode
-from jaxplan.execute import Push, Route
-from jaxplan.fabric import Fabric, Paths, Table, build_fabric, extract_paths
-from jaxplan.params import FabricParams
-from jaxplan.rebuild import Affected, refresh_connectors, selective_rebuild
-from jaxplan.scene import BUILTIN_SCENES, DEFAULT_SCENE, Scene, box, builtin_scene, circle
-from jaxplan.selection import Selection, reselect, select_routes
-from jaxplan.soft import SoftFabric
-from jaxplan.spillage import SpillParams
+from jaxplan.core import limit_malloc_arenas, single_cpu
+from jaxplan.transport import (BUILTIN_SCENES, DEFAULT_SCENE, Affected, Connectors, Episode, EpisodeParams, Fabric,
+                               FabricParams, Paths, Push, Route, Scene, Selection, SoftFabric, SpillParams, Table, box,
+                               build_fabric, builtin_scene, circle, extract_paths, plan_connectors, random_scene,
+                               refresh_connectors,
+                               reselect, run_episode, select_routes, selective_rebuild)
 
 # PushAround, the team model, sweeps and tuning load on first use: each pulls in libraries (MuJoCo,
 # optax) that planning on a grid does not need, so ``import jaxplan`` stays quick and small.
@@ -27,13 +22,13 @@ _LAZY = {
     **{name: "jaxplan.teams" for name in ("SiteParams", "TeamsConfig", "paper_scenario", "random_sites",
                                            "run_sites", "simulate_site")},
 }
-_LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference")
+_LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference", "core", "transport", "cli")
 
 __all__ = [
     "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "Fabric",
     "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "SearchConfig", "Route", "Scene", "Selection",
     "SiteParams", "SoftFabric", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
-    "circle", "connectivity", "extract_paths", "limit_malloc_arenas", "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes",
+    "circle", "connectivity", "extract_paths", "limit_malloc_arenas", "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes", "random_scene",
     "random_sites", "rank_gaps", "refresh_connectors", "reselect", "run_episode", "run_sites", "select_routes", "selective_rebuild",
     "simulate_site", "single_cpu", "sweep", "tune",
 ]

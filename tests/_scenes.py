@@ -72,20 +72,20 @@ def has_borderline_step(scene: Scene, theta_tol_deg: float, margin: float = 5e-7
     The kernels decide those in float32 (rounding ~1e-7) and the reference in float64, so such a step may be
     feasible in one and not the other; tests comparing the two skip such scenes.
     """
-    from jaxplan import _grid
+    from jaxplan.core import lattice
 
     tvec = np.asarray(scene.tvec, np.float64)
     dist = np.asarray(scene.dist, np.float64)
     s = float(scene.cell_size)
     h, w = dist.shape
-    cos_t = np.cos(np.deg2rad(theta_tol_deg)) - _grid.CONE_EPS
-    for i, (dr, dc) in enumerate(_grid.DIRS):
+    cos_t = np.cos(np.deg2rad(theta_tol_deg)) - lattice.CONE_EPS
+    for i, (dr, dc) in enumerate(lattice.DIRS):
         unit = np.array([dc, dr], np.float64) / np.hypot(dr, dc)
         cone = tvec @ unit - cos_t
         nb = np.full((h, w), np.nan)
         rs, cs = slice(max(0, -dr), h - max(0, dr)), slice(max(0, -dc), w - max(0, dc))
         nb[rs, cs] = dist[max(0, dr):h + min(0, dr), max(0, dc):w + min(0, dc)]
-        mono = (dist - _grid.MONOTONE_EPS * s) - nb
+        mono = (dist - lattice.MONOTONE_EPS * s) - nb
         if np.any(np.abs(cone) < margin) or np.any(np.abs(mono[np.isfinite(mono)]) < 2 * margin * s):
             return True
     return False

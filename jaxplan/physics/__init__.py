@@ -1,2 +1,5 @@
-"""Physics: one batched rollout interface (MJX and the C engine), the shovel rover and its world
-built from a Scene, and the 3D <-> 2D bridge that checks planned routes. See docs/physics.md."""
+"""Physics: one batched rollout interface (``rollout.Simulator``) over MuJoCo's C engine and MJX,
+shared by the transport rover and PushAround. See docs/physics.md."""
+from jaxplan.physics.rollout import Simulator, Trajectory, default_backend
+
+__all__ = ["Simulator", "Trajectory", "default_backend"]

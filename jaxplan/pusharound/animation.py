@@ -5,7 +5,7 @@ piece a patch), the pushed movable highlighted, robots (dark disks), start and g
 ``B(., W/2)`` disks and, when given, the W-clear corridor as a band of width W along the path (the
 vehicle's swept disk: every point of the band is within W/2 of the path). :func:`animate_execution`
 writes :class:`~jaxplan.pusharound.execution.Frames` as an animation (``.gif`` with Pillow, ``.mp4``
-with ffmpeg, as :func:`jaxplan.viz.animate_episode`), the corridor shown on the last frames;
+with ffmpeg, as :func:`jaxplan.transport.viz.animate_episode`), the corridor shown on the last frames;
 :func:`save_final_png` writes the final state. Never selects a matplotlib backend.
 """
 from __future__ import annotations
@@ -123,7 +123,7 @@ def animate_execution(scene, execution, path, *, fps: int = 10, dpi: int = 80, m
     """
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    from jaxplan.viz import save_animation  # noqa: PLC0415
+    from jaxplan.core.animation import save_animation  # noqa: PLC0415
 
     fr = execution.frames
     n_rec = len(fr.time)

@@ -1,4 +1,4 @@
-"""Serial reference of the spill model and of pushing a route (``jaxplan.spillage``, ``jaxplan.execute``).
+"""Serial reference of the spill model and of pushing a route (``jaxplan.transport.spillage``, ``jaxplan.transport.execute``).
 
 Plain Python, float64, one sample at a time, written straight from docs/conventions.md.
 """
@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-QUANTUM = 2.0 ** -10   # as jaxplan.execute.QUANTUM: spills land on the grid in these units
+QUANTUM = 2.0 ** -10   # as jaxplan.transport.execute.QUANTUM: spills land on the grid in these units
 
 
 def _tangents(p0, p1, p2, p3, alpha: float):

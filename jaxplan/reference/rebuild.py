@@ -1,4 +1,4 @@
-"""Serial reference of the affected sets of a selective rebuild (``jaxplan.rebuild``)."""
+"""Serial reference of the affected sets of a selective rebuild (``jaxplan.transport.rebuild``)."""
 from __future__ import annotations
 
 import math

@@ -1,4 +1,4 @@
-"""Serial reference of the soft fabric kernels (``jaxplan.soft``): plain loops over cells, float64.
+"""Serial reference of the soft fabric kernels (``jaxplan.transport.soft``): plain loops over cells, float64.
 
 Follows docs/conventions.md, "Soft kernels", one cell and one option at a time.
 """

@@ -1,4 +1,4 @@
-"""Serial reference of the capacity-aware spill model (``jaxplan.spill_capacity.capacity_spill``).
+"""Serial reference of the capacity-aware spill model (``jaxplan.transport.spillage.capacity.capacity_spill``).
 
 Plain Python, float64, one sample at a time, written from the module docstring's recurrence.
 """

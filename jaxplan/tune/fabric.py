@@ -5,7 +5,7 @@ soft **delivered mass per unit driven** over the whole job. Every cell's objects
 that cell's own route, which costs its length plus the drive back from the target (``d(C, T)``), so
 the job's ratio is the total count over the count-weighted sum of cost per delivered object. For
 every occupied source C the soft fabric gives the expected raw mass ``R(C)``, length ``L(C)`` and
-first-step distribution; the curvature spill idea (``jaxplan.spillage``: a fraction
+first-step distribution; the curvature spill idea (``jaxplan.transport.spillage``: a fraction
 ``spill_lam`` of the load per radian of turning) turns the policy's expected total turning ``Θ(C)``
 into a kept fraction ``exp(-spill_lam Θ(C))``. A root may instead go via a highway (Eq. 12): its
 soft anchor weights give the expected via route (straight approach to the anchor, then the
@@ -24,10 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxplan import _grid
-from jaxplan.fabric import build_fabric
-from jaxplan.params import FabricParams
-from jaxplan.scene import Scene, circle
+from jaxplan.core import lattice
+from jaxplan.transport.fabric import build_fabric
+from jaxplan.transport.params import FabricParams
+from jaxplan.transport.scene import Scene
+from jaxplan.transport.scenes import random_scene
 
 TUNED = ("theta_tol_deg", "tau_h", "anchor_lambda")
 
@@ -35,27 +36,9 @@ TUNED = ("theta_tol_deg", "tau_h", "anchor_lambda")
 # ---------------------------------------------------------------------------------------------- scenes
 
 
-def random_scene(rng: np.random.Generator, shape=(16, 16), n_piles: int = 3) -> Scene:
-    """A random scene: gaussian piles of integer counts (<= 6) and a round target near one side."""
-    h, w = shape
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
-    obj = np.zeros(shape)
-    for _ in range(n_piles):
-        cx, cy = rng.uniform(1.0, w - 1.0), rng.uniform(1.0, h - 1.0)
-        amp, sigma = rng.uniform(3.0, 6.0), rng.uniform(1.0, 2.5)
-        obj += amp * np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * sigma ** 2))
-    obj = np.clip(np.rint(obj), 0, 6)
-    side = rng.integers(4)
-    along = rng.uniform(0.3, 0.7)
-    centre = [(w * along, 1.5), (w - 1.5, h * along), (w * along, h - 1.5), (1.5, h * along)][side]
-    target = circle(centre, rng.uniform(1.2, 2.2), resolution=32)
-    scene = Scene.from_arrays(np.zeros(shape, np.float32), target)
-    return scene.with_obj(np.where(np.asarray(scene.target_mask), 0.0, obj).astype(np.float32))
-
-
 def random_scenes(n: int, shape=(16, 16), seed: int = 0) -> list[Scene]:
-    rng = np.random.default_rng(seed)
-    return [random_scene(rng, shape) for _ in range(n)]
+    """``n`` scenes of ``jaxplan.random_scene``'s "piles" layout (seeds ``seed * n`` to ``seed * n + n - 1``)."""
+    return [random_scene(seed * n + i, shape, layout="piles") for i in range(n)]
 
 
 def stack_scenes(scenes: list[Scene]) -> Scene:
@@ -68,7 +51,7 @@ def stack_scenes(scenes: list[Scene]) -> Scene:
 
 def _turn_matrix() -> np.ndarray:
     """``f64[8, 8]``: the angle (radians) between step directions i and j."""
-    unit = _grid.STEP_UNIT.astype(np.float64)
+    unit = lattice.STEP_UNIT.astype(np.float64)
     return np.arccos(np.clip(unit @ unit.T, -1.0, 1.0))
 
 
@@ -80,17 +63,17 @@ def expected_turning(soft_fabric, scene, rounds: int):
     """
     policy = jnp.moveaxis(soft_fabric.policy, -1, 0)                       # [9, H, W]
     target = jnp.asarray(scene.target_mask, bool)
-    nb_goal = _grid.neighbours(target, False)
+    nb_goal = lattice.neighbours(target, False)
     turn = jnp.asarray(_turn_matrix(), jnp.float32)
-    unit = jnp.asarray(_grid.STEP_UNIT)
-    nb_pol = _grid.neighbours(jnp.moveaxis(policy, 0, -1), 0.0)            # [8 (i), H, W, 9 (j)]
-    nb_t = _grid.neighbours(scene.tvec, 0.0)                               # [8, H, W, 2]
+    unit = jnp.asarray(lattice.STEP_UNIT)
+    nb_pol = lattice.neighbours(jnp.moveaxis(policy, 0, -1), 0.0)            # [8 (i), H, W, 9 (j)]
+    nb_t = lattice.neighbours(scene.tvec, 0.0)                               # [8, H, W, 2]
     fb_angle = jnp.arccos(jnp.clip(jnp.einsum("ihwx,ix->ihw", nb_t, unit), -1.0, 1.0))
     local = jnp.einsum("ihwj,ij->ihw", nb_pol[..., :8], turn) + nb_pol[..., 8] * fb_angle   # [8, H, W]
     cont = ~nb_goal & (policy[:8] > 0)
 
     def body(theta, _):
-        nb = _grid.neighbours(theta, 0.0)
+        nb = lattice.neighbours(theta, 0.0)
         return jnp.sum(jnp.where(cont, policy[:8] * (local + nb), 0.0), 0), None
 
     theta, _ = jax.lax.scan(body, jnp.zeros(target.shape), None, length=rounds)
@@ -138,7 +121,7 @@ def soft_efficiency(scene: Scene, params: FabricParams, config: ObjectiveConfig 
     direct_len = jnp.maximum(f.length + approach, 1e-3)
     # via-highway route: a straight approach to the anchor h, then h's soft path (Section 3.4)
     h, w = obj.shape
-    centers = _grid.cell_centers((h, w), scene.cell_size, scene.origin).reshape(-1, 2)
+    centers = lattice.cell_centers((h, w), scene.cell_size, scene.origin).reshape(-1, 2)
     d = jnp.sqrt(jnp.sum((centers[:, None] - centers[None]) ** 2, -1) + 1e-12).reshape(h, w, h * w)
     wts = f.anchor_weights
     via_mass = obj + jnp.sum(wts * direct_mass.reshape(-1), -1)
@@ -225,8 +208,8 @@ def evaluate_hard(scenes: list[Scene], params: FabricParams, *, max_pushes: int 
                   rearrange_margin: float = 0.1) -> list[dict]:
     """Run the hard episode loop on every scene; one dict per scene with delivered mass, distance
     driven, pushes and delivered per unit driven (objects per world unit)."""
-    from jaxplan.episode import EpisodeParams, run_episode
-    from jaxplan.spillage import SpillParams
+    from jaxplan.transport.episode import EpisodeParams, run_episode
+    from jaxplan.transport.spillage import SpillParams
 
     hard = params.replace(temperature=None)
     rows = []

@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxplan import spillage
-from jaxplan.spillage import SpillParams
+from jaxplan.transport import spillage
+from jaxplan.transport.spillage import SpillParams
 
 _DIRS = np.array([(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1)], np.float32)
 

@@ -1,0 +1,4 @@
+"""The ``jaxplan`` command line (``jaxplan --help``)."""
+from jaxplan.cli.main import main
+
+__all__ = ["main"]

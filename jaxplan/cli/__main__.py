@@ -1,0 +1,5 @@
+import sys
+
+from jaxplan.cli.main import main
+
+sys.exit(main())

@@ -1,0 +1,118 @@
+"""What every subcommand shares: the error type, scene loading, parameter dicts, atomic files."""
+from __future__ import annotations
+
+
+import argparse
+import json
+import os
+import tempfile
+import textwrap
+from pathlib import Path
+
+import numpy as np
+
+from jaxplan.transport.scenes import BUILTIN_SCENES
+
+EXIT_BAD_INPUT = 2
+
+
+class CLIError(Exception):
+    """Bad command-line input; the message is printed as ``error: <message>``."""
+
+
+def load_scene(spec: str):
+    """A built-in scene by name, or a scene file (.npz / .json) by path."""
+    from jaxplan.transport.scene import Scene
+    from jaxplan.transport.scenes import builtin_scene
+
+    if spec in BUILTIN_SCENES:
+        return builtin_scene(spec)
+    path = Path(spec)
+    if path.is_file():
+        try:
+            return Scene.load(path)
+        except OSError as exc:
+            raise CLIError(f"--scene: could not read {spec!r} ({exc.strerror or exc}).") from None
+    if path.suffix.lower() in (".npz", ".json") or os.sep in spec or path.exists():
+        raise CLIError(f"--scene: no such scene file {spec!r}.")
+    raise CLIError(f"--scene: {spec!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) "
+                   "nor an existing .npz/.json scene file.")
+
+
+def fabric_params(args):
+    from jaxplan.transport.params import FabricParams, validate_params
+
+    params = FabricParams(theta_tol_deg=args.theta_tol, tau_h=getattr(args, "tau_h", 0.5),
+                          k=getattr(args, "k", 4), monotone=not getattr(args, "no_monotone", False))
+    validate_params(params)  # before any expensive work; raises ValueError naming the field
+    return params
+
+
+def params_dict(params) -> dict:
+    out = {}
+    for key in ("theta_tol_deg", "tau_h", "anchor_lambda", "slack_tau", "monotone", "k",
+                "max_hops", "highway_relative", "highway_smoothing", "highway_nms"):
+        value = getattr(params, key)
+        if isinstance(value, (bool, np.bool_)) or value is None:
+            out[key] = None if value is None else bool(value)
+        elif isinstance(value, (int, np.integer)):
+            out[key] = int(value)
+        else:
+            out[key] = float(np.asarray(value))
+    return out
+
+
+def atomic_write(path: Path, write) -> None:
+    """Call ``write(binary_file)`` on a temp file next to ``path``, then rename it into place.
+
+    Nothing is left at ``path`` (or beside it) when ``write`` fails. The file gets the usual
+    permissions (0666 minus the umask), not mkstemp's 0600.
+    """
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def timed(fn, *args):
+    """``(result, milliseconds)`` of one call, waiting for every output array."""
+    from jaxplan.core.timing import timed
+
+    return timed(fn, *args)
+
+
+def write_json(path: Path, data) -> None:
+    text = json.dumps(data, indent=2) + "\n"
+    atomic_write(path, lambda fh: fh.write(text.encode()))
+
+
+def write_csv(path: Path, columns: dict) -> None:
+    names = list(columns)
+    lines = [",".join(names)] + [",".join(str(v) for v in row) for row in zip(*columns.values())]
+    atomic_write(path, lambda fh: fh.write(("\n".join(lines) + "\n").encode()))
+
+
+def angle(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an angle in degrees, got {text!r}") from None
+
+
+def wrap(text: str) -> str:
+    return textwrap.fill(" ".join(text.split()), width=79)
+
+
+def add_theta_option(p) -> None:
+    p.add_argument("--theta-tol", type=angle, default=60.0, metavar="DEG",
+                   help="cone half-angle of the visibility rule (Eq. 1), degrees in (0, 180); default 60")

@@ -1,0 +1,11 @@
+"""Parts every system shares: the grid lattice and its stencils, compilation settings, timing.
+
+- ``lattice``: the 8-connected grid (directions, shifts, neighbours, cell centres, index helpers).
+- ``compilation``: ``grid_jit`` (jit with grid-size-aware XLA options), ``single_cpu``,
+  ``limit_malloc_arenas``.
+- ``timing``: wall-clock timing of JAX calls.
+"""
+from jaxplan.core.compilation import grid_jit, limit_malloc_arenas, single_cpu, traced
+from jaxplan.core.timing import timed
+
+__all__ = ["grid_jit", "limit_malloc_arenas", "single_cpu", "timed", "traced"]

@@ -1,0 +1,222 @@
+"""Sweep specs: the TOML/dict a user writes, validated into a ``SweepSpec``, and its settings in order."""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import os
+import tomllib
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+
+from jaxplan.transport import params as _params
+from jaxplan.transport.params import FabricParams, validate_params
+from jaxplan.transport.scene import Scene
+from jaxplan.transport.scenes import random_scene, BUILTIN_SCENES, builtin_scene
+from jaxplan.transport.spillage import SpillParams, validate_spill_params
+
+__all__ = ["METRICS", "SweepSpec", "columns_of", "load_spec", "settings_of", "tables_of"]
+
+# Traced fields read from the parameter classes, so a field added there is sweepable at once.
+FABRIC_TRACED = tuple(_params.TRACED_FIELDS)
+FABRIC_STATIC = tuple(_params.STATIC_FIELDS)
+SPILL_TRACED = tuple(p[0].name for p, _ in jax.tree_util.tree_flatten_with_path(SpillParams())[0])
+SPILL_STATIC = tuple(f.name for f in dataclasses.fields(SpillParams) if f.name not in SPILL_TRACED)
+_TOP_KEYS = ("scenes", "random_scenes", "fabric", "spill", "static", "metrics")
+
+METRICS = {
+    "occupied_cells": "non-target cells with obj > 0",
+    "total_mass": "objects on the grid (target cells included)",
+    "mean_value": "mean J(C) over occupied cells, objects",
+    "mean_length": "mean L(C) over occupied cells, world units",
+    "highway_cells": "highway cells (Eq. 11)",
+    "max_heat": "largest heatmap value (Eq. 10), objects",
+    "solver_rounds": "solver iterations of the DP",
+    "converged": "the DP reached its fixed point",
+    "top_collected": "raw count (Eq. 5) of the selected routes of the top_sources cells with the largest J, objects",
+    "top_delivered": "delivered mass (Eq. 6, spill model) of those routes, objects; = top_collected "
+                     "when spill.enabled is false",
+    "routes_truncated": "a selected route of those sources is longer than max_steps (its numbers are partial)",
+}
+# Fabric fields that do not enter the DP table: tau_h only thresholds the heatmap into highways,
+# slack_tau only widens the route candidate set, anchor_lambda only weighs connectors (not computed
+# here). Settings differing only in these (and in spill parameters) share one build_fabric.
+AFTER_TABLE = ("tau_h", "slack_tau", "anchor_lambda")
+PAD = "__pad__"
+
+
+# --------------------------------------------------------------------------------------------------
+# Spec
+# --------------------------------------------------------------------------------------------------
+
+class SweepSpec(NamedTuple):
+    """A validated sweep spec.
+
+    scenes: tuple of (label, Scene), the label written in the ``scene`` column.
+    fabric_grid / spill_grid: tuple of (field, tuple of float values), in spec order.
+    fabric_static / spill_static: dict of static fields. top_sources: int >= 0. max_steps: int or None
+    (default: H + W + 1 per grid shape).
+    """
+
+    scenes: tuple
+    fabric_grid: tuple
+    spill_grid: tuple
+    fabric_static: dict
+    spill_static: dict
+    top_sources: int
+    max_steps: int | None
+
+
+def _fail(key: str, message: str):
+    raise ValueError(f"sweep spec: {key}: {message}")
+
+
+def _values(key: str, raw) -> tuple:
+    vals = raw if isinstance(raw, (list, tuple)) else [raw]
+    if not vals:
+        _fail(key, "an empty list; give at least one value, e.g. [45.0, 60.0].")
+    out = []
+    for v in vals:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+            _fail(key, f"expected a finite number or a list of them; got {v!r}.")
+        out.append(float(v))
+    return tuple(out)
+
+
+def _scenes(spec: dict, base: Path | None) -> tuple:
+    out = []
+    names = spec.get("scenes", [])
+    if isinstance(names, str):
+        names = [names]
+    if not isinstance(names, list):
+        _fail("scenes", f"expected a list of built-in names or scene files; got {names!r}.")
+    for name in names:
+        if not isinstance(name, str):
+            _fail("scenes", f"expected strings (built-in names or file paths); got {name!r}.")
+        if name in BUILTIN_SCENES:
+            out.append((name, builtin_scene(name)))
+            continue
+        path = Path(name)
+        if not path.is_absolute() and base is not None:
+            path = base / path
+        if not path.is_file():
+            _fail("scenes", f"{name!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) nor an existing "
+                  ".npz/.json scene file.")
+        out.append((name, Scene.load(path)))
+    rnd = spec.get("random_scenes")
+    if rnd is not None:
+        if not isinstance(rnd, dict):
+            _fail("random_scenes", "expected a table with seeds, shape and density.")
+        unknown = set(rnd) - {"seeds", "shape", "density"}
+        if unknown:
+            _fail(f"random_scenes.{sorted(unknown)[0]}", "unknown key; use seeds, shape and density.")
+        seeds = rnd.get("seeds")
+        if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
+            _fail("random_scenes.seeds", f"expected a non-empty list of ints >= 0; got {seeds!r}.")
+        shape = rnd.get("shape", [25, 25])
+        if (not isinstance(shape, list) or len(shape) != 2
+                or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 3 for s in shape)):
+            _fail("random_scenes.shape", f"expected [H, W] with ints >= 3; got {shape!r}.")
+        density = rnd.get("density", 0.4)
+        if isinstance(density, bool) or not isinstance(density, (int, float)) or not 0 < density <= 1:
+            _fail("random_scenes.density", f"expected a fraction in (0, 1]; got {density!r}.")
+        out += [(f"random:{s}", random_scene(s, tuple(shape), float(density))) for s in seeds]
+    if not out:
+        _fail("scenes", "no scenes; give scenes = [\"default\"] and/or a [random_scenes] table.")
+    return tuple(out)
+
+
+def _grid(spec: dict, section: str, traced: tuple, static: tuple) -> tuple:
+    table = spec.get(section, {})
+    if not isinstance(table, dict):
+        _fail(section, f"expected a table of field = value or [values]; got {table!r}.")
+    out = []
+    for key, raw in table.items():
+        if key in static:
+            _fail(f"{section}.{key}", "a static field (it changes the compiled program); put it under [static].")
+        if key not in traced:
+            _fail(f"{section}.{key}", f"unknown field; the traced fields are {', '.join(traced)}.")
+        out.append((key, _values(f"{section}.{key}", raw)))
+    return tuple(out)
+
+
+def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
+    """Validate a spec dict or read a TOML file; scene files are relative to the TOML file's folder.
+
+    Raises ``ValueError`` naming the bad key and the fix.
+    """
+    base = None
+    if not isinstance(spec, dict):
+        path = Path(spec)
+        if not path.is_file():
+            raise ValueError(f"sweep spec: no such file {str(path)!r}; give a TOML file or a dict.")
+        try:
+            spec = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"sweep spec: {path}: not valid TOML ({exc}).") from None
+        base = path.parent
+    unknown = [k for k in spec if k not in _TOP_KEYS]
+    if unknown:
+        _fail(unknown[0], f"unknown key; the spec's keys are {', '.join(_TOP_KEYS)}.")
+    fabric_grid = _grid(spec, "fabric", FABRIC_TRACED, FABRIC_STATIC)
+    # the fields that change the DP table first: settings sharing a table are then contiguous
+    fabric_grid = tuple(sorted(fabric_grid, key=lambda kv: kv[0] in AFTER_TABLE))
+    spill_grid = _grid(spec, "spill", SPILL_TRACED, SPILL_STATIC)
+    static = spec.get("static", {})
+    if not isinstance(static, dict):
+        _fail("static", "expected a table of static fields, e.g. k = 4.")
+    for key in static:
+        if key in FABRIC_TRACED or key in SPILL_TRACED:
+            _fail(f"static.{key}", "a traced field; put it under [fabric] or [spill] (a value or a list).")
+        if key not in FABRIC_STATIC and key not in SPILL_STATIC:
+            _fail(f"static.{key}", f"unknown field; the static fields are {', '.join(FABRIC_STATIC + SPILL_STATIC)}.")
+    fabric_static = {k: v for k, v in static.items() if k in FABRIC_STATIC}
+    spill_static = {k: v for k, v in static.items() if k in SPILL_STATIC}
+    # every value through the parameter classes' own validation (their errors name the field)
+    for key, vals in fabric_grid:
+        for v in vals:
+            validate_params(FabricParams(**fabric_static, **{key: v}))
+    validate_params(FabricParams(**fabric_static))
+    for key, vals in spill_grid:
+        for v in vals:
+            validate_spill_params(SpillParams(**spill_static, **{key: v}))
+    validate_spill_params(SpillParams(**spill_static))
+    metrics = spec.get("metrics", {})
+    if not isinstance(metrics, dict) or set(metrics) - {"top_sources", "max_steps"}:
+        _fail("metrics", "expected a table with top_sources (int >= 0) and optionally max_steps (int >= 1).")
+    top = metrics.get("top_sources", 4)
+    if isinstance(top, bool) or not isinstance(top, int) or top < 0:
+        _fail("metrics.top_sources", f"expected an int >= 0 (0 turns the route metrics off); got {top!r}.")
+    max_steps = metrics.get("max_steps")
+    if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1):
+        _fail("metrics.max_steps", f"expected an int >= 1 (route walk length); got {max_steps!r}.")
+    return SweepSpec(_scenes(spec, base), fabric_grid, spill_grid, fabric_static, spill_static, top, max_steps)
+
+
+def settings_of(spec: SweepSpec) -> list[tuple]:
+    """Every setting as ``(scene_index, fabric_values, spill_values)`` in sweep order (scene-major, then
+    ``spec.fabric_grid`` -- the fields that change the DP table first -- then ``spec.spill_grid``)."""
+    fabric_lists = [vals for _, vals in spec.fabric_grid]
+    spill_lists = [vals for _, vals in spec.spill_grid]
+    return [(i, combo[:len(fabric_lists)], combo[len(fabric_lists):])
+            for i in range(len(spec.scenes))
+            for combo in itertools.product(*fabric_lists, *spill_lists)]
+
+
+def columns_of(spec: SweepSpec) -> list[str]:
+    """The CSV header: setting, scene, the swept fields, then ``METRICS``."""
+    return (["setting", "scene"] + [k for k, _ in spec.fabric_grid] + [f"spill_{k}" for k, _ in spec.spill_grid]
+            + list(METRICS))
+
+
+def tables_of(spec: SweepSpec):
+    """``(table_keys, per_table)``: the swept fabric fields that change the DP table (in grid order), and
+    the number of settings sharing one table (the product of every other swept field's list length)."""
+    table_keys = tuple(k for k, _ in spec.fabric_grid if k not in AFTER_TABLE)
+    per_table = math.prod(len(v) for k, v in spec.fabric_grid if k in AFTER_TABLE) * \
+        math.prod(len(v) for _, v in spec.spill_grid)
+    return table_keys, per_table
+
+

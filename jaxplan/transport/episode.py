@@ -1,0 +1,413 @@
+"""The job loop: query the fabric, choose Rearrange or Deliver, push, rebuild, until done (Section 3).
+
+One tick (``docs/conventions.md``, "Episodes"):
+
+1. **Source**: the occupied cell whose selected route collects the most (``argmax J``; rule
+   ``"max_value"``), or the occupied cell nearest to the target (``"nearest"``). Ties: lowest
+   row-major index.
+2. **Deliver route**: among the source's slack-tau candidates, the one with the largest delivered mass
+   under the spill model, then the shortest (Eq. 6; entry 0 with spillage off).
+3. **Rearrange route**: if the source is a root with a highway anchor h* (Eq. 12), the connector to h*
+   followed by h*'s selected path (Section 3.4; ``Fabric.selected``).
+4. **Choice**: Rearrange when ``via_raw > (1 + rearrange_margin) * raw(Deliver route)``, i.e. when
+   going through the highway collects clearly more; otherwise Deliver. ``rearrange_margin`` is a
+   traced parameter (``inf`` never rearranges).
+5. Push the route (``execute``), rebuild the fabric (selectively, ``rebuild``, or in full; ``rebuild_mode``),
+   record the metrics.
+
+With ``reselect`` (and spillage on) every tick first applies Eq. 6 to every source
+(``selection.reselect``), so that headings, psi, the heatmap, highways and anchors follow the routes
+selected by delivered mass, as the paper does; its cost is part of the tick's planning time. The
+rebuild always continues from the entry-0 fabric, so it stays exact.
+
+The loop stops when the mass outside the target is at most ``stop_fraction`` of its initial value,
+when ``max_pushes`` pushes are spent, or when the chosen source has no complete route.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan.core import lattice
+from jaxplan.transport import connectors
+from jaxplan.transport import execute
+from jaxplan.transport import rebuild
+from jaxplan.transport import selection
+from jaxplan.transport import spillage
+from jaxplan.core.compilation import grid_jit
+from jaxplan.core.timing import timed
+from jaxplan.transport.fabric import Fabric, Table, walk_table, build_fabric
+from jaxplan.transport.params import FabricParams, validate_params
+
+MODES = ("deliver", "rearrange")
+SOURCE_RULES = ("max_value", "nearest")
+REBUILD_MODES = ("auto", "selective", "full")
+# Grids below this many cells rebuild in full under rebuild="auto" on a CPU: there the selective
+# update's listing and compact solver, a fixed number of small sequential steps, cost as much as the
+# whole build. Table 2 and the whole-episode benchmark (experiments/rebuild_modes.py,
+# docs/benchmarks.md) put the crossover near 50 cells a side.
+SELECTIVE_MIN_CELLS = 2_500
+
+
+def _check_rebuild(rebuild) -> None:
+    if rebuild not in REBUILD_MODES:
+        raise ValueError(f"EpisodeParams.rebuild: must be one of {REBUILD_MODES}; got {rebuild!r}.")
+
+
+def rebuild_mode(rebuild: str, shape, backend: str | None = None) -> str:
+    """The rebuild an episode runs: ``rebuild`` itself unless it is "auto".
+
+    "auto" is "full" on an accelerator (the full build is launch-bound there, and the selective update
+    launches more kernels) and on CPU grids of fewer than
+    ``SELECTIVE_MIN_CELLS`` cells; otherwise "selective". shape: (H, W); backend: JAX's platform name,
+    default ``jax.default_backend()``. Both modes give the same fabric.
+    """
+    _check_rebuild(rebuild)
+    if rebuild != "auto":
+        return rebuild
+    backend = jax.default_backend() if backend is None else backend
+    if backend != "cpu":
+        return "full"
+    return "selective" if shape[0] * shape[1] >= SELECTIVE_MIN_CELLS else "full"
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeParams:
+    """Parameters of ``run_episode``.
+
+    Traced: rearrange_margin: f32[] (>= 0), see the choice rule; stop_fraction: f32[] in [0, 1).
+    Static: max_pushes (push budget, >= 0); source_rule ("max_value" or "nearest"); rebuild
+    ("auto", "selective" or "full": how the fabric is refreshed after a push; all give the same
+    fabric, only the time differs; "auto" picks by ``rebuild_mode``);
+    reselect (apply Eq. 6 to every source before planning, module docstring; off by default: it
+    costs a spill evaluation of every candidate route of every source with two or more per tick).
+    """
+
+    rearrange_margin: Any = 0.1
+    stop_fraction: Any = 0.02
+    max_pushes: int = 200
+    source_rule: str = "max_value"
+    rebuild: str = "auto"
+    reselect: bool = False
+
+    def replace(self, **changes) -> "EpisodeParams":
+        return dataclasses.replace(self, **changes)
+
+
+jax.tree_util.register_dataclass(EpisodeParams, data_fields=["rearrange_margin", "stop_fraction"],
+                                 meta_fields=["max_pushes", "source_rule", "rebuild", "reselect"])
+
+
+def validate_episode_params(ep: EpisodeParams) -> None:
+    """Raise ``ValueError`` naming the field for bad episode parameters."""
+    if not isinstance(ep, EpisodeParams):
+        raise ValueError(f"episode: expected an EpisodeParams, got {type(ep).__name__}.")
+    margin = float(ep.rearrange_margin)
+    if not margin >= 0:
+        raise ValueError(f"EpisodeParams.rearrange_margin: must be >= 0 (inf = never rearrange); got {margin!r}.")
+    frac = float(ep.stop_fraction)
+    if not 0 <= frac < 1:
+        raise ValueError(f"EpisodeParams.stop_fraction: must lie in [0, 1); got {frac!r}.")
+    if not isinstance(ep.max_pushes, (int, np.integer)) or ep.max_pushes < 0:
+        raise ValueError(f"EpisodeParams.max_pushes: must be an int >= 0; got {ep.max_pushes!r}.")
+    if ep.source_rule not in SOURCE_RULES:
+        raise ValueError(f"EpisodeParams.source_rule: must be one of {SOURCE_RULES}; got {ep.source_rule!r}.")
+    _check_rebuild(ep.rebuild)
+    if not isinstance(ep.reselect, (bool, np.bool_)):
+        raise ValueError(f"EpisodeParams.reselect: must be a bool; got {ep.reselect!r}.")
+
+
+# ------------------------------------------------------------------------------------------ one tick
+
+class Plan(NamedTuple):
+    """One tick's decision. S = 2 * (max_steps + 1) route slots.
+
+    source: i32[2]; has_source: bool[]; mode: i32[] (0 deliver, 1 rearrange); route: execute.Route;
+    raw: f32[] objects the route collects (pre-spill); complete: bool[] every walk ended in time;
+    anchor: i32[2] (-1 none); entry: i32[] the Deliver route's table entry; connector: i32[S, 2]
+    cells of the connector part (-1 padded) for plots.
+    """
+
+    source: jax.Array
+    has_source: jax.Array
+    mode: jax.Array
+    route: execute.Route
+    raw: jax.Array
+    complete: jax.Array
+    anchor: jax.Array
+    entry: jax.Array
+    connector: jax.Array
+
+
+def _pad_rows(cells, rows: int):
+    return jnp.concatenate([cells, jnp.full((rows - cells.shape[0], 2), -1, jnp.int32)])
+
+
+def _concat_paths(first, first_n, second, second_n):
+    """Rows ``first[:first_n]`` then ``second[:second_n]`` in one padded ``[2S, 2]`` array."""
+    rows = first.shape[0] + second.shape[0]
+    i = jnp.arange(rows)
+    from_second = jnp.clip(i - first_n, 0, second.shape[0] - 1)
+    out = jnp.where((i < first_n)[:, None], first[jnp.minimum(i, first.shape[0] - 1)], second[from_second])
+    return jnp.where((i < first_n + second_n)[:, None], out, -1), first_n + second_n
+
+
+def _choose_source(scene, fabric: Fabric, rule: str):
+    h, w = scene.shape
+    score = fabric.value if rule == "max_value" else -scene.dist
+    flat = jnp.argmax(jnp.where(fabric.occupied, score, -jnp.inf).reshape(-1))
+    return jnp.stack([flat // w, flat % w]).astype(jnp.int32), jnp.any(fabric.occupied)
+
+
+def plan_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.SpillParams, fabric: Fabric,
+              max_steps: int, evaluator: spillage.Evaluator = spillage.curvature_spill) -> Plan:
+    """Choose the source, the mode and the route for one push (the module docstring's rule)."""
+    h, w = scene.shape
+    source, has_source = _choose_source(scene, fabric, ep.source_rule)
+    sel = selection.select_routes(scene, fabric, source[None], params.slack_tau, spill,
+                                  max_steps=max_steps, evaluator=evaluator)
+    entry = sel.entry[0]
+    direct = walk_table(fabric.table, source, entry, max_steps)
+
+    centers = lattice.cell_centers((h, w), scene.cell_size, scene.origin)
+    anchor = connectors.anchor_for(fabric.heat, fabric.highways, fabric.occupied, centers,
+                                   params.anchor_lambda, source)
+    safe_anchor = jnp.maximum(anchor, 0)
+    anchor_rc = jnp.stack([safe_anchor // w, safe_anchor % w]).astype(jnp.int32)
+    def no_connector(_):   # a source without an anchor: skip the connector DP
+        shape = (h, w, 1)
+        return Table(jnp.full(shape, -jnp.inf), jnp.full(shape, jnp.inf), jnp.full(shape, -1, jnp.int32),
+                     jnp.full(shape, -1, jnp.int32))
+
+    ctable = jax.lax.cond(anchor >= 0, lambda _: connectors.connector_table(scene, fabric, params, safe_anchor),
+                          no_connector, None)
+    conn = walk_table(ctable, source, jnp.int32(0), max_steps)
+    anchor_entry = fabric.selected[anchor_rc[0], anchor_rc[1]]
+    tail = walk_table(fabric.table, anchor_rc, anchor_entry, max_steps)
+    # a connector that enters h* lists it last; the tail starts at h*, so drop the duplicate
+    conn_cells = jnp.where(conn.fallback, conn.n_cells, conn.n_cells - 1)
+    via_cells, via_n = _concat_paths(conn.cells, conn_cells, tail.cells, tail.n_cells)
+    via_raw = conn.raw + fabric.table.raw[anchor_rc[0], anchor_rc[1], anchor_entry]
+    can_rearrange = (anchor >= 0) & jnp.isfinite(conn.raw) & conn.complete & tail.complete
+    rearrange = can_rearrange & (via_raw > (1.0 + ep.rearrange_margin) * direct.raw)
+
+    rows = via_cells.shape[0]
+    cells = jnp.where(rearrange, via_cells, _pad_rows(direct.cells, rows))
+    n_cells = jnp.where(rearrange, via_n, direct.n_cells)
+    fallback = jnp.where(rearrange, tail.fallback, direct.fallback)
+    route = execute.route_from_path(scene, cells, n_cells, fallback)
+    connector = jnp.where(rearrange & (jnp.arange(rows) < conn.n_cells)[:, None], _pad_rows(conn.cells, rows), -1)
+    return Plan(source, has_source, rearrange.astype(jnp.int32), route,
+                jnp.where(rearrange, via_raw, direct.raw),
+                jnp.where(rearrange, conn.complete & tail.complete, direct.complete),
+                jnp.where(anchor >= 0, anchor_rc, -1), entry, connector)
+
+
+_plan_tick_jit = grid_jit(plan_tick, static_argnames=("max_steps", "evaluator"))
+
+
+def _plan(scene, params, ep: EpisodeParams, spill, fabric: Fabric, cap: int, evaluator):
+    """One tick's plan and the fabric it was planned on (Eq. 6 applied to every source with
+    ``ep.reselect`` and spillage on)."""
+    if ep.reselect and spill.enabled:
+        fabric = selection.reselect(scene, params, fabric, spill, max_steps=cap, evaluator=evaluator)
+    return _plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap, evaluator=evaluator), fabric
+
+
+_rebuild_full_jit = grid_jit(lambda scene, params: build_fabric(scene, params))
+
+
+# ------------------------------------------------------------------------------------------ the loop
+
+@dataclasses.dataclass
+class Episode:
+    """A finished episode. T = number of pushes; per-tick arrays hold the state after each push.
+
+    delivered, spilled: f64[T] cumulative objects delivered to / spilled by pushes so far.
+    remaining: f64[T] objects outside the target after the push.  pushes: i32[T] = 1..T.
+    collected, push_delivered, push_spilled: f64[T] per push.  mode: i32[T] (0 deliver, 1 rearrange).
+    source: i32[T, 2].  route_length: f64[T] world units pushed.  driven: f64[T] cumulative world
+    units driven (the approach from the previous route's end, plus the pushed route).
+    plan_ms, rebuild_ms, execute_ms: f64[T] wall clock per tick.  dirty: i32[T] cells whose tables
+    the rebuild recomputed; full_rebuild: bool[T] the rebuild fell back to a full build.
+    initial_mass: total objects; initial_remaining: objects outside the target at the start.
+    stop_reason: "done" | "budget" | "no_material" | "no_route"; message: a sentence for people.
+    final_obj: f32[H, W] counts at the end.  frames: per-tick snapshots when ``record=True``.
+    rebuild: the rebuild the ticks ran, "selective" or "full" (``rebuild_mode`` of EpisodeParams.rebuild).
+    """
+
+    delivered: np.ndarray
+    spilled: np.ndarray
+    remaining: np.ndarray
+    pushes: np.ndarray
+    collected: np.ndarray
+    push_delivered: np.ndarray
+    push_spilled: np.ndarray
+    mode: np.ndarray
+    source: np.ndarray
+    route_length: np.ndarray
+    driven: np.ndarray
+    plan_ms: np.ndarray
+    rebuild_ms: np.ndarray
+    execute_ms: np.ndarray
+    dirty: np.ndarray
+    full_rebuild: np.ndarray
+    initial_mass: float
+    initial_remaining: float
+    stop_reason: str
+    message: str
+    final_obj: np.ndarray
+    frames: list = dataclasses.field(default_factory=list)
+    rebuild: str = "selective"
+
+    @property
+    def n_pushes(self) -> int:
+        return int(len(self.pushes))
+
+    def totals(self) -> dict:
+        """The summary numbers: initial mass and the final delivered, spilled and remaining mass."""
+        last = lambda a, default: float(a[-1]) if len(a) else default  # noqa: E731
+        return dict(initial_mass=self.initial_mass, initial_remaining=self.initial_remaining,
+                    delivered=last(self.delivered, 0.0), spilled=last(self.spilled, 0.0),
+                    remaining=last(self.remaining, self.initial_remaining), pushes=self.n_pushes,
+                    rearrange_pushes=int(np.sum(self.mode)), driven=last(self.driven, 0.0),
+                    stop_reason=self.stop_reason, message=self.message, rebuild=self.rebuild,
+                    median_plan_ms=float(np.median(self.plan_ms)) if len(self.plan_ms) else None,
+                    median_rebuild_ms=float(np.median(self.rebuild_ms)) if len(self.rebuild_ms) else None)
+
+    def per_tick(self) -> dict:
+        """Per-tick metrics as lists (JSON/CSV friendly)."""
+        cols = ("pushes", "delivered", "spilled", "remaining", "collected", "push_delivered", "push_spilled",
+                "mode", "route_length", "driven", "plan_ms", "rebuild_ms", "execute_ms", "dirty", "full_rebuild")
+        out = {c: np.asarray(getattr(self, c)).tolist() for c in cols}
+        out["source_row"] = np.asarray(self.source)[:, 0].tolist() if len(self.source) else []
+        out["source_col"] = np.asarray(self.source)[:, 1].tolist() if len(self.source) else []
+        return out
+
+
+def _outside_mass(scene) -> float:
+    return float(jnp.sum(jnp.where(scene.target_mask, 0.0, scene.obj)))
+
+
+def _walk_cap(shape) -> int:
+    h, w = shape
+    return min(h * w + 1, 4 * (h + w))
+
+
+def run_episode(scene, params: FabricParams | None = None, spill: spillage.SpillParams | None = None,
+                episode: EpisodeParams | None = None, *, record: bool = False, progress: bool = False,
+                evaluator: spillage.Evaluator = spillage.curvature_spill,
+                on_tick: Callable[[int, dict], None] | None = None) -> Episode:
+    """Run one aggregate-transport job on ``scene`` until done (module docstring). Returns ``Episode``.
+
+    Counts are rounded to ``execute.QUANTUM`` first (exact sums; see ``execute``). record: keep a
+    per-tick snapshot (heat, headings, highways, route, connector) for ``viz.animate_episode``.
+    progress: a progress bar on stderr. on_tick(t, metrics): called after every push (e.g. to log).
+    """
+    params = FabricParams() if params is None else params
+    spill = spillage.SpillParams() if spill is None else spill
+    ep = EpisodeParams() if episode is None else episode
+    validate_params(params)
+    spillage.validate_spill_params(spill)
+    validate_episode_params(ep)
+
+    scene = scene.with_obj(execute.quantize(scene.obj))
+    initial_mass = float(jnp.sum(scene.obj))
+    initial_remaining = _outside_mass(scene)
+    stop_at = float(ep.stop_fraction) * initial_remaining
+    fabric = build_fabric(scene, params)
+    centres = np.asarray(scene.cell_centers(), np.float64)
+    rover = centres[np.asarray(scene.target_mask)].mean(axis=0)
+    cap = _walk_cap(scene.shape)
+    mode = rebuild_mode(ep.rebuild, scene.shape)
+    rows: list[dict] = []
+    frames: list[dict] = []
+    stop_reason, message = "budget", f"push budget of {ep.max_pushes} spent"
+    bar = _progress(ep.max_pushes, progress)
+    try:
+        remaining = initial_remaining
+        for t in range(ep.max_pushes + 1):
+            if initial_remaining <= 0:
+                stop_reason, message = "no_material", "the scene has no material outside the target: nothing to push"
+                break
+            if remaining <= stop_at:
+                stop_reason, message = "done", (f"{remaining:.3g} objects left outside the target "
+                                                f"(<= {float(ep.stop_fraction):.3g} of {initial_remaining:.3g})")
+                break
+            if t == ep.max_pushes:
+                if ep.max_pushes == 0:
+                    message = "the push budget is 0 (EpisodeParams.max_pushes): nothing was pushed"
+                break
+            (plan, planned), plan_ms = timed(lambda: _plan(scene, params, ep, spill, fabric, cap, evaluator))
+            if not bool(plan.complete) and cap < scene.shape[0] * scene.shape[1] + 1:
+                # a route longer than the usual walk cap: walk again with room for any simple path
+                cap = scene.shape[0] * scene.shape[1] + 1
+                (plan, planned), plan_ms = timed(lambda: _plan(scene, params, ep, spill, fabric, cap, evaluator))
+            if not bool(plan.has_source):
+                stop_reason, message = "done", "no occupied cell left outside the target"
+                break
+            if not bool(plan.complete) or not np.isfinite(float(plan.raw)):
+                stop_reason, message = "no_route", (f"no complete route from cell {tuple(np.asarray(plan.source))} "
+                                                    "to the target (raise FabricParams.max_hops or use monotone=True)")
+                break
+            (new_obj, push), execute_ms = timed(lambda: execute.execute_jit(scene, plan.route, spill, evaluator))
+            scene = scene.with_obj(new_obj)
+            if mode == "selective":
+                (fabric, affected), rebuild_ms = timed(lambda: rebuild.selective_rebuild(scene, params, fabric,
+                                                                                            push.changed))
+                dirty, full = int(affected.n_dirty), bool(affected.full)
+            else:
+                fabric, rebuild_ms = timed(lambda: _rebuild_full_jit(scene, params))
+                dirty, full = scene.shape[0] * scene.shape[1], True
+            remaining = _outside_mass(scene)
+            approach = float(np.linalg.norm(centres[tuple(np.asarray(plan.source))] - rover))   # routes start at the source
+            rover = np.asarray(plan.route.end, np.float64)
+            row = dict(collected=float(push.collected), push_delivered=float(push.delivered),
+                       push_spilled=float(push.spilled), mode=int(plan.mode), source=np.asarray(plan.source),
+                       route_length=float(push.length), approach=approach, plan_ms=plan_ms,
+                       rebuild_ms=rebuild_ms, execute_ms=execute_ms, dirty=dirty, full_rebuild=full,
+                       remaining=remaining)
+            rows.append(row)
+            if record:
+                frames.append(_frame(planned, plan, push))
+            if on_tick is not None:
+                on_tick(t, row)
+            bar.update(1)
+    finally:
+        bar.close()
+    return _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, message, scene, mode)
+
+
+def _frame(fabric: Fabric, plan: Plan, push: execute.Push) -> dict:
+    n = int(plan.route.n_cells)
+    conn = np.asarray(plan.connector)
+    return dict(heat=np.asarray(fabric.heat), heading=np.asarray(fabric.heading),
+                occupied=np.asarray(fabric.occupied), highways=np.asarray(fabric.highways),
+                route=np.asarray(plan.route.cells)[:n], route_end=np.asarray(plan.route.end),
+                connector=conn[conn[:, 0] >= 0], mode=int(plan.mode),
+                spline=np.asarray(push.samples.pos)[np.asarray(push.samples.valid)])
+
+
+def _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, message, scene, mode) -> Episode:
+    col = lambda key, dtype=np.float64: np.asarray([r[key] for r in rows], dtype)  # noqa: E731
+    n = len(rows)
+    pushed = col("route_length")
+    return Episode(
+        delivered=np.cumsum(col("push_delivered")), spilled=np.cumsum(col("push_spilled")),
+        remaining=col("remaining"), pushes=np.arange(1, n + 1, dtype=np.int32), collected=col("collected"),
+        push_delivered=col("push_delivered"), push_spilled=col("push_spilled"), mode=col("mode", np.int32),
+        source=np.asarray([r["source"] for r in rows], np.int32).reshape(n, 2), route_length=pushed,
+        driven=np.cumsum(pushed + col("approach")), plan_ms=col("plan_ms"), rebuild_ms=col("rebuild_ms"),
+        execute_ms=col("execute_ms"), dirty=col("dirty", np.int32), full_rebuild=col("full_rebuild", bool),
+        initial_mass=initial_mass, initial_remaining=initial_remaining, stop_reason=stop_reason,
+        message=message, final_obj=np.asarray(scene.obj), frames=frames, rebuild=mode)
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="pushes", unit="push", leave=False, disable=not enabled)

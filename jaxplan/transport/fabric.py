@@ -1,0 +1,377 @@
+"""The trajectory fabric: a dynamic program over the successor graph of the whole grid (Section 3.2).
+
+For every occupied cell at once, the kernel keeps a *continuation table* of the K best paths to the
+goal, ranked lexicographically by ``(raw, -len)`` (Eq. 5). Two solvers compute the same table:
+
+- the **wavefront**: one round recomputes every cell's table from its neighbours' tables (max-plus
+  over 8 directions x K continuations, plus the boundary fallback) until nothing changes. After
+  ``k`` rounds every table is exact for paths of at most ``k`` hops. Works without the monotone rule.
+- **policy iteration + sidetracks** (``jaxplan.transport.kbest``, the default with the monotone rule): far
+  fewer grid passes on a DAG.
+
+No per-source search, no Python loop over cells. Then first hops, psi, heatmap and highways.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan.core import lattice
+from jaxplan.transport import kbest
+from jaxplan.transport import heatmap
+from jaxplan.transport import visibility
+from jaxplan.core.compilation import grid_jit, traced
+from jaxplan.transport.params import FabricParams, validate_params
+
+
+class Table(NamedTuple):
+    """Continuation table, K entries per cell sorted best first.
+
+    raw: f32[H, W, K], objects collected (source included); -inf for unused entries.
+    length: f32[H, W, K], world units; +inf for unused entries.
+    next_dir: i32[H, W, K], direction index of the first step (0-7), 8 = boundary fallback, -1 unused.
+    next_rank: i32[H, W, K], entry of the neighbour's table the path continues with; -1 when the first
+      step enters a goal cell (the path ends there) and for fallback or unused entries.
+    """
+
+    raw: jax.Array
+    length: jax.Array
+    next_dir: jax.Array
+    next_rank: jax.Array
+
+
+class Fabric(NamedTuple):
+    """Everything ``build_fabric`` computes for one grid. Shapes for an H x W grid.
+
+    value: f32[H, W], J(C) = raw(P*(C)), objects; 0 where not occupied.
+    length: f32[H, W], L(C) = len(P*(C)), world units; 0 where not occupied.
+    first_hop: i32[H, W, 2], (row, col) of u(C); -1 where undefined.
+    heading: f32[H, W, 2], unit (x, y) vector c -> u(C); 0 where undefined.
+    fallback: bool[H, W], occupied cells with no feasible successor (boundary fallback).
+    occupied: bool[H, W], non-target cells with obj > 0.
+    feasible: bool[H, W, 8], feasible successor in each direction (Eq. 1 and the monotone rule).
+    table: Table, the K-best continuation table.
+    psi: f32[H, W], propagated raw mass (Eqs. 7-8), objects.
+    heat: f32[H, W], look-back heatmap (Eq. 10), objects; 0 on target cells.
+    highways: bool[H, W], highway cells (Eq. 11).
+    rounds: i32[], solver iterations (wavefront rounds or policy-iteration steps).
+    converged: bool[], whether the solver reached its fixed point.
+    selected: i32[H, W], the table entry each source's selected path is (0: Eq. 5; after
+      ``selection.reselect``, the Eq. 6 choice), which first_hop, heading, fallback and psi follow.
+      ``value`` and ``length`` stay those of entry 0, J(C) and L(C).
+    """
+
+    value: jax.Array
+    length: jax.Array
+    first_hop: jax.Array
+    heading: jax.Array
+    fallback: jax.Array
+    occupied: jax.Array
+    feasible: jax.Array
+    table: Table
+    psi: jax.Array
+    heat: jax.Array
+    highways: jax.Array
+    rounds: jax.Array
+    converged: jax.Array
+    selected: jax.Array
+
+
+# ----------------------------------------------------------------------------------------------
+# The dynamic program
+
+
+def _wavefront_dp(graph: visibility.SuccessorGraph, cell_size, k: int, max_hops: int):
+    """Synchronous rounds of the K-best recursion until nothing changes (or ``max_hops`` rounds).
+
+    Returns ``(raw, length, direction, rank)`` as ``[K, H, W]``, rounds and whether it converged.
+    """
+    plane = graph.obj.shape
+
+    def cond(carry):
+        return carry[-1] & (carry[-2] < max_hops)
+
+    def body(carry):
+        raw, length, idx, rounds, _ = carry
+        cand_raw, cand_len = kbest.step_candidates(raw, length, graph)
+        tol = kbest.length_tolerance(lattice.lead_min(cand_len), cell_size)
+        # candidates come in (direction, rank) order, which is the tie-break
+        new_raw, new_len, _, new_idx = kbest.select_top_k(cand_raw, cand_len, None, k, tol)
+        changed = ~lattice.all_equal((new_raw, new_len, new_idx), (raw, length, idx))
+        return tuple(new_raw), tuple(new_len), tuple(new_idx), rounds + 1, changed
+
+    start = ((jnp.full(plane, -jnp.inf),) * k, (jnp.full(plane, jnp.inf),) * k, (jnp.zeros(plane, jnp.int32),) * k,
+             jnp.int32(0), jnp.bool_(True))
+    raw, length, idx, rounds, changed = jax.lax.while_loop(cond, body, start)
+    raw, length, idx = jnp.stack(raw), jnp.stack(length), jnp.stack(idx)
+    direction = jnp.where(idx == lattice.N_DIRS * k, lattice.FALLBACK, idx // k)
+    return raw, length, direction, idx % k, rounds, ~changed
+
+
+def ranks_from_directions(direction):
+    """``i32[K, H, W]``: entry j continues with the neighbour's entry equal to the number of better
+    entries that start with the same step (C's paths through N are N's paths, in N's order)."""
+    k = direction.shape[0]
+    same = direction[:, None] == direction[None, :]                     # [i, j, H, W]
+    earlier = jnp.triu(jnp.ones((k, k), bool), 1)[..., None, None]      # i < j
+    return jnp.sum(same & earlier, axis=0).astype(jnp.int32)
+
+
+def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *,
+                    monotone: bool, k: int, max_hops: int, solver: str = "auto"):
+    """The K-best continuation table toward ``goal``: ``(table, feasible[8,H,W], rounds, converged)``.
+
+    obj: f32[H, W] objects; occupied: bool[H, W] expandable cells; goal: bool[H, W] cells whose entry
+    ends a path; dist: f32[H, W] world units to the goal (also the fallback length); tvec: f32[H, W, 2]
+    unit (x, y) direction of the closest goal point. ``k``, ``max_hops`` and ``solver`` are static.
+    solver: "wavefront" (synchronous rounds; works without the monotone rule), "policy" (policy
+    iteration + sidetracks, ``jaxplan.transport.kbest``; needs the monotone rule) or "auto" (policy when
+    monotone). Both give the same table; ``rounds`` counts wavefront rounds or policy iterations.
+    """
+    graph = visibility.successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone)
+    use_policy = solver == "policy" or (solver == "auto" and monotone)
+    if use_policy and not monotone:
+        raise ValueError("solver='policy' needs the monotone rule (an acyclic successor graph); "
+                         "use solver='wavefront' or 'auto' with monotone=False.")
+    if use_policy:
+        best_raw, best_len, policy, rounds = kbest.best_paths(graph, occupied, cell_size, max_hops)
+        raw, length, direction = kbest.kbest_tables(best_raw, best_len, policy, graph, occupied, k, cell_size)
+        rank = ranks_from_directions(direction)
+        converged = rounds < max_hops
+    else:
+        raw, length, direction, rank, rounds, converged = _wavefront_dp(graph, cell_size, k, max_hops)
+    return make_table(raw, length, direction, rank, graph.enters_goal), graph.feasible, rounds, converged
+
+
+def make_table(raw, length, direction, rank, enters_goal) -> Table:
+    """Mask unused entries, mark steps into a goal cell (rank -1) and move K last: ``[H, W, K]``."""
+    used = raw > -jnp.inf
+    into_goal = jnp.take_along_axis(enters_goal, jnp.clip(direction, 0, 7), axis=0)
+    step = used & (direction >= 0) & (direction < lattice.FALLBACK)
+    next_dir = jnp.where(used, direction, -1)
+    next_rank = jnp.where(step & ~into_goal, rank, -1)
+    last = lambda a: jnp.moveaxis(a, 0, -1)  # noqa: E731
+    return Table(last(raw), last(jnp.where(used, length, jnp.inf)), last(next_dir), last(next_rank))
+
+
+# ----------------------------------------------------------------------------------------------
+# First hops, headings and the fabric
+
+
+def first_hops(table: Table, tvec, cell_size, entry=None):
+    """From entry 0 (or ``entry: i32[H, W]`` per cell): ``(first_hop i32[H,W,2], heading f32[H,W,2],
+    hop_len f32[H,W])``. A fallback cell's hop is the in-grid neighbour best aligned with t(C)
+    (conventions).
+    """
+    h, w = tvec.shape[:2]
+    rows, cols = jnp.meshgrid(jnp.arange(h, dtype=jnp.int32), jnp.arange(w, dtype=jnp.int32), indexing="ij")
+    return hops_from_steps(_entry_of(table.next_dir, entry), visibility.fallback_direction(tvec), rows, cols,
+                           cell_size)
+
+
+def hops_from_steps(step, fallback_dir, rows, cols, cell_size):
+    """``(first_hop i32[..., 2], heading f32[..., 2], hop_len f32[...])`` of cells at ``rows, cols``
+    whose selected path starts with ``step`` (0-7, ``FALLBACK``, -1 none); ``fallback_dir``: their
+    ``visibility.fallback_direction``. Elementwise, for the grid or a list of cells."""
+    hop_dir = jnp.where(step == lattice.FALLBACK, fallback_dir, step)
+    defined = hop_dir >= 0
+    safe = jnp.where(defined, hop_dir, 0)
+    offset = jnp.asarray(lattice.DIRS_ARRAY)[safe]
+    hop = jnp.where(defined[..., None], jnp.stack([rows + offset[..., 0], cols + offset[..., 1]], -1), -1)
+    heading = jnp.where(defined[..., None], jnp.asarray(lattice.STEP_UNIT)[safe], 0.0)
+    hop_len = jnp.where(defined, jnp.asarray(lattice.STEP_CELLS)[safe] * cell_size, 0.0)
+    return hop.astype(jnp.int32), heading, hop_len
+
+
+def hop_lengths(first_hop, cell_size):
+    """``f32[H, W]`` world length of each cell's first hop (0 where undefined), from ``first_hop``."""
+    h, w = first_hop.shape[:2]
+    rows, cols = jnp.meshgrid(jnp.arange(h, dtype=jnp.int32), jnp.arange(w, dtype=jnp.int32), indexing="ij")
+    diagonal = (first_hop[..., 0] != rows) & (first_hop[..., 1] != cols)
+    cells = jnp.where(diagonal, lattice.STEP_CELLS[0], lattice.STEP_CELLS[1])
+    return jnp.where(first_hop[..., 0] >= 0, cells * cell_size, 0.0)
+
+
+def _entry_of(a, entry):
+    """``a[..., entry]`` per cell for a table field ``a: [H, W, K]`` (entry 0 when None)."""
+    if entry is None:
+        return a[..., 0]
+    return jnp.take_along_axis(a, entry[..., None], axis=-1)[..., 0]
+
+
+def derive(scene, params: FabricParams, table: Table, feasible, rounds, converged, entry=None) -> Fabric:
+    """Everything downstream of the continuation table: first hops, psi, heatmap, highways.
+
+    table: the K-best ``Table``; feasible: bool[8, H, W] successor mask it was computed on. Shared
+    by the full build and the selective rebuild (``jaxplan.transport.rebuild``), which both end here. entry:
+    i32[H, W] the selected entry of each source (default 0, Eq. 5; ``selection.reselect`` passes
+    the Eq. 6 choice): first hops, headings, fallbacks and psi follow it.
+    """
+    return with_flow(scene, params, *own_fields(scene, table, feasible, rounds, converged, entry), entry is not None)
+
+
+def own_fields(scene, table: Table, feasible, rounds, converged, entry=None):
+    """``(fabric, hop_len)``: the fields of each cell that follow from its own table row alone
+    (value, length, first hop, heading, fallback, occupied, feasible, selected); psi, heat and
+    highways are None (``with_flow`` adds them). hop_len: f32[H, W] world units. Arguments as in
+    ``derive``."""
+    obj = jnp.asarray(scene.obj, jnp.float32)
+    occupied = ~jnp.asarray(scene.target_mask, bool) & (obj > 0)
+    hop, heading, hop_len = first_hops(table, scene.tvec, scene.cell_size, entry)
+    value = jnp.where(occupied, table.raw[..., 0], 0.0)
+    length = jnp.where(occupied, table.length[..., 0], 0.0)
+    selected = jnp.zeros(obj.shape, jnp.int32) if entry is None else jnp.where(occupied, entry, 0).astype(jnp.int32)
+    return Fabric(value, length, hop, heading, _entry_of(table.next_dir, entry) == lattice.FALLBACK, occupied,
+                  jnp.moveaxis(feasible, 0, -1), table, None, None, None, rounds, converged, selected), hop_len
+
+
+def with_flow(scene, params: FabricParams, fabric: Fabric, hop_len, reselected: bool = False) -> Fabric:
+    """``fabric`` with psi, heat and highways computed from its per-cell fields (the quantities that
+    depend on other cells' paths). hop_len: f32[H, W] world length of each first hop; reselected
+    (static): psi follows ``fabric.selected`` (Eq. 6) rather than entry 0."""
+    target = jnp.asarray(scene.target_mask, bool)
+    table, occupied = fabric.table, fabric.occupied
+    max_hops = params.resolved_max_hops(occupied.shape)
+    if reselected:
+        psi = heatmap.propagated_mass_of_entries(table, fabric.selected, occupied, max_hops)
+    else:
+        first = table.next_dir[..., 0]
+        path_next = jnp.where((first >= 0) & (first < lattice.FALLBACK), first, -1)
+        psi = heatmap.propagated_mass(fabric.value, occupied, path_next, max_hops)
+    heat = heatmap.heat(psi, occupied, fabric.heading, hop_len, target, scene.cell_size)
+    return fabric._replace(psi=psi, heat=heat, highways=highways_of(scene, params, heat))
+
+
+def highways_of(scene, params: FabricParams, heat):
+    """``bool[H, W]`` highways (Eq. 11) of a heatmap ``f32[H, W]`` with ``params``' settings."""
+    return heatmap.highways(heat, jnp.asarray(scene.target_mask, bool), params.tau_h,
+                            relative=params.highway_relative, smoothing=params.highway_smoothing,
+                            nms=params.highway_nms)
+
+
+def full_table(scene, params: FabricParams):
+    """The continuation table of ``scene`` toward its target: ``(table, feasible[8,H,W], rounds, converged)``."""
+    obj = jnp.asarray(scene.obj, jnp.float32)
+    target = jnp.asarray(scene.target_mask, bool)
+    return continuation_dp(
+        obj, ~target & (obj > 0), target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
+        monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape),
+        solver=params.solver)
+
+
+def fabric_of(scene, params: FabricParams) -> Fabric:
+    """The hard fabric of ``scene``: ``build_fabric``'s traceable body, without validation or jit
+    (call it inside a caller's own ``jit``/``vmap``)."""
+    return derive(scene, params, *full_table(scene, params))
+
+
+_build_jit = grid_jit(fabric_of)
+
+
+def _is_concrete(scene) -> bool:
+    return not traced(scene)
+
+
+def build_fabric(scene, params: FabricParams | None = None) -> Fabric:
+    """Build the whole fabric (visibility, DP, first hops, psi, heatmap, highways) for ``scene``.
+
+    Jitted; ``vmap`` it over ``FabricParams`` (traced fields) or over stacked scenes of one shape.
+    Concrete inputs are validated first and raise ``ValueError`` naming the bad field. With
+    ``params.temperature`` set (> 0, or traced) it runs the soft kernels and returns a
+    ``jaxplan.transport.soft.SoftFabric`` instead (``temperature=None`` or a concrete 0: the hard ``Fabric``).
+    """
+    params = FabricParams() if params is None else params
+    if _is_concrete(params):
+        validate_params(params)
+    if params.temperature is not None:
+        if params.is_soft:   # a temperature > 0 (or traced): the differentiable kernels
+            from jaxplan.transport import soft
+            return soft.build_soft_fabric(scene, params)
+        params = params.replace(temperature=None)   # a concrete 0: the exact hard kernels
+    return _build_jit(scene, params)
+
+
+# ----------------------------------------------------------------------------------------------
+# Path extraction
+
+
+class Paths(NamedTuple):
+    """Paths read from a continuation table, one row per query.
+
+    cells: i32[B, S, 2], (row, col) of the source, then each cell entered (the final goal cell
+      included); rows padded with -1.
+    n_cells: i32[B], valid rows of ``cells``.  raw: f32[B], length: f32[B] (world units) from the
+    table.  fallback: bool[B], the path ends with a boundary fallback.  complete: bool[B], the walk
+    ended within ``S - 1`` steps (False means ``max_steps`` was too small).
+    """
+
+    cells: jax.Array
+    n_cells: jax.Array
+    raw: jax.Array
+    length: jax.Array
+    fallback: jax.Array
+    complete: jax.Array
+
+
+def walk_table(table: Table, source, rank, max_steps: int) -> Paths:
+    """Follow one table entry from ``source: i32[2]`` (row, col), entry ``rank: i32[]``, for a static
+    ``max_steps`` grid steps; a ``Paths`` row without the batch axis (cells ``i32[max_steps + 1, 2]``).
+    Traceable: ``extract_paths`` is its batched, jitted form."""
+    dirs = jnp.asarray(lattice.DIRS_ARRAY)
+
+    def step(carry, _):
+        rc, rk, done, fell_back = carry
+        d = table.next_dir[rc[0], rc[1], rk]
+        moves = (~done) & (d >= 0) & (d < lattice.FALLBACK)
+        nxt_rk = table.next_rank[rc[0], rc[1], rk]
+        new_rc = jnp.where(moves, rc + dirs[jnp.clip(d, 0, 7)], rc)
+        fell_back = fell_back | ((~done) & (d == lattice.FALLBACK))
+        done = done | ~moves | (nxt_rk < 0)
+        return (new_rc, jnp.where(moves, jnp.maximum(nxt_rk, 0), rk), done, fell_back), \
+            jnp.where(moves, new_rc, -1)
+
+    start = (source.astype(jnp.int32), rank.astype(jnp.int32), jnp.bool_(False), jnp.bool_(False))
+    (_, _, done, fell_back), visited = jax.lax.scan(step, start, None, length=max_steps)
+    cells = jnp.concatenate([source[None].astype(jnp.int32), visited], 0)
+    n = 1 + jnp.sum(visited[:, 0] >= 0)
+    r, c = source[0], source[1]
+    return Paths(cells, n, table.raw[r, c, rank], table.length[r, c, rank], fell_back, done)
+
+
+def count_table_hops(table: Table):
+    """``i32[H, W, K]`` grid steps of every table entry, by pointer doubling over (cell, entry)."""
+    h, w, k = table.raw.shape
+    n = h * w * k
+    steps = (table.next_dir >= 0) & (table.next_dir < lattice.FALLBACK)
+    nb = lattice.neighbour_index(table.next_dir)
+    continues = steps & (table.next_rank >= 0)
+    pointer = jnp.append(jnp.where(continues, (nb[..., 0] * w + nb[..., 1]) * k + table.next_rank, n).reshape(-1), n)
+    (hops,) = lattice.sum_to_sink((jnp.append(steps.astype(jnp.int32).reshape(-1), 0),), pointer)
+    return hops[:-1].reshape(h, w, k)
+
+
+table_hops = grid_jit(count_table_hops)
+
+
+def extract_paths(fabric: Fabric, sources, ranks=None, *, max_steps: int | None = None) -> Paths:
+    """Read paths for many sources in one batched call (``vmap`` of a fixed-length walk).
+
+    fabric: a ``Fabric`` (its continuation table is read); sources: i32[B, 2] (row, col); ranks:
+    i32[B] table entries (default 0, the selected path). max_steps: static walk length; default =
+    1 + the longest entry of the table (``table_hops``, read on the host, so pass it explicitly under
+    ``jit``).
+    """
+    sources = jnp.asarray(sources, jnp.int32).reshape(-1, 2)
+    ranks = jnp.zeros(sources.shape[0], jnp.int32) if ranks is None else jnp.asarray(ranks, jnp.int32)
+    if max_steps is None:
+        max_steps = 1 + int(jnp.max(table_hops(fabric.table)))   # +1: a final fallback is a scan step
+    return _extract_jit(fabric.table, sources, ranks, max_steps)
+
+
+def _extract(table, sources, ranks, max_steps):
+    return jax.vmap(lambda s, r: walk_table(table, s, r, max_steps))(sources, ranks)
+
+
+_extract_jit = grid_jit(_extract, static_argnums=3)

@@ -1,0 +1,147 @@
+"""`jaxplan pusharound`: result.json with every field, an independent W-clearance check of the reported
+corridor, the other outputs, planning failure, --help and bad scene files."""
+import json
+import os
+
+import numpy as np
+import pytest
+from shapely.geometry import LineString, Polygon, box
+
+from jaxplan.cli import main
+from jaxplan.pusharound import PushScene
+from jaxplan.pusharound.execution import load_schedule
+from tests.pusharound.test_execution import TINY
+
+RESULT_KEYS = {"format", "version", "success", "reason", "W", "start", "goal", "workspace", "robot_radius", "scene",
+               "planning", "schedule", "execution", "final_state", "connectivity", "obstacles", "robots_final",
+               "w_clear_path", "scene_final_check"}
+PUSH_KEYS = {"index", "movable", "name", "gap", "active_robots", "contacts_world", "directions_world", "contacts_body",
+             "directions_body", "active", "velocity", "duration_s", "cost", "target_before", "target_after",
+             "poses_before", "poses_after", "robots_before", "robots_after"}
+OUTPUTS = ("result.json", "scene_final.json", "pusharound.png", "pusharound.gif")
+
+
+@pytest.fixture(scope="module")
+def tiny_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scene") / "tiny.json"
+    path.write_text(json.dumps(TINY))
+    return path
+
+
+@pytest.fixture(scope="module")
+def run(tiny_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("pa")
+    rc = main(["pusharound", "--scene", str(tiny_file), "--out", str(out), "--time-limit", "40", "--backend", "c",
+               "--max-frames", "5", "--fps", "4"])
+    return rc, out, json.loads((out / "result.json").read_text())
+
+
+def test_cli_writes_every_output(run):
+    rc, out, res = run
+    assert rc == 0
+    for name in OUTPUTS:
+        assert (out / name).stat().st_size > 0, name
+    assert not [p for p in os.listdir(out) if p.startswith(".")]          # no temp files left behind
+
+
+def test_result_json_has_every_field(run):
+    _, _, res = run
+    assert RESULT_KEYS <= set(res)
+    assert res["W"] == TINY["vehicle_width"] and res["start"] == TINY["start"] and res["goal"] == TINY["goal"]
+    assert res["workspace"] == TINY["workspace"]
+    assert res["success"] is True and res["connectivity"] is True
+    assert res["planning"]["success"] and res["planning"]["stats"]["simulated_pushes"] > 0
+    assert len(res["schedule"]) >= 1
+    for push in res["schedule"]:
+        assert PUSH_KEYS <= set(push)
+        assert push["name"] == "box" and push["active_robots"]
+        assert np.allclose(np.linalg.norm(push["directions_world"], axis=-1), 1.0, atol=1e-5)
+    ex = res["execution"]
+    assert ex["execution_time_s"] > 0 and ex["replans"] >= 0 and len(ex["pushes"]) >= 1
+    kinds = sorted((o["kind"], o["name"]) for o in res["obstacles"])
+    assert kinds == [("fixed", "wall"), ("movable", "box")]                # EVERY obstacle is reported
+
+
+def test_reported_corridor_is_w_clear(run):
+    """Independent of the library: shapely on the numbers in result.json only."""
+    _, _, res = run
+    path = np.asarray(res["w_clear_path"])
+    assert path.ndim == 2 and path.shape[1] == 2 and len(path) >= 2
+    assert np.allclose(path[0], res["start"]) and np.allclose(path[-1], res["goal"])
+    line, half, tol = LineString(path), 0.5 * res["W"], 1e-5
+    for o in res["obstacles"]:
+        assert line.distance(Polygon(o["polygon"], o["holes"])) >= half - tol, o["name"]
+        assert min(line.distance(Polygon(p)) for p in o["pieces"]) >= half - tol, o["name"]
+    assert box(*res["workspace"]).buffer(-(half - tol)).covers(line)
+
+
+def test_scene_final_matches_the_reported_state(run):
+    _, out, res = run
+    final = json.loads((out / "scene_final.json").read_text())
+    assert final["format"] == "jaxplan.pusharound.scene"
+    poses = {o["name"]: o["pose"] for o in res["obstacles"] if o["kind"] == "movable"}
+    for m in final["movables"]:
+        assert np.allclose(m["pose"], poses[m["name"]], atol=1e-5)
+    assert np.allclose(final["robots"]["positions"], res["robots_final"], atol=1e-5)
+    # the robots backed off after the last push, so the final scene loads as a scene file again
+    assert res["scene_final_check"] == "valid"
+    assert len(PushScene.load(out / "scene_final.json").movables) == 1
+
+
+def test_schedule_loads_back_from_result_json(run):
+    _, out, res = run
+    schedule = load_schedule(out / "result.json")
+    assert len(schedule) == len(res["schedule"])
+    for item, rec in zip(schedule, res["schedule"]):
+        assert int(item.task.movable) == rec["movable"]
+        np.testing.assert_allclose(item.task.velocity, rec["velocity"])
+        np.testing.assert_allclose(item.poses_after, rec["poses_after"])
+    with pytest.raises(ValueError, match="result"):
+        load_schedule({"format": "something else"})
+    with pytest.raises(ValueError, match=r"schedule\[0\]"):
+        load_schedule({**res, "schedule": [{"movable": 0}]})
+
+
+def test_failed_planning_still_writes_the_result(tmp_path):
+    # A fixed stub under the box leaves at most 0.75 m < W below the wall, wherever the box goes: no
+    # schedule exists, so planning fails whatever the search's speed.
+    blocked = {**TINY, "fixed": TINY["fixed"] + [{"name": "stub", "pieces": [[[1.9, 0.0], [2.1, 0.0], [2.1, 0.25],
+                                                                             [1.9, 0.25]]]}]}
+    scene_file = tmp_path / "blocked.json"
+    scene_file.write_text(json.dumps(blocked))
+    rc = main(["pusharound", "--scene", str(scene_file), "--out", str(tmp_path), "--time-limit", "0.01",
+               "--no-execute", "--max-frames", "2", "--backend", "c"])
+    assert rc == 0
+    res = json.loads((tmp_path / "result.json").read_text())
+    assert res["success"] is False and res["reason"] and res["w_clear_path"] is None
+    assert res["execution"] is None and res["planning"]["success"] is False
+    assert len(res["obstacles"]) == 3
+    for name in OUTPUTS:
+        assert (tmp_path / name).exists(), name
+
+
+def test_help_works(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["pusharound", "--help"])
+    assert exc.value.code == 0
+    text = capsys.readouterr().out
+    for opt in ("--scene", "--out", "--seed", "--backend", "--time-limit", "--no-execute", "--mode-table"):
+        assert opt in text
+
+
+@pytest.mark.parametrize("content, words", [
+    ('{"workspace": [0, 0', "not valid JSON"),
+    ('[1, 2]', "JSON object"),
+    (json.dumps({**TINY, "movables": [{**TINY["movables"][0], "mass": -1}]}), "mass"),
+    (json.dumps({**TINY, "movables": [{"name": "b"}]}), "pieces"),
+    (None, "no such scene file"),
+])
+def test_bad_scene_file_is_a_clear_error(tmp_path, capsys, content, words):
+    bad = tmp_path / "bad.json"
+    if content is not None:
+        bad.write_text(content)
+    with pytest.raises(SystemExit) as exc:
+        main(["pusharound", "--scene", str(bad), "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --scene") and words in err and "Traceback" not in err

@@ -1,0 +1,248 @@
+"""The ``jaxplan`` CLI, run in-process through ``jaxplan.cli.main``: fabric, demo, scenes, --help and
+bad input (one ``error:`` line, exit code 2, never a traceback)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxplan import BUILTIN_SCENES, FabricParams, build_fabric, builtin_scene
+from jaxplan.cli import main
+from jaxplan.cli.transport import FABRIC_ARRAYS, SUMMARY_KEYS
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _bad_input(argv, capsys) -> str:
+    """Run ``main(argv)``, expect exit code 2, return the single stderr line."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    return lines[0]
+
+
+# --------------------------------------------------------------------------------------------------
+# fabric
+# --------------------------------------------------------------------------------------------------
+
+def test_fabric_writes_documented_arrays(tmp_path, capsys):
+    out = tmp_path / "sub" / "fabric.npz"
+    assert main(["fabric", "--scene", "default", "--out", str(out)]) == 0
+    assert str(out) in capsys.readouterr().out
+    scene = builtin_scene("default")
+    h, w = scene.shape
+    k = FabricParams().k
+    shapes = {
+        "value": (h, w), "length": (h, w), "first_hop": (h, w, 2), "heading": (h, w, 2),
+        "psi": (h, w), "heat": (h, w), "highways": (h, w), "fallback": (h, w), "occupied": (h, w),
+        "table_raw": (h, w, k), "table_len": (h, w, k), "table_next_dir": (h, w, k),
+        "table_next_rank": (h, w, k), "rounds": (), "converged": (),
+    }
+    assert set(shapes) == set(FABRIC_ARRAYS)
+    with np.load(out, allow_pickle=False) as data:
+        for key, shape in shapes.items():
+            assert key in data.files, key
+            assert data[key].shape == shape, key
+        assert data["highways"].dtype == bool and data["first_hop"].dtype.kind == "i"
+        # the saved arrays are the library's fabric
+        fabric = build_fabric(scene, FabricParams())
+        np.testing.assert_array_equal(data["value"], np.asarray(fabric.value))
+        np.testing.assert_array_equal(data["table_next_dir"], np.asarray(fabric.table.next_dir))
+        assert bool(data["converged"]) and int(data["rounds"]) == int(fabric.rounds)
+    # nothing but the output file is left in the directory (the temp file was renamed)
+    assert sorted(p.name for p in out.parent.iterdir()) == ["fabric.npz"]
+
+
+def test_fabric_options_and_scene_file(tmp_path):
+    scene_file = tmp_path / "scene.json"
+    builtin_scene("default").save(scene_file)
+    out = tmp_path / "f.npz"
+    assert main(["fabric", "--scene", str(scene_file), "--theta-tol", "45", "--tau-h", "0.3",
+                 "--k", "2", "--no-monotone", "--out", str(out)]) == 0
+    with np.load(out) as data:
+        assert data["table_raw"].shape == (25, 25, 2)
+        assert float(data["theta_tol_deg"]) == 45.0 and not bool(data["monotone"])
+
+
+def test_fabric_failed_write_leaves_nothing(tmp_path, monkeypatch, capsys):
+    def broken(fh, **arrays):
+        fh.write(b"partial")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(np, "savez_compressed", broken)
+    out = tmp_path / "fabric.npz"
+    line = _bad_input(["fabric", "--scene", "default", "--out", str(out)], capsys)
+    assert "--out" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------------------------------
+# demo
+# --------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo") / "out"
+    code = main(["demo", "--out", str(out)])
+    return code, out
+
+
+def test_demo_outputs(demo_run, capsys):
+    code, out = demo_run
+    assert code == 0
+    png = out / "fabric.png"
+    assert png.is_file() and png.stat().st_size > 1000
+    assert png.read_bytes()[:8] == PNG_MAGIC
+    summary = json.loads((out / "summary.json").read_text())
+    for key in SUMMARY_KEYS:
+        assert key in summary, key
+    scene = builtin_scene("default")
+    assert summary["scene"] == "default"
+    assert summary["shape"] == list(scene.shape)
+    assert summary["total_mass"] == pytest.approx(float(scene.total_mass))
+    assert summary["occupied_cells"] == int(np.asarray(scene.occupied).sum())
+    assert summary["params"]["theta_tol_deg"] == 60.0
+    assert summary["converged"] is True and summary["solver_iterations"] >= 1
+    assert summary["max_value_J"] > 0 and summary["highway_cells"] >= 1
+    assert 0 <= summary["roots_with_connector"] <= summary["occupied_cells"]
+    assert summary["compile_ms"] > 0 and summary["warm_build_ms"] > 0
+    # the main job: an episode on the default scene
+    episode = summary["episode"]
+    assert episode["initial_mass"] == pytest.approx(float(scene.total_mass))
+    assert episode["pushes"] >= 1 and episode["stop_reason"] in ("done", "budget")
+    assert episode["delivered"] + episode["remaining"] == pytest.approx(episode["initial_remaining"], rel=1e-5)
+    for name in ("episode.png", "episode.gif", "metrics.json", "metrics.csv"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 100, name
+    assert (out / "episode.gif").read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+
+
+def test_demo_prints_summary(tmp_path, capsys):
+    out = tmp_path / "d"
+    assert main(["demo", "--scene", "default", "--theta-tol", "45", "--out", str(out), "--max-pushes", "3",
+                 "--no-animation"]) == 0
+    text = capsys.readouterr().out
+    assert "max J" in text and str(out / "fabric.png") in text and str(out / "summary.json") in text
+    assert "episode: 3 pushes" in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["params"]["theta_tol_deg"] == 45.0
+    assert summary["episode"]["pushes"] == 3 and summary["episode"]["stop_reason"] == "budget"
+    assert not (out / "episode.gif").exists()
+
+
+# --------------------------------------------------------------------------------------------------
+# scenes and --help
+# --------------------------------------------------------------------------------------------------
+
+def test_scenes_lists_builtins(capsys):
+    assert main(["scenes"]) == 0
+    text = capsys.readouterr().out
+    for name in BUILTIN_SCENES:
+        assert name in text
+    assert "25x25" in text and "MultiPolygon" in text and "Polygon" in text
+
+
+@pytest.mark.parametrize("argv, expected", [
+    ([], ["fabric", "demo", "episode", "scenes", "example"]),
+    (["episode"], ["--scene", "--out", "--lam", "--max-pushes", "--rearrange-margin", "--stop-fraction",
+                   "--source-rule", "--reselect", "--no-animation", "summary.json", "metrics.csv", "episode.gif", "example"]),
+    (["fabric"], ["--scene", "--theta-tol", "--tau-h", "--k", "--no-monotone", "--out", "example"]),
+    (["demo"], ["--scene", "--out", "--theta-tol", "example", "summary.json", "fabric.png"]),
+    (["scenes"], ["example"]),
+])
+def test_help(argv, expected, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv + ["--help"])
+    assert info.value.code == 0
+    text = capsys.readouterr().out
+    for word in expected:
+        assert word in text, word
+
+
+# --------------------------------------------------------------------------------------------------
+# bad input
+# --------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("argv, field", [
+    (["fabric", "--scene", "no_such_scene", "--out", "x.npz"], "--scene"),
+    (["fabric", "--scene", "missing/scene.npz", "--out", "x.npz"], "--scene"),
+    (["fabric", "--scene", "default", "--theta-tol", "0", "--out", "x.npz"], "theta_tol_deg"),
+    (["fabric", "--scene", "default", "--theta-tol", "200", "--out", "x.npz"], "theta_tol_deg"),
+    (["fabric", "--scene", "default", "--k", "0", "--out", "x.npz"], "FabricParams.k"),
+    (["fabric", "--scene", "default", "--tau-h", "-1", "--out", "x.npz"], "tau_h"),
+    (["fabric", "--scene", "default", "--out", "x.txt"], "--out"),
+    (["demo", "--theta-tol", "200"], "theta_tol_deg"),
+    (["demo", "--scene", "nope"], "--scene"),
+    (["demo", "--lam", "-1"], "SpillParams.lam"),
+    (["episode", "--scene", "default", "--out", "o", "--max-pushes", "-1"], "max_pushes"),
+    (["episode", "--scene", "default", "--out", "o", "--stop-fraction", "1.5"], "stop_fraction"),
+    (["episode", "--scene", "default", "--out", "o", "--rearrange-margin", "-2"], "rearrange_margin"),
+    (["episode", "--scene", "nope", "--out", "o"], "--scene"),
+])
+def test_bad_input(argv, field, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    line = _bad_input(argv, capsys)
+    assert field in line
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_bad_scene_file_content(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    line = _bad_input(["fabric", "--scene", str(bad), "--out", str(tmp_path / "f.npz")], capsys)
+    assert "bad.json" in line
+    assert not (tmp_path / "f.npz").exists()
+
+
+def test_unparsable_angle_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["fabric", "--scene", "default", "--theta-tol", "abc", "--out", "x.npz"])
+    assert info.value.code == 2
+    assert "--theta-tol" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------------
+# episode
+# --------------------------------------------------------------------------------------------------
+
+def test_episode_writes_summary_metrics_figure_and_animation(tmp_path, capsys):
+    out = tmp_path / "ep"
+    assert main(["episode", "--scene", "default", "--out", str(out), "--max-pushes", "4"]) == 0
+    text = capsys.readouterr().out
+    assert "episode: " in text and str(out / "summary.json") in text
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("initial_mass", "delivered", "spilled", "remaining", "pushes", "stop_reason", "message"):
+        assert key in summary, key
+    assert summary["pushes"] <= 4
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert len(metrics["per_tick"]["delivered"]) == summary["pushes"]
+    assert metrics["totals"]["delivered"] == pytest.approx(summary["delivered"])
+    header = (out / "metrics.csv").read_text().splitlines()[0].split(",")
+    for column in ("pushes", "delivered", "spilled", "remaining", "plan_ms", "driven"):
+        assert column in header
+    assert (out / "episode.png").read_bytes()[:8] == PNG_MAGIC
+    assert (out / "episode.gif").read_bytes()[:3] == b"GIF"
+    assert not list(out.glob(".*"))   # no temp files left
+
+
+def test_episode_reselect_flag_reaches_the_episode_params():
+    from jaxplan.cli.main import build_parser
+    from jaxplan.cli.transport import episode_params
+
+    args = build_parser().parse_args(["episode", "--scene", "default", "--out", "o", "--reselect"])
+    assert episode_params(args).reselect is True
+    args = build_parser().parse_args(["episode", "--scene", "default", "--out", "o"])
+    assert episode_params(args).reselect is False
+
+
+def test_episode_with_zero_budget_is_empty_but_valid(tmp_path, capsys):
+    out = tmp_path / "ep0"
+    assert main(["episode", "--scene", "default", "--out", str(out), "--max-pushes", "0"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["pushes"] == 0 and summary["stop_reason"] == "budget"
+    assert summary["remaining"] == pytest.approx(summary["initial_mass"])
+    assert "budget" in capsys.readouterr().out

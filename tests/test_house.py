@@ -1,0 +1,117 @@
+"""The rules of the house (docs/architecture.md), checked on the source tree.
+
+- No module imports another module's leading-underscore name (``from jaxplan.x import _y``,
+  ``from jaxplan import _x``, or ``module._y`` on an imported jaxplan module).
+- Layers only import downward: ``core`` imports no other jaxplan package; the systems
+  (``transport``, ``pusharound``, ``teams``) and ``physics`` never import each other's packages, the
+  CLI, sweeps or tuning; nothing but the CLI imports ``jaxplan.cli``.
+- Each package lists its public API in ``__all__``, every listed name exists, and the names users
+  call are importable from ``jaxplan``.
+"""
+from __future__ import annotations
+
+import ast
+import importlib
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "jaxplan"
+MODULES = sorted(PACKAGE.rglob("*.py"))
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _jaxplan_imports(tree: ast.AST):
+    """``(lineno, module, name, alias)`` of every ``import``/``from ... import`` of a jaxplan module."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 and \
+                node.module.split(".")[0] == "jaxplan":
+            for alias in node.names:
+                yield node.lineno, node.module, alias.name, alias.asname or alias.name
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "jaxplan":
+                    yield node.lineno, alias.name, None, alias.asname or alias.name
+
+
+def _is_module(dotted: str) -> bool:
+    path = PACKAGE.parent / Path(*dotted.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_no_private_name_crosses_a_module_boundary(path):
+    tree = ast.parse(path.read_text())
+    problems = []
+    module_aliases = set()
+    for line, module, name, alias in _jaxplan_imports(tree):
+        if name is None:
+            continue
+        if name.startswith("_"):
+            problems.append(f"line {line}: from {module} import {name}")
+        if _is_module(f"{module}.{name}"):
+            module_aliases.add(alias)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and \
+                node.value.id in module_aliases and node.attr.startswith("_") and not node.attr.startswith("__"):
+            problems.append(f"line {node.lineno}: {node.value.id}.{node.attr}")
+    assert not problems, f"{path.relative_to(PACKAGE.parent)} uses private names of other modules: {problems}"
+
+
+# which top-level packages each package may import (besides itself and ``core``)
+ALLOWED = {
+    "core": set(),
+    "physics": set(),
+    "reference": {"transport", "pusharound", "teams"},   # the oracles read the kernels' constants
+    "transport": {"physics"},
+    "pusharound": {"physics"},
+    "teams": set(),
+    "tune": {"transport"},
+    "sweep": {"transport"},
+    "cli": {"transport", "pusharound", "teams", "physics", "sweep", "tune"},
+}
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_imports_go_down_the_layers(path):
+    parts = _module_name(path).split(".")
+    if len(parts) < 2:
+        return   # jaxplan/__init__.py re-exports everything
+    package = parts[1]
+    allowed = ALLOWED[package] | {package, "core"}
+    bad = []
+    for line, module, name, _ in _jaxplan_imports(ast.parse(path.read_text())):
+        target = module.split(".")
+        top = target[1] if len(target) > 1 else (name or "")
+        if top and top not in allowed and not (top.startswith("_") or top[0].isupper() or top == "__version__"):
+            bad.append(f"line {line}: {module}{'.' + name if name else ''}")
+    assert not bad, f"{path.relative_to(PACKAGE.parent)} imports upward or sideways: {bad}"
+
+
+PACKAGES = sorted({_module_name(p) for p in MODULES if p.name == "__init__.py"})
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_each_package_lists_an_api_that_exists(package):
+    mod = importlib.import_module(package)
+    names = getattr(mod, "__all__", None)
+    assert names, f"{package}/__init__.py has no __all__"
+    missing = [n for n in names if not hasattr(mod, n)]
+    assert not missing, f"{package}.__all__ lists names it does not define: {missing}"
+
+
+USER_NAMES = ("build_fabric", "run_episode", "Scene", "FabricParams", "SpillParams", "EpisodeParams", "Fabric",
+              "builtin_scene", "selective_rebuild", "select_routes", "plan_pushes", "PushScene", "nominal_scene",
+              "run_sites", "simulate_site", "paper_scenario", "sweep", "tune")
+
+
+@pytest.mark.parametrize("name", USER_NAMES)
+def test_users_names_import_from_the_top(name):
+    import jaxplan
+
+    assert getattr(jaxplan, name) is not None
+    assert name in jaxplan.__all__

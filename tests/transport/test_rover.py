@@ -1,0 +1,284 @@
+"""Physics: both rollout engines agree, divergence is flagged per element, contact caps hold the pile,
+projection back to the grid conserves mass and feeds the selective rebuild, a vmapped batch equals
+single rollouts. Tiny scenes and short horizons; each engine compiles/builds once per module."""
+from __future__ import annotations
+
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from jaxplan import FabricParams, build_fabric, builtin_scene
+from jaxplan.transport import execute
+from jaxplan.transport.rover import bridge
+from jaxplan.transport.rover import model as rover
+from jaxplan.physics.rollout import Simulator
+from jaxplan.transport.rebuild import selective_rebuild
+from jaxplan.transport.scene import Scene, box
+
+TICKS = 240      # 12 s: the tiny routes finish in 10.2 and 9.3 s (blade pushed 1 cell past the end)
+
+
+def _tiny_scene():
+    obj = np.zeros((5, 8))
+    obj[2, 1:4] = [2, 1, 2]
+    obj[1, 2] = 1
+    return Scene.from_arrays(obj, box(6.0, 0.0, 8.0, 5.0), name="tiny")
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    scene = _tiny_scene()
+    _, routes, _ = bridge.plan_routes(scene, n_routes=2)
+    world = bridge.world_for_routes(scene, routes)
+    sims = {be: Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps,
+                          bounds=world.bounds, backend=be) for be in ("c", "mjx")}
+    checks = {be: bridge.check_routes(scene, routes, n_ticks=TICKS, world=world, simulator=sim)
+              for be, sim in sims.items()}
+    return scene, routes, world, sims, checks
+
+
+def test_backends_agree_on_verdicts(tiny):
+    _, _, world, _, checks = tiny
+    c, m = checks["c"].outcome, checks["mjx"].outcome
+    assert c.finite.all() and m.finite.all() and c.reached.all() and m.reached.all()
+    # tolerances of docs/physics.md: delivered mass within 10% of the collected mass (+ 1 particle),
+    # mean lateral error within 0.02 cell, stopping time within 0.5 s, final rover pose within 0.05 cell
+    assert np.all(np.abs(c.delivered - m.delivered) <= 0.1 * c.collected + 1.0)
+    assert np.allclose(c.mean_lateral, m.mean_lateral, atol=0.02)
+    assert np.allclose(c.time, m.time, atol=0.5)
+    pose_c = checks["c"].trajectory.qpos[:, -1, :2]
+    pose_m = checks["mjx"].trajectory.qpos[:, -1, :2]
+    assert np.max(np.abs(pose_c - pose_m)) / world.cell_size < 0.05
+    # and the rover did drive the route: the tiny routes deliver their whole load
+    assert np.all(c.delivered == c.collected) and np.all(c.collected > 0)
+
+
+DEMO_TICKS = 120   # 6 s: the blade drives ~4 cells into the demo route and pushes ~20 particles
+
+
+def test_backends_agree_on_the_demo_route_while_it_pushes_gravel():
+    """The demo scene's first route (64 particles) on both engines, cut short: MJX on a CPU needs
+    minutes for the whole route. Tolerances of docs/physics.md ("Engine agreement")."""
+    scene = builtin_scene("default")
+    _, routes, _ = bridge.plan_routes(scene, n_routes=1)
+    world = bridge.world_for_routes(scene, routes)
+    runs = {be: bridge.check_routes(scene, routes, backend=be, n_ticks=DEMO_TICKS, world=world)
+            for be in ("c", "mjx")}
+    n = len(runs["c"].particle_cells[0])
+
+    def displacement(check):
+        q = check.trajectory.qpos[0]
+        return np.linalg.norm(world.particle_xyz(q[-1])[:n, :2] - world.particle_xyz(q[0])[:n, :2], axis=1)
+
+    c, m = runs["c"], runs["mjx"]
+    assert c.outcome.finite[0] and m.outcome.finite[0]
+    moved_c, moved_m = displacement(c), displacement(m)
+    assert (moved_c > 0.1 * world.cell_size).sum() >= 10          # the blade is in the pile
+    assert abs(int((moved_c > 0.1).sum()) - int((moved_m > 0.1).sum())) <= 4
+    assert abs(float(moved_c.mean()) - float(moved_m.mean())) <= 0.05 * world.cell_size
+    assert abs(float(c.outcome.mean_lateral[0]) - float(m.outcome.mean_lateral[0])) <= 0.005
+    pose = np.abs(c.trajectory.qpos[0, -1, :2] - m.trajectory.qpos[0, -1, :2])
+    assert np.max(pose) / world.cell_size < 0.02
+
+
+@pytest.mark.parametrize("backend", ["c", "mjx"])
+def test_divergence_is_flagged_not_fatal(tiny, backend):
+    _, _, world, sims, checks = tiny
+    ref = checks[backend]
+    q0 = ref.trajectory.qpos[:, 0].copy()
+    v0 = ref.trajectory.qvel[:, 0].copy()
+    v0[0, 0] = np.nan                                   # element 0 starts broken
+    q0[1, 9: 12] = world.bounds[1] + 1.0                # element 1: a particle outside the world
+    out = sims[backend].run(np.concatenate([q0, ref.trajectory.qpos[:1, 0]]),
+                            np.concatenate([v0, ref.trajectory.qvel[:1, 0]]),
+                            _stack(ref.params, [0, 1, 0]), _stack(_pstate0(3), [0, 1, 2]), TICKS)
+    assert list(out.finite) == [False, False, True]
+    assert list(out.first_bad[:2]) == [1, 1] and out.first_bad[2] == -1
+    # the healthy element is untouched by its broken neighbours
+    np.testing.assert_allclose(out.qpos[2], ref.trajectory.qpos[0], atol=1e-5)
+
+
+def _pstate0(b):
+    import jax.numpy as jnp
+
+    return (jnp.zeros(b, jnp.float32), jnp.zeros(b, bool))
+
+
+def _stack(tree, rows):
+    import jax
+
+    return jax.tree_util.tree_map(lambda a: a[np.asarray(rows)], tree)
+
+
+def test_vmapped_batch_equals_single_rollouts(tiny):
+    _, _, _, sims, checks = tiny
+    ref = checks["mjx"]
+    for i in range(2):
+        one = sims["mjx"].run(ref.trajectory.qpos[i:i + 1, 0], ref.trajectory.qvel[i:i + 1, 0],
+                              _stack(ref.params, [i]), _stack(_pstate0(2), [i]), TICKS)
+        # a B=1 program is compiled differently (float32 rounding differs), and contacts amplify
+        # rounding: states agree tightly before the blade meets the gravel, and the verdict after
+        np.testing.assert_allclose(one.qpos[0, :20], ref.trajectory.qpos[i, :20], atol=1e-4)
+        assert np.max(np.abs(one.qpos[0, -1, :2] - ref.trajectory.qpos[i, -1, :2])) < 0.05
+        assert bool(one.finite[0]) == bool(ref.trajectory.finite[i])
+
+
+def test_contact_caps_hold_the_pile_on_the_demo_scene():
+    scene = builtin_scene("default")
+    _, routes, _ = bridge.plan_routes(scene, n_routes=1)
+    check = bridge.check_routes(scene, routes, backend="c", horizon_factor=1.2)
+    world = check.world
+    assert bridge.world_for_routes(scene, routes).n_particles == world.n_particles   # the world check_routes built
+    assert check.outcome.finite.all() and check.outcome.collected[0] > 30
+    usage = rover.contact_usage(world, check.trajectory.qpos[0, ::5])
+    caps = world.caps
+    # MJX keeps the max_geom_pairs closest pairs per type group and the max_contact_points deepest
+    # contacts: nothing is dropped while the penetrating contacts fit under both
+    assert usage["sphere-sphere"] <= caps["max_geom_pairs"]
+    assert world.n_particles * rover.HULL_BOXES <= caps["max_geom_pairs"]   # hull pairs never culled
+    assert usage["total"] <= caps["max_contact_points"]
+    assert usage["sphere-sphere"] > 0 and usage["sphere-box"] > 0          # the blade did push gravel
+
+
+def test_projection_conserves_mass_and_feeds_the_selective_rebuild(tiny):
+    scene, _, _, _, checks = tiny
+    check = checks["c"]
+    params = FabricParams()
+    fabric = build_fabric(scene, params)
+    for i in range(2):
+        obj, lost = bridge.projected_obj(scene, check, i)
+        assert abs(obj.sum() + lost - float(np.asarray(scene.obj).sum())) < 1e-9
+        assert np.all(obj >= 0)
+        moved = obj != np.asarray(scene.obj)
+        assert moved.any()
+        after = scene.with_obj(obj.astype(np.float32))
+        rebuilt, _ = selective_rebuild(after, params, fabric, moved)
+        np.testing.assert_array_equal(np.asarray(rebuilt.value), np.asarray(build_fabric(after, params).value))
+
+
+def test_rasterise_counts_particles_per_cell():
+    scene = _tiny_scene()
+    xy = np.array([[0.5, 0.5], [0.6, 0.4], [7.9, 4.9], [-1.0, 2.0]])
+    obj, off = bridge.rasterise(scene, xy, np.array([1.0, 0.5, 2.0, 3.0]))
+    assert obj[0, 0] == 1.5 and obj[4, 7] == 2.0 and off == 3.0 and obj.sum() == 3.5
+
+
+def test_particle_layout_matches_counts():
+    scene = _tiny_scene()
+    mask = np.asarray(scene.obj) > 0
+    xyz, cells, represented = rover.particle_layout(scene, mask, rover.RoverConfig(particles_per_object=2))
+    assert len(xyz) == 2 * int(np.asarray(scene.obj).sum())
+    np.testing.assert_array_equal(represented, np.asarray(scene.obj))
+    row, col, inside = bridge._cells_of(scene, xyz[:, :2])
+    assert inside.all() and np.array_equal(np.stack([row, col], -1), cells)
+    d = np.linalg.norm(xyz[:, None] - xyz[None], axis=-1) + np.eye(len(xyz)) * 9
+    assert d.min() >= 2 * rover.RoverConfig().particle_radius     # no two particles overlap
+
+
+def test_simulator_rejects_bad_input(tiny):
+    _, _, world, sims, _ = tiny
+    with pytest.raises(ValueError, match="qpos0"):
+        sims["c"].run(np.zeros((1, 3)), np.zeros((1, world.model.nv)), None, None, 5)
+    with pytest.raises(ValueError, match="backend"):
+        Simulator(world.model, bridge.pursuit_policy, backend="gpu")
+
+
+def _distance_to_polyline(points, line):
+    a, b = line[:-1][None], line[1:][None]
+    ab = b - a
+    t = np.clip(np.sum((points[:, None] - a) * ab, -1) / np.maximum(np.sum(ab * ab, -1), 1e-12), 0, 1)
+    return np.min(np.linalg.norm(points[:, None] - (a + t[..., None] * ab), axis=-1), axis=1)
+
+
+def test_tracked_path_does_not_loop_before_a_long_fallback_segment():
+    # sparse65's fourth route: three one-cell steps, then a fallback segment of ~30 cells. The
+    # uniform spline through those waypoints looped on the last short step (the rover drove the
+    # loop); with long segments split, the path stays near the waypoint polyline and no longer.
+    scene = builtin_scene("sparse65")
+    _, routes, _ = bridge.plan_routes(scene, n_routes=4)
+    route = bridge._index(routes, 3)
+    pts, n = execute.waypoints(scene, route)
+    pts = np.asarray(pts, np.float64)[: int(n)]
+    assert np.linalg.norm(pts[-1] - pts[-2]) > 10 * scene.cell_size     # the case this test is about
+    geom = rover.build_world(scene, 4).geometry
+    path, arc, total, *_ = bridge.route_path(scene, route, geom, push_in=0.0)
+    on_route = _distance_to_polyline(path, np.concatenate([path[:1], pts], 0))
+    assert on_route.max() < 0.3 * scene.cell_size
+    polyline = np.sum(np.linalg.norm(np.diff(np.concatenate([path[:1], pts], 0), axis=0), axis=1))
+    assert total <= 1.05 * polyline and np.all(np.diff(arc) >= 0)
+
+
+@pytest.mark.parametrize("field, value", [("wing_length", 0.0), ("particle_radius", -0.1),
+                                          ("timestep", float("nan")), ("substeps", 0), ("solver", "PGS")])
+def test_rover_config_rejects_bad_values(field, value):
+    with pytest.raises(ValueError, match=f"RoverConfig.{field}"):
+        rover.RoverConfig().replace(**{field: value})
+
+
+def test_world_runs_the_configured_solver():
+    scene = builtin_scene("default")
+    for name, code in (("CG", mujoco.mjtSolver.mjSOL_CG), ("Newton", mujoco.mjtSolver.mjSOL_NEWTON)):
+        world = rover.build_world(scene, 2, rover.RoverConfig(solver=name))
+        assert world.model.opt.solver == code
+
+
+_SLIDER = """<mujoco><option timestep="0.005"/><worldbody><geom type="plane" size="5 5 .1"/>
+<body><freejoint/><geom type="box" size=".1 .1 .1" mass="1"/></body></worldbody></mujoco>"""
+
+
+def _no_control(params, pstate, qpos, qvel, time):
+    return jnp.zeros(0), pstate
+
+
+@pytest.fixture(scope="module")
+def slides():
+    """A box launched at 2 m/s along x on the floor, once per sliding friction, on both engines."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_string(_SLIDER)
+    mus = np.array([0.2, 0.5])
+    table = np.stack([np.tile([mu, 0.005, 0.0001], (model.ngeom, 1)) for mu in mus])
+    q0 = np.tile([0, 0, 0.1, 1, 0, 0, 0], (2, 1)).astype(float)
+    v0 = np.tile([2.0, 0, 0, 0, 0, 0], (2, 1))
+    out = {}
+    for backend in ("c", "mjx"):
+        sim = Simulator(model, _no_control, substeps=10, backend=backend)
+        out[backend] = sim.run(q0, v0, jnp.zeros(2), jnp.zeros(2), 40, model_fields={"geom_friction": table})
+    return model, mus, out
+
+
+def test_model_fields_vary_per_element_on_both_engines(slides):
+    model, mus, out = slides
+    # Coulomb sliding: the box stops after v^2 / (2 mu g)
+    expected = 2.0 ** 2 / (2 * mus * 9.81)
+    for backend, traj in out.items():
+        assert traj.finite.all()
+        np.testing.assert_allclose(traj.qpos[:, -1, 0], expected, rtol=0.05, err_msg=backend)
+    np.testing.assert_allclose(out["c"].qpos[:, -1, 0], out["mjx"].qpos[:, -1, 0], atol=1e-3)
+    assert np.all(model.geom_friction[:, 0] == 1.0)        # the caller's model is untouched
+
+
+def test_model_fields_are_validated(slides):
+    model, _, _ = slides
+    sim = Simulator(model, _no_control, backend="c")
+    q0, v0 = np.zeros((2, model.nq)), np.zeros((2, model.nv))
+    with pytest.raises(ValueError, match="geom_friction.*expected shape"):
+        sim.run(q0, v0, jnp.zeros(2), jnp.zeros(2), 2, model_fields={"geom_friction": np.ones((3, 3))})
+    with pytest.raises(ValueError, match="not a numeric MjModel array field"):
+        sim.run(q0, v0, jnp.zeros(2), jnp.zeros(2), 2, model_fields={"no_such_field": np.ones(2)})
+
+
+def test_check_routes_takes_a_friction_per_route(tiny):
+    scene, routes, world, sims, checks = tiny
+    chk = bridge.check_routes(scene, routes, n_ticks=TICKS, world=world, simulator=sims["c"],
+                              friction=np.array([0.3, 1.2]))
+    assert chk.outcome.finite.all() and chk.outcome.reached.all()
+    # same routes, layouts, world and engine as the fixture's run at the default friction (0.6): the
+    # C engine is deterministic, so a different trajectory means the frictions reached the physics
+    assert not np.allclose(chk.trajectory.qpos, checks["c"].trajectory.qpos)
+    fields = bridge._friction_fields(world, [0.3, 1.2], 2)["geom_friction"]
+    wheel = world.model.geom("wheel_left").id
+    assert fields[0, 0, 0] == 0.3 and fields[1, 0, 0] == 1.2 and fields[1, wheel, 0] == world.model.geom_friction[wheel, 0]
+    with pytest.raises(ValueError, match="friction"):
+        bridge.check_routes(scene, routes, n_ticks=2, world=world, simulator=sims["c"], friction=-1.0)
