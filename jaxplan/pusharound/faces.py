@@ -106,8 +106,9 @@ class FaceRings(NamedTuple):
 
 
 def cluster_region(g: WCCG, sk: Skeleton, c: int, inflate: float = 0.0, quad_segs: int = QUAD_SEGS):
-    """K_c's rings (inflate = 0, a ``FaceRings``) or K_c inflated by ``inflate`` (a Polygon; the
-    bridges are inside it then)."""
+    """Cluster ``c``'s region K_c: its rings (inflate = 0, a ``FaceRings``) or K_c inflated by
+    ``inflate`` [m] (a Polygon of ``quad_segs`` segments per quarter circle; the bridges are inside it
+    then). Cached in ``sk.regions``."""
     key = (c, inflate, quad_segs)
     if key not in sk.regions:
         comps = np.nonzero(sk.labels == c)[0]
@@ -123,14 +124,15 @@ def cluster_region(g: WCCG, sk: Skeleton, c: int, inflate: float = 0.0, quad_seg
 
 
 def face_rings(g: WCCG, comps: np.ndarray, bridges: np.ndarray) -> FaceRings:
-    """The rings of the skeleton of components ``comps`` and bridges ``bridges`` (indices).
+    """The rings of the skeleton of components ``comps`` i64[K] and bridges ``bridges`` i64[E']
+    (indices into ``g``'s components and bridges).
 
     The faces K_c encloses are the bounded faces of the planar arrangement of the pieces' boundaries
     and the bridge segments that lie outside every piece: the linework is noded once (a union of
     lines) and polygonized. That is the zero-width skeleton itself. Unioning the pieces with a thin
     polygon per bridge instead gives the same faces up to the strips' width (1e-7 W), but crossing
-    strips make it several times slower where bridges cross by the hundred (dense clutter: 784
-    bridges, 2,700 faces; ad hoc, 182 ms against 63 ms). The exterior is the outline of all
+    strips make it several times slower where bridges cross by the hundred (dense clutter). The
+    exterior is the outline of all
     faces together with the strips of the bridges that are not inside them (bridges that close no
     loop on the outside, and touching pieces).
     """
@@ -167,7 +169,8 @@ def face_rings(g: WCCG, comps: np.ndarray, bridges: np.ndarray) -> FaceRings:
 
 
 def cluster_rings(region, c: int) -> list:
-    """``Ring``s of K_c (a ``FaceRings``, or a Polygon: its exterior and holes)."""
+    """The ``Ring``s of cluster ``c``'s region (a ``FaceRings``, or a Polygon: its exterior and
+    holes): the exterior first, then the holes, then the islands."""
     holes = list(region.interiors)
     islands = list(getattr(region, "islands", []))
     in_face = [[] for _ in holes]

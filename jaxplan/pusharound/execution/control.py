@@ -55,7 +55,8 @@ def pack_paths(paths: list) -> tuple[np.ndarray, np.ndarray]:
     return out, lens
 
 
-def drive_along(state: ExecutionState, sim: Simulator, paths: list, targets: np.ndarray, active: np.ndarray, phase: str) -> tuple:
+def drive_along(state: ExecutionState, sim: Simulator, paths: list, targets: np.ndarray, active: np.ndarray,
+                phase: str) -> tuple:
     """Drive the robots along ``paths`` (one f[K, 2] per robot) until the ``active`` ones are within
     ``arrive_tol`` of ``targets f[N, 2]`` after their reference ended, or the timeout. Returns
     (arrived, simulated seconds)."""
@@ -109,7 +110,7 @@ def retreat(state: ExecutionState, sim: Simulator, task: PushTask) -> float:
 
 def run_push(state: ExecutionState, sim: Simulator, task: PushTask, planned: np.ndarray) -> tuple:
     """One P-controlled push with early stop. Returns (outcome of 1, stop reason, simulated seconds)."""
-    cfg, world = state.cfg, state.world
+    world = state.world
     tasks = check_tasks(world, stack_tasks([task]))
     m = int(tasks.movable[0])
     poses0, robots0 = state.poses, state.robots
@@ -124,20 +125,7 @@ def run_push(state: ExecutionState, sim: Simulator, task: PushTask, planned: np.
     traj = sim.run(state.qpos[None], state.qvel[None], params, jnp.zeros((1,), jnp.float32), horizon)
     tick_s = sim.tick_seconds
     pose_t = movable_poses(world, np.asarray(traj.qpos[0], np.float64))[0][:, m]          # [T+1, 3]
-    dxy = np.linalg.norm(pose_t[:, :2] - planned[m, :2], axis=-1)
-    dyaw = np.abs(np.angle(np.exp(1j * (pose_t[:, 2] - planned[m, 2]))))
-    reached = (dxy < cfg.pos_tol) & (dyaw < cfg.yaw_tol)
-    w = max(1, int(round(cfg.stall_window / tick_s)))
-    move = np.full(horizon + 1, np.inf)
-    move[w:] = (np.linalg.norm(pose_t[w:, :2] - pose_t[:-w, :2], axis=-1)
-                + 0.3 * np.abs(np.angle(np.exp(1j * (pose_t[w:, 2] - pose_t[:-w, 2])))))
-    t = np.arange(horizon + 1) * tick_s
-    stalled = (move < cfg.stall_eps) & (t >= cfg.min_push_time)
-    stop, why = horizon, "horizon"
-    for k in range(1, horizon + 1):
-        if reached[k] or stalled[k]:
-            stop, why = k, "reached" if reached[k] else "stalled"
-            break
+    stop, why = _early_stop(state.cfg, pose_t, planned[m], tick_s)
     first_bad = int(traj.first_bad[0])
     finite = first_bad < 0 or first_bad > stop
     cut = Trajectory(traj.qpos[:, :stop + 1], traj.qvel[:, :stop + 1], traj.ctrl[:, :stop], traj.time[:stop + 1],
@@ -148,3 +136,23 @@ def run_push(state: ExecutionState, sim: Simulator, task: PushTask, planned: np.
     state.record(qp, stop, "push")
     state.qpos, state.qvel = qp[stop], np.asarray(traj.qvel[0, stop], np.float64)
     return out, why, stop * tick_s
+
+
+def _early_stop(cfg, pose_t: np.ndarray, planned: np.ndarray, tick_s: float) -> tuple:
+    """The tick to stop the push at, and why: the first tick (>= 1) where the target's pose ``pose_t``
+    f[T+1, 3] is within ``pos_tol`` / ``yaw_tol`` of ``planned`` f[3] ("reached") or moved less than
+    ``stall_eps`` over ``stall_window`` after ``min_push_time`` ("stalled"); else T ("horizon")."""
+    horizon = len(pose_t) - 1
+    dxy = np.linalg.norm(pose_t[:, :2] - planned[:2], axis=-1)
+    dyaw = np.abs(np.angle(np.exp(1j * (pose_t[:, 2] - planned[2]))))
+    reached = (dxy < cfg.pos_tol) & (dyaw < cfg.yaw_tol)
+    w = max(1, int(round(cfg.stall_window / tick_s)))
+    move = np.full(horizon + 1, np.inf)
+    move[w:] = (np.linalg.norm(pose_t[w:, :2] - pose_t[:-w, :2], axis=-1)
+                + 0.3 * np.abs(np.angle(np.exp(1j * (pose_t[w:, 2] - pose_t[:-w, 2])))))
+    t = np.arange(horizon + 1) * tick_s
+    stalled = (move < cfg.stall_eps) & (t >= cfg.min_push_time)
+    for k in range(1, horizon + 1):
+        if reached[k] or stalled[k]:
+            return k, "reached" if reached[k] else "stalled"
+    return horizon, "horizon"

@@ -46,7 +46,7 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
     ``lambda_t |m - m'|`` (bridge midpoints, straight line), widening ``lambda_p C_p(g')`` and the
     goal term ``eta |m' - goal|``; ``tail(g)`` is the least sum over sequences from ``g`` to a gap
     bordering the goal face (0 if ``g`` borders it). One union per cluster (the same as Eq. 7's
-    query) and a point location per bridge side: ~30-60 ms on a nominal scene. ``extra``: an added
+    query) and a point location per bridge side. ``extra``: an added
     cost per gap (body pair), e.g. the search's penalty for gaps its pushes failed to widen.
     skeleton: :func:`faces.build_skeleton` of ``g`` to reuse (built when None). goal: (x, y) [m].
     """

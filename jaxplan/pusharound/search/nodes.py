@@ -13,7 +13,8 @@ from jaxplan.pusharound.modetable import ModeKey
 from jaxplan.pusharound.push import PushTask
 from jaxplan.pusharound.search.config import SearchConfig
 
-__all__ = ["EMPTY_CHECK", "Candidate", "Eq7Check", "SearchNode", "Target", "priority", "remaining_estimate", "state_key"]
+__all__ = ["EMPTY_CHECK", "Candidate", "Eq7Check", "SearchNode", "Target", "priority", "remaining_estimate",
+           "state_key"]
 
 
 class Target(NamedTuple):
