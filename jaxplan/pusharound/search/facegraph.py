@@ -51,9 +51,25 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
     skeleton: :func:`faces.build_skeleton` of ``g`` to reuse (built when None). goal: (x, y) [m].
     """
     lt, lp, eta = (float(np.asarray(v)) for v in (params.lambda_t, params.lambda_p, params.eta))
-    w = float(g.width)
     goal = np.asarray(goal, np.float64)
     sk = skeleton if skeleton is not None else build_skeleton(g)   # a connectivity query's shares its unions
+    locate = _face_locator(g, sk)
+    goal_face = int(locate(goal[None])[0])
+    faces, narrowest = _gap_faces(g, sk, locate)
+    where = {}
+    for pair, (width_p, m) in narrowest.items():
+        mass = min(g.body_mass[b] for b in pair if g.body_kind[b] == MOVABLE)
+        where[pair] = (m, lp * max(float(g.width) - width_p, 0.0) * mass / params.mass_ref
+                       + eta * float(np.linalg.norm(m - goal)) + (extra or {}).get(pair, 0.0))
+    tail = _tails_to_goal(faces, where, goal_face, lt)
+    final = {pair: goal_face in fs for pair, fs in faces.items()}
+    return FaceGraph(faces, -1, goal_face, tail, final)
+
+
+def _face_locator(g: WCCG, sk: Skeleton):
+    """A function from points f[P, 2] [m] to their face ids i64[P]: the index of the smallest ring
+    containing the point when that ring is a hole, -2 when it is a cluster's exterior (inside an
+    obstacle), -1 outside every ring."""
     rings = []
     for c in np.unique(sk.labels):
         rings += cluster_rings(cluster_region(g, sk, int(c)), int(c))
@@ -73,7 +89,14 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
                 face[p] = r if hole[r] else -2
         return face
 
-    # Bottleneck bridges between two bodies, one of them movable: the crossable gaps.
+    return locate
+
+
+def _gap_faces(g: WCCG, sk: Skeleton, locate) -> tuple:
+    """The crossable gaps (bottleneck bridges between two bodies, one of them movable) and the faces
+    each borders, found a hair off each of its bridges on both sides. Returns (gap bodies -> set of
+    face ids, gap bodies -> (narrowest bridge width [m], its midpoint f[2]))."""
+    w = float(g.width)
     bb = g.bridge_bodies
     kinds = g.body_kind[bb]
     ok = sk.active & (bb[:, 0] != bb[:, 1]) & np.any(kinds == MOVABLE, axis=1)
@@ -88,19 +111,19 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
     n = np.stack([-d[:, 1], d[:, 0]], 1) / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
     tau = np.where(touch, 0.05 * w, 3.0 * BRIDGE_EPS * w)[:, None]
     side = locate(np.concatenate([mid + tau * n, mid - tau * n])).reshape(2, -1)
-    goal_face = int(locate(goal[None])[0])
-    faces, where, cp = {}, {}, {}
+    faces, narrowest = {}, {}
     for k, e in enumerate(edges):
         pair = (int(bb[e, 0]), int(bb[e, 1]))
-        fs = faces.setdefault(pair, set())
-        fs.update(int(f) for f in side[:, k] if f >= -1)
-        if pair not in cp or g.bridge_width[e] < cp[pair][0]:
-            cp[pair] = (float(g.bridge_width[e]), mid[k])
-    for pair, (width_p, m) in cp.items():
-        mass = min(g.body_mass[b] for b in pair if g.body_kind[b] == MOVABLE)
-        where[pair] = (m, lp * max(w - width_p, 0.0) * mass / params.mass_ref + eta * float(np.linalg.norm(m - goal))
-                       + (extra or {}).get(pair, 0.0))
-    # Reverse Dijkstra from the gaps bordering the goal face.
+        faces.setdefault(pair, set()).update(int(f) for f in side[:, k] if f >= -1)
+        if pair not in narrowest or g.bridge_width[e] < narrowest[pair][0]:
+            narrowest[pair] = (float(g.bridge_width[e]), mid[k])
+    return faces, narrowest
+
+
+def _tails_to_goal(faces: dict, where: dict, goal_face: int, lt: float) -> dict:
+    """Reverse Dijkstra from the gaps bordering the goal face: gap -> least cost of a gap sequence
+    after it (``where``: gap -> (midpoint f[2], widening + goal cost); ``lt`` per metre between
+    midpoints); inf where none reaches the goal face."""
     by_face: dict = {}
     for pair, fs in faces.items():
         for f in fs:
@@ -122,5 +145,4 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
                 if nd < tail[q] - 1e-12:
                     tail[q] = nd
                     heapq.heappush(heap, (nd, q))
-    final = {pair: goal_face in fs for pair, fs in faces.items()}
-    return FaceGraph(faces, -1, goal_face, tail, final)
+    return tail
