@@ -11,7 +11,9 @@ __all__ = ["ExecutionState", "recorded_frames"]
 
 
 class ExecutionState:
-    """The running physical state (mutable on purpose: one execution's bookkeeping)."""
+    """The running physical state (mutable on purpose: one execution's bookkeeping). qpos, qvel: the
+    MuJoCo state; tick: ticks simulated so far; frames: (tick, poses f[M, 3], robots f[N, 2], push
+    index, phase) every ``record_every`` ticks; push_index: the push being executed or approached."""
 
     def __init__(self, world: PushWorld, robots, poses, cfg: ExecutionConfig):
         self.world, self.cfg = world, cfg
@@ -23,10 +25,12 @@ class ExecutionState:
 
     @property
     def poses(self) -> np.ndarray:
+        """f64[M, 3] movable poses (x [m], y [m], yaw [rad])."""
         return movable_poses(self.world, self.qpos)[0]
 
     @property
     def robots(self) -> np.ndarray:
+        """f64[N, 2] robot positions [m]."""
         return self.qpos[self.world.robot_adr].astype(np.float64)
 
     def record(self, traj_qpos: np.ndarray, upto: int, phase: str) -> None:
@@ -40,6 +44,7 @@ class ExecutionState:
 
 
 def recorded_frames(state: ExecutionState, world: PushWorld) -> Frames:
+    """The frames ``state`` recorded, as :class:`Frames` (time in s)."""
     tick_s = float(world.config.timestep) * world.config.substeps
     m, n = len(world.mov_adr), len(world.robot_adr)
     if not state.frames:

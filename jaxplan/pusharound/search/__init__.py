@@ -41,6 +41,8 @@ obstacles with the same shape signature: validated modes first, modes that faile
 Endpoint disks (Remark 5): when start and goal share a face but a disk ``B(., W/2)`` is not free, the
 movables that intrude are the targets (pushed away from the endpoint).
 
+Units: m, s, rad; costs in the units of Eqs. 8-11.
+
 Modules: ``config`` (:class:`SearchConfig`, input checks), ``results`` (:class:`SearchResult` and
 its parts), ``nodes`` (node, target and candidate types; Eq. 10's priority), ``context`` (a run's
 fixed inputs and its mutable counters and caches), ``facegraph`` (the "graph" presearch),

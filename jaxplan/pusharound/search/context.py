@@ -45,6 +45,8 @@ class SearchContext:
 
 def new_context(scene: PushScene, cfg: SearchConfig, params: RankingParams, world=None, sim=None,
                 mode_table: ModeTable | None = None) -> SearchContext:
+    """The context of a run on ``scene`` (a fresh ModeTable when ``mode_table`` is None); ``world`` and
+    ``sim`` as given (None: built by :func:`with_physics` when the search first needs physics)."""
     return SearchContext(scene, cfg, params, mode_table if mode_table is not None else ModeTable(),
                          bool(cfg.mode_table), BodyOutlines(scene), len(np.asarray(scene.robots).reshape(-1, 2)),
                          world, sim)

@@ -52,7 +52,8 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
     """
     lt, lp, eta = (float(np.asarray(v)) for v in (params.lambda_t, params.lambda_p, params.eta))
     goal = np.asarray(goal, np.float64)
-    sk = skeleton if skeleton is not None else build_skeleton(g)   # a connectivity query's shares its unions
+    # A connectivity query's skeleton already holds the cluster unions.
+    sk = skeleton if skeleton is not None else build_skeleton(g)
     locate = _face_locator(g, sk)
     goal_face = int(locate(goal[None])[0])
     faces, narrowest = _gap_faces(g, sk, locate)
