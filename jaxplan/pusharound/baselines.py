@@ -56,7 +56,7 @@ from shapely.ops import nearest_points
 
 from jaxplan.pusharound.physics import PushWorld, build_push_world
 from jaxplan.pusharound.push import (MAX_BATCH, PushOutcome, PushTask, direction_tasks, make_push_simulator,
-                                     push_cost, simulate_pushes, stack_tasks)
+                                     push_cost, simulate_pushes, stack_tasks, start_positions)
 from jaxplan.pusharound.ranking import candidate_gaps
 from jaxplan.pusharound.scene import PushScene
 from jaxplan.pusharound.search import ScheduledPush, SearchResult, SearchStats
@@ -192,8 +192,7 @@ def schedule_duration(world: PushWorld, schedule) -> float:
 
 
 def _starts(world: PushWorld, tasks: PushTask, poses) -> np.ndarray:
-    from jaxplan.pusharound.push import _start_positions  # noqa: PLC0415 (the one definition of the start pose)
-    return _start_positions(world, tasks, np.asarray(poses, np.float64))[0]
+    return start_positions(world, tasks, np.asarray(poses, np.float64))[0]
 
 
 def _push_tasks(env: _Env, movable: int, angle: float, distance: float, poses, teams=(2, 1)) -> list:

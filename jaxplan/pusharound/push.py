@@ -35,8 +35,9 @@ from jaxplan.physics.rollout import Simulator
 from jaxplan.pusharound.kernels import pack_polygons, pair_distances, point_distances
 from jaxplan.pusharound.physics import PushWorld, initial_state, movable_poses
 
-__all__ = ["MAX_BATCH", "PushTask", "PushOutcome", "QuickPass", "direction_tasks", "face_contacts", "make_push_simulator",
-           "push_cost", "push_policy", "quick_pass", "simulate_pushes", "stack_tasks", "swept_hulls"]
+__all__ = ["MAX_BATCH", "PushTask", "PushOutcome", "QuickPass", "check_tasks", "direction_tasks", "face_contacts",
+           "make_push_simulator", "push_cost", "push_policy", "quick_pass", "rollout_outcome", "simulate_pushes",
+           "stack_tasks", "start_positions", "swept_hulls"]
 
 MAX_BATCH = 64      # candidates per physics call (the paper's 64 per expansion)
 _SWEEP_SAMPLES = 8  # poses along a push for the swept-polygon quick-pass
@@ -217,7 +218,11 @@ def make_push_simulator(world: PushWorld, backend: str = "auto", nthread: int | 
                      nthread=nthread)
 
 
-def _check_tasks(world: PushWorld, tasks: PushTask) -> PushTask:
+def check_tasks(world: PushWorld, tasks: PushTask) -> PushTask:
+    """Validate a batched :class:`PushTask` for ``world`` (B in 1..MAX_BATCH tasks, N robots) and return
+    it as numpy: movable i64[B], contacts f64[B, N, 2] [m, body frame], directions f64[B, N, 2] (unit),
+    active bool[B, N], velocity f64[B, 3] [m/s, m/s, rad/s], duration f64[B] [s] within the horizon.
+    Raises ValueError naming the first bad field."""
     if not isinstance(tasks, PushTask):
         raise ValueError(f"tasks: expected a PushTask (batched); got {type(tasks).__name__}.")
     n, m = len(world.robot_adr), len(world.scene.movables)
@@ -290,8 +295,9 @@ def _clear_of_body(world: PushWorld, tasks: PushTask, local: np.ndarray, clearan
     return out
 
 
-def _start_positions(world: PushWorld, tasks: PushTask, poses) -> np.ndarray:
-    """Robot start positions f[B, N, 2]: active robots ``r + standoff`` behind their contacts (farther
+def start_positions(world: PushWorld, tasks: PushTask, poses) -> np.ndarray:
+    """Robot start positions f[B, N, 2] [m, world] of checked ``tasks`` with the movables at ``poses``
+    f[M, 3]: active robots ``r + standoff`` behind their contacts (farther
     back along the push direction where the disk would otherwise touch the pushed body)."""
     cfg, r = world.config, float(world.scene.robot_radius)
     pose0 = poses[tasks.movable]                                       # [B, 3]
@@ -358,7 +364,7 @@ def simulate_pushes(world: PushWorld, tasks: PushTask, *, sim: Simulator | None 
     robots f[N, 2]: the state to start from (default: the world's scene; inactive robots start at
     ``robots``); check_every: ticks between the fixed-obstacle clearance checks.
     """
-    tasks = _check_tasks(world, tasks)
+    tasks = check_tasks(world, tasks)
     cfg, scene = world.config, world.scene
     poses = scene.poses if poses is None else np.asarray(poses, np.float64)
     home = np.asarray(scene.robots if robots is None else robots, np.float64)
@@ -367,7 +373,7 @@ def simulate_pushes(world: PushWorld, tasks: PushTask, *, sim: Simulator | None 
     elif sim.model is not world.model:
         raise ValueError("sim: built for another world; use make_push_simulator(world).")
     scene_home = scene.replace(robots=home) if robots is not None else scene
-    starts = _start_positions(world._replace(scene=scene_home), tasks, poses)
+    starts = start_positions(world._replace(scene=scene_home), tasks, poses)
     b = len(tasks.movable)
     q0 = np.stack([initial_state(world, starts[i], poses)[0] for i in range(b)])
     v0 = np.zeros((b, world.model.nv))
@@ -379,10 +385,13 @@ def simulate_pushes(world: PushWorld, tasks: PushTask, *, sim: Simulator | None 
               "hold": jnp.asarray(starts, jnp.float32),
               "duration": jnp.asarray(tasks.duration, jnp.float32)}
     traj = sim.run(q0, v0, params, jnp.zeros((b,), jnp.float32), cfg.horizon)
-    return _outcome(world, tasks, traj, poses, check_every)
+    return rollout_outcome(world, tasks, traj, poses, check_every)
 
 
-def _outcome(world: PushWorld, tasks: PushTask, traj, poses0, check_every: int) -> PushOutcome:
+def rollout_outcome(world: PushWorld, tasks: PushTask, traj, poses0, check_every: int) -> PushOutcome:
+    """The :class:`PushOutcome` of the rollout ``traj`` (a ``Trajectory`` with leading axis B, T+1
+    states) of the checked ``tasks`` from movable poses ``poses0`` f[M, 3]; fixed-obstacle contact is
+    tested every ``check_every`` ticks (and at the last)."""
     cfg, scene = world.config, world.scene
     b = len(tasks.movable)
     qp = np.asarray(traj.qpos, np.float64)
@@ -469,7 +478,7 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
        execution's transition paths use) that holds a robot; a start walled off from every robot
        (behind a bottleneck narrower than a robot) cannot be reached in execution.
     """
-    tasks = _check_tasks(world, tasks)
+    tasks = check_tasks(world, tasks)
     scene, cfg = world.scene, world.config
     poses = scene.poses if poses is None else np.asarray(poses, np.float64)
     r = float(scene.robot_radius)
@@ -477,7 +486,7 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
     ws_loose = ws.buffer(1e-9)
     shapely.prepare(ws_loose)
     fixed = shapely.union_all([f.polygon for f in scene.fixed]) if scene.fixed else None
-    starts = _start_positions(world, tasks, poses)
+    starts = start_positions(world, tasks, poses)
     placed_scene = scene.with_poses(poses)
     obstacles = placed_scene.obstacle_polygons()
     shapely.prepare(obstacles)
@@ -568,14 +577,14 @@ def push_cost(world: PushWorld, tasks: PushTask, outcome: PushOutcome, robots=No
     delta_J [J] = the outcome's actuator work; alpha [1/J] defaults to ``config.alpha``. Invalid
     candidates (``outcome.valid`` false) cost ``inf``. Returns ``(cost, delta_T, delta_J)``.
     """
-    tasks = _check_tasks(world, tasks)
+    tasks = check_tasks(world, tasks)
     cfg = world.config
     alpha = cfg.alpha if alpha is None else float(alpha)
     if not alpha >= 0:
         raise ValueError(f"alpha: must be >= 0; got {alpha!r}.")
     home = np.asarray(world.scene.robots if robots is None else robots, np.float64)
     poses = world.scene.poses if poses is None else np.asarray(poses, np.float64)
-    starts = _start_positions(world, tasks, poses)
+    starts = start_positions(world, tasks, poses)
     dist = np.where(tasks.active, np.linalg.norm(starts - home[None], axis=-1), 0.0).max(-1)
     delta_t = dist / cfg.transit_speed + tasks.duration
     delta_j = np.asarray(outcome.effort, np.float64)

@@ -35,9 +35,9 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from jaxplan.pusharound.faces import BRIDGE_EPS
 from jaxplan.pusharound.scene import PushScene
-from jaxplan.pusharound.wccg import (MOVABLE, WCCG, Frontier, _BRIDGE_EPS, build_wccg, connectivity,
-                                     frontier_bridges)
+from jaxplan.pusharound.wccg import MOVABLE, WCCG, Frontier, build_wccg, connectivity, frontier_bridges
 
 __all__ = ["Gap", "PresearchFeatures", "Ranking", "RankingParams", "candidate_gaps", "gap_costs",
            "one_hop_terms", "rank_gaps"]
@@ -168,7 +168,7 @@ def _insertion(g: WCCG, e: int, region: Polygon, encloses_start: bool) -> np.nda
     n = np.array([-d[1], d[0]]) / max(np.linalg.norm(d), 1e-12)
     # Probe just off the strip when the gap is open, farther when the bodies touch (the probe must
     # leave the crack between them).
-    tau = 3.0 * _BRIDGE_EPS * g.width if g.bridge_width[e] > 10 * _BRIDGE_EPS * g.width else 0.25 * g.width
+    tau = 3.0 * BRIDGE_EPS * g.width if g.bridge_width[e] > 10 * BRIDGE_EPS * g.width else 0.25 * g.width
     inside = bool(shapely.contains_xy(region, *(mid + tau * n)))
     side = n if inside == encloses_start else -n
     return mid + 0.5 * g.width * side

@@ -14,7 +14,7 @@ Definitions (exact forms in ``docs/pusharound.md``):
   end), so no W-clear path crosses the skeleton.
 - **Clusters**: connected components of the skeleton (union-find over bottleneck bridges). A
   cluster's region ``K_c`` has rings: one exterior and its holes (the bounded faces of the planar
-  arrangement of its pieces' boundaries and bridge segments, ``_face_rings``); **faces** are the
+  arrangement of its pieces' boundaries and bridge segments, :func:`faces.face_rings`); **faces** are the
   components of the plane minus all clusters. Two points lie in the same face iff no ring encloses
   exactly one of them (Janiszewski's theorem: disjoint clusters separate independently).
 - **Eq. 7**: connected iff start and goal are in the same face and both disks ``B(s, W/2)`` are
@@ -40,6 +40,8 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry import box as _box
 
+from jaxplan.pusharound.faces import (BRIDGE_EPS, QUAD_SEGS, Skeleton, active_bridges, build_skeleton,
+                                      cluster_region, cluster_rings)
 from jaxplan.pusharound.kernels import aabb_gaps, pack_polygons, pair_distances, point_distances
 from jaxplan.pusharound.scene import PushScene
 
@@ -48,15 +50,8 @@ __all__ = ["MOVABLE", "FIXED", "WALL", "WCCG", "Connectivity", "Frontier", "buil
 
 MOVABLE, FIXED, WALL = 0, 1, 2
 
-# Half-width of a bridge segment where it is made a polygon [m, relative to W]: the skeleton's
-# bridges have zero width; thin strips keep a cluster's outline one polygon, and faces shrunk by it keep
-# the rings of two faces that share a bridge apart.
-_BRIDGE_EPS = 1e-7
-# Snap-rounding grid of the noding of a cluster's linework [relative to W] (``_face_rings``).
-_NODING_GRID = 1e-9
-# Buffer resolution of the inflated clusters used for paths (segments per quarter circle), and the
-# finer one tried when a passage is within ~3e-4 W of W (the coarse polygon closes it).
-_QUAD_SEGS = 32
+# Buffer resolution of the inflated clusters used for paths when the default (``faces.QUAD_SEGS``)
+# closes a passage within ~3e-4 W of W [segments per quarter circle].
 _FINE_QUAD_SEGS = 512
 
 
@@ -165,148 +160,6 @@ def clearance(g: WCCG, points) -> np.ndarray:
         return np.asarray(point_distances(pts, g.verts)).min(axis=1)
 
 
-# ---------------------------------------------------------------------------------------------------
-# Skeleton: clusters and their rings
-# ---------------------------------------------------------------------------------------------------
-
-def _active(g: WCCG, removed) -> np.ndarray:
-    """bool[E]: bottleneck bridges not removed. removed: iterable of (body_a, body_b) pairs."""
-    act = g.bottleneck.copy()
-    if removed:
-        bb = g.bridge_bodies
-        for a, b in removed:
-            lo_, hi_ = min(a, b), max(a, b)
-            act &= ~((bb[:, 0] == lo_) & (bb[:, 1] == hi_))
-    return act
-
-
-def _clusters(n: int, uv: np.ndarray) -> np.ndarray:
-    """Connected-component labels i32[n] of the graph with edges ``uv`` (union-find)."""
-    parent = np.arange(n)
-
-    def find(x):
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
-    for u, v in uv:
-        ru, rv = find(u), find(v)
-        if ru != rv:
-            parent[max(ru, rv)] = min(ru, rv)
-    return np.array([find(i) for i in range(n)], np.int32)
-
-
-class _Ring(NamedTuple):
-    cluster: int
-    ring: shapely.LinearRing
-    region: Polygon  # the ring's interior (holes ignored): containment = "enclosed by the ring"
-    is_hole: bool
-    islands: tuple = ()  # a hole's islands (``_FaceRings``): LinearRings of the obstacle inside its face
-
-
-class _Skeleton(NamedTuple):
-    labels: np.ndarray      # i32[N] cluster of each component
-    active: np.ndarray      # bool[E]
-    regions: dict           # cluster -> Polygon K_c (lazily filled)
-
-
-def _skeleton(g: WCCG, removed=()) -> _Skeleton:
-    act = _active(g, removed)
-    return _Skeleton(_clusters(len(g.pieces), g.bridge_uv[act]), act, {})
-
-
-class _FaceRings(NamedTuple):
-    """K_c of a cluster as rings, read off the arrangement of its linework (``_face_rings``).
-
-    exterior: LinearRing, the cluster's outer boundary; interiors: LinearRings of the faces it
-    encloses (K_c's holes); islands: LinearRings around obstacle material that lies inside one of
-    those faces, joined to the face's boundary by bridges that close no loop (a hole ring of the
-    strip union would detour around it; here it is a ring of its own, which encloses obstacle, not
-    a face); island_face: i64[len(islands)], the index in ``interiors`` of the face each lies in.
-    """
-
-    exterior: shapely.LinearRing
-    interiors: list
-    islands: list
-    island_face: np.ndarray
-
-
-def _cluster_region(g: WCCG, sk: _Skeleton, c: int, inflate: float = 0.0, quad_segs: int = _QUAD_SEGS):
-    """K_c's rings (inflate = 0, a ``_FaceRings``) or K_c inflated by ``inflate`` (a Polygon; the
-    bridges are inside it then)."""
-    key = (c, inflate, quad_segs)
-    if key not in sk.regions:
-        comps = np.nonzero(sk.labels == c)[0]
-        if inflate > 0:
-            region = shapely.union_all([shapely.buffer(g.pieces[i], inflate, quad_segs=quad_segs) for i in comps])
-            if not isinstance(region, Polygon):  # numerically split: keep the largest part
-                region = max(getattr(region, "geoms", [region]), key=lambda p: p.area)
-        else:
-            bridges = np.nonzero(sk.active & np.isin(g.bridge_uv[:, 0], comps))[0]
-            region = _face_rings(g, comps, bridges)
-        sk.regions[key] = region
-    return sk.regions[key]
-
-
-def _face_rings(g: WCCG, comps: np.ndarray, bridges: np.ndarray) -> _FaceRings:
-    """The rings of the skeleton of components ``comps`` and bridges ``bridges`` (indices).
-
-    The faces K_c encloses are the bounded faces of the planar arrangement of the pieces' boundaries
-    and the bridge segments that lie outside every piece: the linework is noded once (a union of
-    lines) and polygonized. That is the zero-width skeleton itself. Unioning the pieces with a thin
-    polygon per bridge instead gives the same faces up to the strips' width (1e-7 W), but crossing
-    strips make it several times slower where bridges cross by the hundred (dense clutter: 784
-    bridges, 2,700 faces; ad hoc, 182 ms against 63 ms). The exterior is the outline of all
-    faces together with the strips of the bridges that are not inside them (bridges that close no
-    loop on the outside, and touching pieces).
-    """
-    pieces = np.asarray([g.pieces[i] for i in comps], dtype=object)
-    has_length = g.bridge_width[bridges] > 0
-    segments = shapely.linestrings(g.bridge_pts[bridges[has_length]]) if np.any(has_length) else []
-    # snap-rounded: a bridge end computed a rounding error off its piece's edge still meets the edge
-    linework = shapely.union_all(np.concatenate([shapely.get_exterior_ring(pieces), segments]),
-                                 grid_size=_NODING_GRID * g.width)
-    faces = shapely.get_parts(shapely.polygonize([linework]))   # one multi-line input: no per-line objects
-    inside = np.zeros(len(faces), bool)
-    pi, _ = shapely.STRtree(pieces).query(shapely.point_on_surface(faces), predicate="within")
-    inside[pi] = True
-    free = faces[~inside]
-    filled = shapely.coverage_union_all(faces)
-    eps = _BRIDGE_EPS * g.width
-    skeleton = np.empty(len(bridges), dtype=object)
-    skeleton[has_length] = segments
-    skeleton[~has_length] = shapely.points(g.bridge_pts[bridges[~has_length], 0])
-    outside = ~shapely.contains(filled, skeleton) if len(bridges) else np.zeros(0, bool)
-    strips = shapely.buffer(skeleton[outside], eps, quad_segs=1)
-    outline = shapely.union_all(np.concatenate([[filled], strips])) if len(strips) else filled
-    if not isinstance(outline, Polygon):  # numerically split: keep the largest part
-        outline = max(getattr(outline, "geoms", [outline]), key=lambda p: p.area)
-    # Adjacent faces share their bridges: shrunk by the strip half-width, their rings stay apart as
-    # the strip union's do, so a walk meets the ring it leaves before the one it enters.
-    holes = shapely.get_parts(shapely.buffer(free, -eps, quad_segs=1, join_style="mitre"))
-    holes = holes[~shapely.is_empty(holes)]
-    n_islands = shapely.get_num_interior_rings(holes)
-    with_k = [np.nonzero(n_islands > k)[0] for k in range(int(n_islands.max(initial=0)))]
-    islands = [ring for k, faces_k in enumerate(with_k) for ring in shapely.get_interior_ring(holes[faces_k], k)]
-    island_face = np.concatenate([np.zeros(0, np.int64), *with_k])
-    return _FaceRings(outline.exterior, list(shapely.get_exterior_ring(holes)), islands, island_face)
-
-
-def _rings(region, c: int) -> list:
-    """``_Ring``s of K_c (a ``_FaceRings``, or a Polygon: its exterior and holes)."""
-    holes = list(region.interiors)
-    islands = list(getattr(region, "islands", []))
-    in_face = [[] for _ in holes]
-    for ring, face in zip(islands, getattr(region, "island_face", [])):
-        in_face[face].append(ring)
-    rings = [region.exterior] + holes + islands
-    # One vectorised call builds every ring's interior (a cluster may have hundreds of sliver holes).
-    polys = shapely.polygons(np.asarray(rings, dtype=object))
-    return [_Ring(c, r, p, 0 < k <= len(holes), tuple(in_face[k - 1]) if 0 < k <= len(holes) else ())
-            for k, (r, p) in enumerate(zip(rings, polys))]
-
-
 def _segment_hits(seg: LineString, rings: list, s: np.ndarray, d: np.ndarray) -> list:
     """For each ring, the sorted crossing parameters ``t in [0, 1]`` along ``s + t d``."""
     dd = float(d @ d)
@@ -383,7 +236,7 @@ def _trace(seg_start, seg_goal, rings, separates):
         t, pos = t_leave, p_leave
 
 
-def _relevant_clusters(g: WCCG, sk: _Skeleton, seg: LineString) -> np.ndarray:
+def _relevant_clusters(g: WCCG, sk: Skeleton, seg: LineString) -> np.ndarray:
     """Clusters whose skeleton touches the segment (the others cannot be crossed by the walk)."""
     hit_comp = np.nonzero(shapely.intersects(np.asarray(g.pieces, dtype=object), seg))[0]
     act = np.nonzero(sk.active)[0]
@@ -402,19 +255,21 @@ def _relevant_clusters(g: WCCG, sk: _Skeleton, seg: LineString) -> np.ndarray:
     return np.unique(np.concatenate([sk.labels[hit_comp], sk.labels[g.bridge_uv[hit_br, 0]]]))
 
 
-def connectivity(g: WCCG, start, goal, removed=(), _sk: _Skeleton | None = None) -> Connectivity:
-    """Eq. 7 for the vehicle from ``start`` to ``goal`` (both (x, y) in the workspace).
+def connectivity(g: WCCG, start, goal, removed=(), *, skeleton: Skeleton | None = None) -> Connectivity:
+    """Eq. 7 for the vehicle from ``start`` to ``goal`` (both (x, y) in the workspace [m]).
 
-    removed: body pairs ``(a, b)`` whose bridges are ignored (a virtually widened gap).
+    removed: body pairs ``(a, b)`` whose bridges are ignored (a virtually widened gap). skeleton:
+    :func:`faces.build_skeleton` of ``g`` and ``removed`` to reuse (its cached cluster regions then
+    serve later queries on the same graph, e.g. the search's face graph); built here when None.
     """
-    sk = _sk if _sk is not None else _skeleton(g, removed)
+    sk = skeleton if skeleton is not None else build_skeleton(g, removed)
     s, gl = np.asarray(start, np.float64), np.asarray(goal, np.float64)
     clr = clearance(g, np.stack([s, gl]))
     r = 0.5 * g.width
     seg = LineString([s, gl])
     rings = []
     for c in _relevant_clusters(g, sk, seg):
-        rings += _rings(_cluster_region(g, sk, int(c)), int(c))
+        rings += cluster_rings(cluster_region(g, sk, int(c)), int(c))
     regions = np.asarray([rg.region for rg in rings], dtype=object)
     enc_s = [bool(v) for v in shapely.contains_xy(regions, *s)] if rings else []
     enc_g = [bool(v) for v in shapely.contains_xy(regions, *gl)] if rings else []
@@ -437,11 +292,11 @@ def frontier_bridges(g: WCCG, frontier: Frontier, removed=()) -> np.ndarray:
     midpoint (a face's ring runs 1e-7 W inside its bridges), or when its midpoint lies inside L's face:
     a bridge that hangs an island off L, or a spur into the face (a walk around L goes along both).
     """
-    act = np.nonzero(_active(g, removed))[0]
+    act = np.nonzero(active_bridges(g, removed))[0]
     if not len(act):
         return act
     mid = shapely.points(g.bridge_pts[act].mean(axis=1))
-    tol = 3.0 * _BRIDGE_EPS * g.width
+    tol = 3.0 * BRIDGE_EPS * g.width
     near = shapely.distance(shapely.LinearRing(frontier.ring), mid) <= tol
     for island in frontier.islands:
         near |= shapely.distance(shapely.LinearRing(island), mid) <= tol
@@ -500,7 +355,7 @@ def w_clear_path(g: WCCG, start, goal, delta: float | None = None, shorten: bool
     s, gl = np.asarray(start, np.float64), np.asarray(goal, np.float64)
     clr = float(clearance(g, np.stack([s, gl])).min())
     pieces = np.asarray(g.pieces, dtype=object)
-    for quad_segs, margins in ((_QUAD_SEGS, (1e-4 * g.width, 1e-2 * r)), (_FINE_QUAD_SEGS, (1e-6 * g.width,))):
+    for quad_segs, margins in ((QUAD_SEGS, (1e-4 * g.width, 1e-2 * r)), (_FINE_QUAD_SEGS, (1e-6 * g.width,))):
         cos = math.cos(math.pi / (4 * quad_segs))
         # GEOS may simplify a buffer's input by ~1% of the distance, so a path along it can dip a
         # little: every candidate is checked exactly and the next, wider margin is tried when it dips.
@@ -536,16 +391,16 @@ def _shorten(path: np.ndarray, obstacles, r: float, max_tries: int = 128) -> np.
 
 
 def _inflated_walk(g: WCCG, s: np.ndarray, gl: np.ndarray, rho: float,
-                   quad_segs: int = _QUAD_SEGS) -> np.ndarray | None:
+                   quad_segs: int = QUAD_SEGS) -> np.ndarray | None:
     """The frontier walk over the clusters inflated by ``rho`` (buffers of ``quad_segs`` segments per
     quarter circle): the polyline f64[P, 2] or None."""
-    sk = _skeleton(g)
+    sk = build_skeleton(g)
     seg = LineString([s, gl])
     # The inflated clusters the segment meets: those with a component within rho of it.
     near = np.nonzero(shapely.distance(np.asarray(g.pieces, dtype=object), seg) < rho)[0]
     rings = []
     for c in np.unique(sk.labels[near]):
-        rings += _rings(_cluster_region(g, sk, int(c), inflate=rho, quad_segs=quad_segs), int(c))
+        rings += cluster_rings(cluster_region(g, sk, int(c), inflate=rho, quad_segs=quad_segs), int(c))
     separates = [bool(shapely.contains_xy(rg.region, *s)) != bool(shapely.contains_xy(rg.region, *gl))
                  for rg in rings]
     pieces, blocking = _trace(s, gl, rings, separates)

@@ -170,12 +170,12 @@ def test_failed_push_triggers_an_online_replan(scene, world, planned):
 def test_push_cap_counts_from_the_schedule_length(scene, world, planned, monkeypatch):
     """``max_pushes=None`` allows the schedule's own pushes plus ``EXTRA_PUSHES`` for replanning, so
     a long plan is never cut short; an explicit cap counts every executed push."""
-    from jaxplan.pusharound import execution
+    from jaxplan.pusharound.execution import run as execution_run
 
     slow, _ = _push(world, 0.2, duration=0.6)
     wrong = planned._replace(task=slow)
     replan = lambda now: FakeResult(True, [planned._replace(poses_before=now.poses)])  # noqa: E731
-    monkeypatch.setattr(execution, "EXTRA_PUSHES", 0)
+    monkeypatch.setattr(execution_run, "EXTRA_PUSHES", 0)
     whole = execute_schedule(scene, [wrong, planned], world=world)   # two planned pushes, both run
     assert len(whole.executed) == 2 and whole.reason != "max_pushes (2) reached"
     capped = execute_schedule(scene, [wrong], world=world, replan=replan)   # no room for the replan's push
@@ -228,9 +228,10 @@ def test_transit_policy_tracks_its_path_jitted_and_not():
     import jax
     import jax.numpy as jnp
 
-    from jaxplan.pusharound.execution import _pack_paths, transit_policy
+    from jaxplan.pusharound.execution import transit_policy
+    from jaxplan.pusharound.execution.control import pack_paths
 
-    path, lens = _pack_paths([np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), np.array([[2.0, 2.0]])])
+    path, lens = pack_paths([np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), np.array([[2.0, 2.0]])])
     pol = functools.partial(transit_policy, (0, 1, 2, 3), 4.0, 0.8)
     params = {"path": jnp.asarray(path), "arclen": jnp.asarray(lens), "speed": jnp.asarray(0.5), "t0": jnp.asarray(1.0)}
     for t, on_ref, ff in ((0.0, [0.5, 0.0], [0.5, 0.0]), (2.0, [1.0, 0.5], [0.0, 0.5]), (9.0, [1.0, 1.0], [0.0, 0.0])):
@@ -248,13 +249,13 @@ def test_transition_path_brushes_a_movable_only_when_no_clear_route_exists(scene
     """The box leaves 0.3 m each side in the opening below the wall, too little for a robot with its
     margin: with brushing the path squeezes past the box (never touching the wall); without it, the
     straight segment through the wall. Where a clear route exists both find it."""
-    from jaxplan.pusharound.execution import _Roadmap
+    from jaxplan.pusharound.execution.roadmap import Roadmap
 
     r = float(scene.robot_radius)
     a, b = np.array([0.5, 2.0]), np.array([3.5, 2.0])
-    strict = _Roadmap(scene, scene.poses, r + 0.03, 0.05)
+    strict = Roadmap(scene, scene.poses, r + 0.03, 0.05)
     assert len(strict.path(a, b)) == 2
-    brush = _Roadmap(scene, scene.poses, r + 0.03, 0.05, (), r + 0.01, 10.0)
+    brush = Roadmap(scene, scene.poses, r + 0.03, 0.05, (), r + 0.01, 10.0)
     path = brush.path(a, b)
     assert len(path) > 2 and np.allclose(path[0], a) and np.allclose(path[-1], b)
     line = LineString(path)
@@ -262,7 +263,7 @@ def test_transition_path_brushes_a_movable_only_when_no_clear_route_exists(scene
     assert line.distance(scene.movables[0].polygon) < r + 0.03
     assert scene.workspace_polygon.buffer(-r).covers(line)
     opened = scene.with_poses([[3.5, 2.6, 0.0]])
-    clear = _Roadmap(opened, opened.poses, r + 0.03, 0.05, (), r + 0.01, 10.0).path(a, b)
+    clear = Roadmap(opened, opened.poses, r + 0.03, 0.05, (), r + 0.01, 10.0).path(a, b)
     assert LineString(clear).distance(opened.movables[0].polygon) >= r + 0.03 - 1e-6
     with pytest.raises(ValueError, match="brush_weight"):
         execute_schedule(scene, [], config=ExecutionConfig(brush_weight=-1.0))
@@ -272,30 +273,31 @@ def test_contacts_are_swapped_when_a_late_robot_would_cross_an_early_ones_contac
     """Two robots come from the left to two start points side by side on a line: the far robot must
     take the nearer point, or it would drive over the near robot's point after that robot arrived
     (a deadlock in physics). Both assignments have the same total length: only the timing decides."""
-    from jaxplan.pusharound.execution import _plan_transit, _Roadmap
+    from jaxplan.pusharound.execution.roadmap import Roadmap
+    from jaxplan.pusharound.execution.transit import plan_transit
 
     open_scene = scene.with_poses([[3.5, 2.6, 0.0]])                    # box out of the way
     robots = np.array([[0.3, 0.5], [1.2, 0.5]])                          # far, near
     starts = np.array([[2.66, 0.5], [2.34, 0.5]])                        # right, left
-    roadmap = _Roadmap(open_scene, open_scene.poses, 0.18, 0.05)
-    perm, paths = _plan_transit(roadmap, robots, starts, np.array([True, True]), 0.5, 0.15)
+    roadmap = Roadmap(open_scene, open_scene.poses, 0.18, 0.05)
+    perm, paths = plan_transit(roadmap, robots, starts, np.array([True, True]), 0.5, 0.15)
     assert perm.tolist() == [1, 0]                                       # far -> left point, near -> right
     np.testing.assert_allclose(paths[0][-1], starts[1])
     np.testing.assert_allclose(paths[1][-1], starts[0])
     # one active robot: nothing to swap; the idle one keeps its place
-    perm, paths = _plan_transit(roadmap, robots, starts, np.array([True, False]), 0.5, 0.15)
+    perm, paths = plan_transit(roadmap, robots, starts, np.array([True, False]), 0.5, 0.15)
     assert perm.tolist() == [0, 1] and len(paths[1]) == 1
 
 
 def test_robots_driving_head_on_meet_and_parallel_ones_do_not():
-    from jaxplan.pusharound.execution import _meet
+    from jaxplan.pusharound.execution.transit import paths_meet
 
     a, b = np.array([[0.0, 0.0], [2.0, 0.0]]), np.array([[2.0, 0.0], [0.0, 0.0]])
-    assert _meet(a, b, 0.5, 0.15)                                         # swap places on one line
-    assert not _meet(a, a + [0.0, 0.5], 0.5, 0.15)                        # side by side, 0.5 m apart
+    assert paths_meet(a, b, 0.5, 0.15)                                         # swap places on one line
+    assert not paths_meet(a, a + [0.0, 0.5], 0.5, 0.15)                        # side by side, 0.5 m apart
     touching = np.array([[0.0, 0.3], [0.0, 1.0]])                         # start in contact, move apart
-    assert not _meet(np.array([[0.0, 0.0], [0.0, -1.0]]), touching, 0.5, 0.15)
-    assert not _meet(a[:1], np.array([[1.0, 0.0]]), 0.5, 0.15)            # two robots standing still
+    assert not paths_meet(np.array([[0.0, 0.0], [0.0, -1.0]]), touching, 0.5, 0.15)
+    assert not paths_meet(a[:1], np.array([[1.0, 0.0]]), 0.5, 0.15)            # two robots standing still
 
 
 def test_a_corridor_that_closes_during_the_retreat_does_not_end_the_execution():

@@ -183,10 +183,10 @@ def test_narrow_opening_disconnects_and_widening_connects():
 
 def _strip_union_holes(g, sk, c):
     """The faces of cluster c the plain way: the pieces unioned with a thin polygon per bridge."""
-    from jaxplan.pusharound.wccg import _BRIDGE_EPS  # noqa: PLC0415
+    from jaxplan.pusharound.faces import BRIDGE_EPS  # noqa: PLC0415
     comps = np.nonzero(sk.labels == c)[0]
     bridges = np.nonzero(sk.active & np.isin(g.bridge_uv[:, 0], comps))[0]
-    eps = _BRIDGE_EPS * g.width
+    eps = BRIDGE_EPS * g.width
     strips = [shapely.buffer(shapely.LineString(g.bridge_pts[e]) if g.bridge_width[e] > 0
                              else shapely.Point(g.bridge_pts[e, 0]), eps, quad_segs=1) for e in bridges]
     region = shapely.union_all([g.pieces[i] for i in comps] + strips)
@@ -197,11 +197,11 @@ def _strip_union_holes(g, sk, c):
 def test_face_rings_equal_the_strip_union(seed):
     """The polygonized faces (less the islands in them) cover what the strip union's holes cover,
     and the exterior is the same, up to the strips' width."""
-    from jaxplan.pusharound.wccg import _cluster_region, _skeleton  # noqa: PLC0415
+    from jaxplan.pusharound.faces import build_skeleton, cluster_region  # noqa: PLC0415
     g = build_wccg(nominal_scene(seed))
-    sk = _skeleton(g)
+    sk = build_skeleton(g)
     for c in np.unique(sk.labels):
-        rings = _cluster_region(g, sk, int(c))
+        rings = cluster_region(g, sk, int(c))
         region, holes = _strip_union_holes(g, sk, int(c))
         # faces and islands nest alternately (an island may enclose faces of its own): free space is
         # what an odd number of them enclose
@@ -218,9 +218,9 @@ def test_an_island_in_a_face_is_a_ring_of_its_own():
     d["movables"].append({"name": "island", "pieces": [_box(2.0, 2.6, 2.6, 3.2)], "mass": 5.0})
     scene = PushScene.from_dict(d)
     g = build_wccg(scene)
-    from jaxplan.pusharound.wccg import _cluster_region, _rings, _skeleton  # noqa: PLC0415
-    sk = _skeleton(g)
-    rings = [r for c in np.unique(sk.labels) for r in _rings(_cluster_region(g, sk, int(c)), int(c))]
+    from jaxplan.pusharound.faces import build_skeleton, cluster_region, cluster_rings  # noqa: PLC0415
+    sk = build_skeleton(g)
+    rings = [r for c in np.unique(sk.labels) for r in cluster_rings(cluster_region(g, sk, int(c)), int(c))]
     island = [r for r in rings if not r.is_hole and r.region.contains(shapely.Point(2.3, 2.9))]
     assert len(island) == 2    # its cluster's exterior and the island ring
     assert min(r.region.area for r in island) == pytest.approx(0.36, abs=1e-5)

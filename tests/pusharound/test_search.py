@@ -143,18 +143,21 @@ def test_stale_stuck_penalties_are_taken_in_on_pop():
     """The stuck penalty of a gap grows during the search; an evaluated node takes the growth into its
     targets' one-hop costs (so a node evaluated early does not keep a cheaper estimate than its
     later siblings), once per growth."""
-    from jaxplan.pusharound.search import SEARCH_RANKING, _Search  # noqa: PLC0415
-    search = _Search(ONE, FAST, SEARCH_RANKING, None, None, None, None)
-    root = search._new_node(ONE.poses, np.asarray(ONE.robots, np.float64), (), 0.0, 0.0)
-    assert search._evaluate(root) is None
+    from jaxplan.pusharound.search import SEARCH_RANKING  # noqa: PLC0415
+    from jaxplan.pusharound.search.context import SearchRun, new_context  # noqa: PLC0415
+    from jaxplan.pusharound.search.evaluation import evaluate_node, refresh_stuck  # noqa: PLC0415
+    ctx = new_context(ONE, FAST, SEARCH_RANKING)
+    run = SearchRun(np.random.default_rng(FAST.seed))
+    root = run.new_node(ONE.poses, np.asarray(ONE.robots, np.float64), (), 0.0, 0.0)
+    assert evaluate_node(ctx, run, root) is None
     best = root.targets[0]
-    assert not search._refresh_stuck(root)
-    search.stuck[best.bodies] = 2.0
-    assert search._refresh_stuck(root)
+    assert not refresh_stuck(ctx, run, root)
+    run.stuck[best.bodies] = 2.0
+    assert refresh_stuck(ctx, run, root)
     refreshed = {tg.bodies: tg.cost for tg in root.targets}
     assert refreshed[best.bodies] == pytest.approx(best.cost + 2.0)
     assert root.h == pytest.approx(min(refreshed.values()))
-    assert not search._refresh_stuck(root)
+    assert not refresh_stuck(ctx, run, root)
 
 
 def test_deterministic_for_a_seed(one_world):
