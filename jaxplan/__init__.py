@@ -9,7 +9,7 @@ Public API::
 """
 from jaxplan._compile import limit_malloc_arenas, single_cpu
 from jaxplan.connectors import Connectors, plan_connectors
-from jaxplan.episode import Episode, EpisodeParams, run_episode
+from jaxplan.episode import Episode, EpisodeParams, EpisodeState, StepRecord, reset, run_episode, step
 from jaxplan.execute import Push, Route
 from jaxplan.fabric import Fabric, Paths, Table, build_fabric, extract_paths
 from jaxplan.params import FabricParams
@@ -30,12 +30,12 @@ _LAZY = {
 _LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference")
 
 __all__ = [
-    "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "Fabric",
+    "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState", "Fabric",
     "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "SearchConfig", "Route", "Scene", "Selection",
-    "SiteParams", "SoftFabric", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
+    "SiteParams", "SoftFabric", "SpillParams", "StepRecord", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
     "circle", "connectivity", "extract_paths", "limit_malloc_arenas", "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes",
-    "random_sites", "rank_gaps", "refresh_connectors", "reselect", "run_episode", "run_sites", "select_routes", "selective_rebuild",
-    "simulate_site", "single_cpu", "sweep", "tune",
+    "random_sites", "rank_gaps", "refresh_connectors", "reselect", "reset", "run_episode", "run_sites", "select_routes", "selective_rebuild",
+    "simulate_site", "single_cpu", "step", "sweep", "tune",
 ]
 __version__ = "0.1.0"
 
