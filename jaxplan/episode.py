@@ -353,6 +353,7 @@ class StepRecord(NamedTuple):
     route_length: f32[] world units pushed (spline length).  approach: f32[] world units driven
       straight from the rover's position to the source before the push.
     remaining: f32[] objects outside the target after the push.
+    mass: f32[] objects on the whole grid after the push (a push conserves it: ``initial_mass``).
     delivered, spilled: f32[] objects, cumulative over the episode's pushes so far (float32 sums).
     driven: f32[] world units, cumulative approaches plus routes.
     push: i32[] the push's number (1, 2, ...; 0 when not valid).
@@ -369,6 +370,7 @@ class StepRecord(NamedTuple):
     route_length: jax.Array
     approach: jax.Array
     remaining: jax.Array
+    mass: jax.Array
     delivered: jax.Array
     spilled: jax.Array
     driven: jax.Array
@@ -447,7 +449,7 @@ def _advance(state: EpisodeState, plan: Plan, push: execute.Push, new_obj, go, e
     keep = lambda x: jnp.where(go, x, jnp.zeros_like(x))  # noqa: E731
     record = StepRecord(jnp.where(go, plan.source, -1), keep(plan.mode), keep(push.collected),
                         keep(push.delivered), keep(push.spilled), keep(push.length), keep(approach),
-                        keep(remaining), keep(delivered), keep(spilled), keep(driven), keep(tick), jnp.asarray(go, bool),
+                        keep(remaining), keep(jnp.sum(new_obj)), keep(delivered), keep(spilled), keep(driven), keep(tick), jnp.asarray(go, bool),
                         new.stop)
     return new, jax.tree.map(lambda a, like: jnp.asarray(a, like.dtype), record, _record_like())
 
@@ -455,7 +457,7 @@ def _advance(state: EpisodeState, plan: Plan, push: execute.Push, new_obj, go, e
 def _record_like() -> StepRecord:
     """The dtypes of a StepRecord's fields."""
     f, i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
-    return StepRecord(jnp.zeros(2, jnp.int32), i, f, f, f, f, f, f, f, f, f, i, jnp.zeros((), bool), i)
+    return StepRecord(jnp.zeros(2, jnp.int32), i, f, f, f, f, f, f, f, f, f, f, i, jnp.zeros((), bool), i)
 
 
 def _idle_record(state: EpisodeState) -> StepRecord:
