@@ -514,8 +514,30 @@ def rollout(state: EpisodeState, params: FabricParams, spill: spillage.SpillPara
                         state, None, length=n_steps)
 
 
+def rollout_scenes(scenes, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams, n_steps: int,
+                   *, walk_cap: int | None = None, evaluator: spillage.Evaluator = spillage.curvature_spill):
+    """``reset`` then ``rollout`` for a batch of scenes of one shape in one program (``vmap``):
+    ``(initial states, final states, records)`` with a leading batch axis B; records are [B, n_steps].
+
+    scenes: one Scene whose leaves are stacked along a leading axis B (``stack_scenes``); params,
+    spill, episode are shared. Jitted as ``rollout_scenes_jit``.
+    """
+    def one(scene):
+        start = reset(scene, params, spill, episode)
+        final, records = rollout(start, params, spill, episode, n_steps, walk_cap=walk_cap, evaluator=evaluator)
+        return start, final, records
+
+    return jax.vmap(one)(scenes)
+
+
+def stack_scenes(scenes):
+    """One Scene pytree with the leaves of ``scenes`` (same shape and cell size) stacked on axis 0."""
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *scenes)
+
+
 step_jit = grid_jit(step, static_argnames=("walk_cap", "evaluator"))
 rollout_jit = grid_jit(rollout, static_argnames=("n_steps", "walk_cap", "evaluator"))
+rollout_scenes_jit = grid_jit(rollout_scenes, static_argnames=("n_steps", "walk_cap", "evaluator"))
 
 
 # ------------------------------------------------------------------------------------------ the loop
