@@ -32,8 +32,8 @@ import jax
 import numpy as np
 
 from experiments._results import write_results
-from jaxplan import FabricParams, SpillParams, run_episode
-from jaxplan.episode import (STOP_REASONS, EpisodeParams, default_walk_cap, rollout_scenes_jit,
+from jaxplan import FabricParams, SpillParams, build_fabric, run_episode
+from jaxplan.episode import (STOP_REASONS, EpisodeParams, act, default_walk_cap, reset, rollout_scenes_jit,
                              stack_scenes)
 from jaxplan.sweep import random_scene
 
@@ -67,6 +67,24 @@ def _batch(stacked, params, spill, episode, walk_cap, repeats):
     return jax.device_get(records), jax.device_get(final), first, runs
 
 
+def _breakdown(stacked, params, spill, episode, walk_cap, repeats) -> dict:
+    """Milliseconds per batch step of its two parts, each jitted and vmapped alone on the first
+    state: ``act`` (plan, push, bookkeeping) and the full build."""
+    def median_ms(fn, *args):
+        jax.block_until_ready(fn(*args))   # compiles
+        runs = []
+        for _ in range(max(repeats, 3)):
+            start = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            runs.append((time.perf_counter() - start) * 1e3)
+        return statistics.median(runs)
+
+    states = jax.jit(jax.vmap(lambda s: reset(s, params, spill, episode)))(stacked)
+    act_ms = median_ms(jax.jit(jax.vmap(lambda st: act(st, params, spill, episode, walk_cap=walk_cap)[:2])), states)
+    build_ms = median_ms(jax.jit(jax.vmap(lambda s: build_fabric(s, params))), states.scene)
+    return {"walk_cap": walk_cap, "act_ms": act_ms, "build_ms": build_ms}
+
+
 def _compare(records, final, episodes) -> list[str]:
     """Differences between the batch and the host loop, one line per episode that differs."""
     out = []
@@ -91,7 +109,8 @@ def _compare(records, final, episodes) -> list[str]:
     return out
 
 
-def measure(batch: int, side: int, max_pushes: int, density: float, lam: float, walk_caps, repeats: int) -> dict:
+def measure(batch: int, side: int, max_pushes: int, density: float, lam: float, walk_caps, repeats: int,
+            breakdown: bool = True) -> dict:
     scenes = [random_scene(seed, (side, side), density) for seed in range(batch)]
     params, spill = FabricParams(), SpillParams(lam=lam)
     episode = EpisodeParams(max_pushes=max_pushes, rebuild="full")
@@ -105,6 +124,7 @@ def measure(batch: int, side: int, max_pushes: int, density: float, lam: float, 
                      "compile_s": first - steady, "pushes_per_s": pushes / steady, "records": records, "final": final})
         print(f"batch, walk cap {cap}: {pushes} pushes in {steady:.3f} s ({pushes / steady:.0f}/s); "
               f"compile ~{first - steady:.1f} s", flush=True)
+    parts = _breakdown(stacked, params, spill, episode, walk_caps[-1], repeats) if breakdown else None
     episodes, host_first, host_total = _host(scenes, params, spill, episode)
     host_pushes = sum(e.n_pushes for e in episodes)
     host_rate = host_pushes / host_total
@@ -117,6 +137,7 @@ def measure(batch: int, side: int, max_pushes: int, density: float, lam: float, 
         row["ratio"] = row["pushes_per_s"] / host_rate
     return {"batch": batch, "shape": [side, side], "max_pushes": max_pushes, "density": density, "lam": lam,
             "repeats": repeats, "default_walk_cap": default_walk_cap((side, side)), "batched": rows,
+            "breakdown": parts,
             "host": {"pushes": host_pushes, "total_s": host_total, "pushes_per_s": host_rate,
                      "first_episode_s": host_first, "median_plan_ms": ms("plan_ms"),
                      "median_execute_ms": ms("execute_ms"), "median_rebuild_ms": ms("rebuild_ms"),
@@ -143,6 +164,20 @@ def markdown(result: dict) -> str:
               f"{h['median_execute_ms']:.2f} ms, rebuild {h['median_rebuild_ms']:.2f} ms; the rest of its "
               f"{1e3 / h['pushes_per_s']:.2f} ms per push is the host's own work (reads, dispatch, Python).",
               f"Stop reasons: {', '.join(h['stop_reasons'])}."]
+    parts = result.get("breakdown")
+    if parts:
+        b = result["batch"]
+        host_ms = 1e3 / h["pushes_per_s"]
+        lines += ["", f"Where a batch step's time goes (each part jitted and vmapped alone on the first state, walk cap "
+                  f"{parts['walk_cap']}): `act` (plan, push, bookkeeping) {parts['act_ms']:.1f} ms and the full build "
+                  f"{parts['build_ms']:.1f} ms for {b} episodes, i.e. {parts['act_ms'] / b:.2f} and "
+                  f"{parts['build_ms'] / b:.2f} ms per episode, against the host loop's plan + execute "
+                  f"{h['median_plan_ms'] + h['median_execute_ms']:.2f} ms and rebuild {h['median_rebuild_ms']:.2f} ms "
+                  f"per push. Batching removes the host's own work and shares planning's many small sequential "
+                  f"operations (walks, splines) across episodes; the build gains "
+                  f"{h['median_rebuild_ms'] / (parts['build_ms'] / b):.2f}x from it, so even with a free `act` the "
+                  f"batch could not exceed {host_ms / (parts['build_ms'] / b):.1f}x the host loop's {host_ms:.2f} ms "
+                  "per push."]
     for r in result["batched"]:
         for m in r["mismatches"]:
             lines.append(f"- walk cap {r['walk_cap']}: {m}")
@@ -164,6 +199,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=None, help="timed calls of the compiled batch (default 3, --quick 1)")
     ap.add_argument("--quick", action="store_true",
                     help="a tiny run (defaults 4 episodes, 12x12, 4 pushes, 1 repeat; explicit options win)")
+    ap.add_argument("--no-breakdown", action="store_true", help="skip timing act and the build apart")
     ap.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     args = ap.parse_args(argv)
     for key, full, quick in (("batch", 64, 4), ("side", 32, 12), ("max_pushes", 30, 4), ("repeats", 3, 1)):
@@ -174,7 +210,8 @@ def main(argv=None) -> int:
     caps = [default_walk_cap((args.side, args.side)) if args.walk_cap is None else args.walk_cap]
     if args.also_walk_cap is not None and args.also_walk_cap not in caps:
         caps.append(args.also_walk_cap)
-    result = measure(args.batch, args.side, args.max_pushes, args.density, args.lam, caps, args.repeats)
+    result = measure(args.batch, args.side, args.max_pushes, args.density, args.lam, caps, args.repeats,
+                     breakdown=not args.no_breakdown)
     result = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "host_machine": platform.platform(),
               "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
               "jax": jax.__version__, "backend": jax.default_backend(), **result}
