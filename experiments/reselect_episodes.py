@@ -31,7 +31,7 @@ import numpy as np
 
 from jaxplan import BUILTIN_SCENES, FabricParams, build_fabric, builtin_scene, run_episode
 from jaxplan.transport import selection
-from jaxplan.transport.episode import EpisodeParams, _walk_cap
+from jaxplan.transport.episode import EpisodeParams, default_walk_cap
 from jaxplan.transport.spillage import SpillParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -57,7 +57,7 @@ def one_call(scene_name: str, lam: float, repeats: int) -> dict:
     """One reselection of the scene's first fabric, compact vs every entry (module docstring)."""
     scene, params, spill = builtin_scene(scene_name), FabricParams(), SpillParams(lam=lam)
     fabric = build_fabric(scene, params)
-    walk = _walk_cap(scene.shape)
+    walk = default_walk_cap(scene.shape)
     compact = lambda: selection.reselect(scene, params, fabric, spill, max_steps=walk)  # noqa: E731
     every = lambda: selection.reselect_jit(scene, params, fabric, spill, max_steps=walk)  # noqa: E731
     same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(jax.tree.leaves(compact()),

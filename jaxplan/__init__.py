@@ -6,13 +6,16 @@ Public API::
     scene = jaxplan.builtin_scene()
     fabric = jaxplan.build_fabric(scene, jaxplan.FabricParams(theta_tol_deg=60.0))
     episode = jaxplan.run_episode(scene)      # plan, push, spill, rebuild until delivered
+
+Each system is a package (``jaxplan.transport``, ``jaxplan.pusharound``, ``jaxplan.teams``) whose
+public API is re-exported here; docs/architecture.md is the map.
 """
 from jaxplan.core import limit_malloc_arenas, single_cpu
-from jaxplan.transport import (BUILTIN_SCENES, DEFAULT_SCENE, Affected, Connectors, Episode, EpisodeParams, Fabric,
-                               FabricParams, Paths, Push, Route, Scene, Selection, SoftFabric, SpillParams, Table, box,
-                               build_fabric, builtin_scene, circle, extract_paths, plan_connectors, random_scene,
-                               refresh_connectors,
-                               reselect, run_episode, select_routes, selective_rebuild)
+from jaxplan.transport import (BUILTIN_SCENES, DEFAULT_SCENE, Affected, Connectors, Episode, EpisodeParams,
+                               EpisodeState, Fabric, FabricParams, Paths, Push, Route, Scene, Selection, SoftFabric,
+                               SpillParams, StepRecord, Table, box, build_fabric, builtin_scene, circle, extract_paths,
+                               plan_connectors, random_scene, refresh_connectors, reselect, reset, run_episode,
+                               select_routes, selective_rebuild, step)
 
 # PushAround, the team model, sweeps and tuning load on first use: each pulls in libraries (MuJoCo,
 # optax) that planning on a grid does not need, so ``import jaxplan`` stays quick and small.
@@ -25,12 +28,13 @@ _LAZY = {
 _LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference", "core", "transport", "cli")
 
 __all__ = [
-    "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "Fabric",
-    "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "SearchConfig", "Route", "Scene", "Selection",
-    "SiteParams", "SoftFabric", "SpillParams", "Table", "TeamsConfig", "box", "build_fabric", "build_wccg", "builtin_scene",
-    "circle", "connectivity", "extract_paths", "limit_malloc_arenas", "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes", "random_scene",
-    "random_sites", "rank_gaps", "refresh_connectors", "reselect", "run_episode", "run_sites", "select_routes", "selective_rebuild",
-    "simulate_site", "single_cpu", "sweep", "tune",
+    "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState",
+    "Fabric", "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "Route", "Scene", "SearchConfig",
+    "Selection", "SiteParams", "SoftFabric", "SpillParams", "StepRecord", "Table", "TeamsConfig", "box",
+    "build_fabric", "build_wccg", "builtin_scene", "circle", "connectivity", "extract_paths", "limit_malloc_arenas",
+    "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes", "random_scene", "random_sites",
+    "rank_gaps", "refresh_connectors", "reselect", "reset", "run_episode", "run_sites", "select_routes",
+    "selective_rebuild", "simulate_site", "single_cpu", "step", "sweep", "tune",
 ]
 __version__ = "0.1.0"
 

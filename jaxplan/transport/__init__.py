@@ -9,7 +9,7 @@ Data flows one way (docs/architecture.md): ``scene`` -> ``visibility`` (successo
 draws fabrics and episodes.
 """
 from jaxplan.transport.connectors import Connectors, plan_connectors
-from jaxplan.transport.episode import Episode, EpisodeParams, run_episode
+from jaxplan.transport.episode import Episode, EpisodeParams, EpisodeState, StepRecord, reset, run_episode, step
 from jaxplan.transport.execute import Push, Route
 from jaxplan.transport.fabric import Fabric, Paths, Table, build_fabric, extract_paths
 from jaxplan.transport.params import FabricParams
@@ -20,7 +20,7 @@ from jaxplan.transport.selection import Selection, reselect, select_routes
 from jaxplan.transport.soft import SoftFabric
 from jaxplan.transport.spillage import SpillParams
 
-__all__ = ["BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "Fabric",
-           "FabricParams", "Paths", "Push", "Route", "Scene", "Selection", "SoftFabric", "SpillParams", "Table",
+__all__ = ["BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState", "Fabric",
+           "FabricParams", "Paths", "Push", "Route", "Scene", "Selection", "SoftFabric", "SpillParams", "StepRecord", "Table",
            "box", "build_fabric", "builtin_scene", "circle", "extract_paths", "plan_connectors", "random_scene",
-           "refresh_connectors", "reselect", "run_episode", "select_routes", "selective_rebuild"]
+           "refresh_connectors", "reselect", "reset", "run_episode", "select_routes", "selective_rebuild", "step"]

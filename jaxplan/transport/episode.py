@@ -22,6 +22,14 @@ rebuild always continues from the entry-0 fabric, so it stays exact.
 
 The loop stops when the mass outside the target is at most ``stop_fraction`` of its initial value,
 when ``max_pushes`` pushes are spent, or when the chosen source has no complete route.
+
+Pure form: ``EpisodeState`` holds everything carried from one push to the next (counts, fabric, rover
+positions, tick, done flag and stop code, running totals). ``reset`` makes the first state; ``act``
+plans and pushes one tick; ``step`` is ``act`` plus the full rebuild, one jittable program that leaves
+a finished state as it is, so ``rollout`` (``jax.lax.scan``) runs an episode and ``rollout_scenes``
+(``vmap``) a batch of scenes of one shape. The walk length is static there (``default_walk_cap``).
+``run_episode`` drives the same pieces from the host, adding the timing, the selective rebuild, the
+frames and a second, longer walk when a route does not fit the cap.
 """
 from __future__ import annotations
 
@@ -289,13 +297,268 @@ class Episode:
         return out
 
 
-def _outside_mass(scene) -> float:
-    return float(jnp.sum(jnp.where(scene.target_mask, 0.0, scene.obj)))
-
-
-def _walk_cap(shape) -> int:
+def default_walk_cap(shape) -> int:
+    """The static walk length ``step`` uses unless told otherwise: ``min(H W + 1, 4 (H + W))`` steps for
+    a grid of ``shape = (H, W)``. Longer routes are rare; ``run_episode`` then walks again with room
+    for any simple path (``H W + 1``), which a jitted ``step`` cannot (stop reason "walk_cap")."""
     h, w = shape
     return min(h * w + 1, 4 * (h + w))
+
+
+# ------------------------------------------------------------------------------ the episode's state
+
+# Stop codes (EpisodeState.stop, StepRecord.stop), indices into STOP_REASONS. DONE: the mass outside
+# the target fell to stop_fraction of its initial value; CLEARED: no occupied cell is left outside the
+# target (also "done"); WALK_CAP: the chosen route is longer than the static walk cap.
+RUNNING, DONE, CLEARED, BUDGET, NO_MATERIAL, NO_ROUTE, WALK_CAP = range(7)
+STOP_REASONS = ("running", "done", "done", "budget", "no_material", "no_route", "walk_cap")
+
+
+class EpisodeState(NamedTuple):
+    """Everything an episode carries from one push to the next. A pytree of arrays; N rovers.
+
+    scene: Scene, the counts now in ``scene.obj`` (f32[H, W], objects, multiples of
+      ``execute.QUANTUM``) and the fixed geometry.
+    fabric: Fabric built (entry 0, Eq. 5) for ``scene.obj``; ``reselect`` is applied when planning.
+    rovers: f32[N, 2], world (x, y) of each rover: where its last route delivered, at the start the
+      centroid of the target cells' centres. N = 1.
+    tick: i32[], pushes done so far.
+    done: bool[], the episode has stopped; ``step`` leaves a done state as it is.
+    stop: i32[], stop code (``STOP_REASONS[stop]``; ``RUNNING`` = 0 until done).
+    delivered, spilled: f32[], objects delivered to the target / spilled beside routes, all pushes.
+    remaining: f32[], objects outside the target now.
+    driven: f32[], world units driven (approaches plus pushed splines), all pushes.
+    initial_mass: f32[], objects on the grid at the start (target included; conserved by pushes).
+    initial_remaining: f32[], objects outside the target at the start.
+    stop_at: f32[], objects: the episode is done once ``remaining <= stop_at``
+      (``stop_fraction * initial_remaining``).
+    """
+
+    scene: Any
+    fabric: Fabric
+    rovers: jax.Array
+    tick: jax.Array
+    done: jax.Array
+    stop: jax.Array
+    delivered: jax.Array
+    spilled: jax.Array
+    remaining: jax.Array
+    driven: jax.Array
+    initial_mass: jax.Array
+    initial_remaining: jax.Array
+    stop_at: jax.Array
+
+
+class StepRecord(NamedTuple):
+    """One push's metrics (the columns of ``Episode``). All zero, ``source`` -1, when not ``valid``.
+
+    source: i32[2], (row, col) of the pushed source.  mode: i32[] (0 deliver, 1 rearrange).
+    collected, push_delivered, push_spilled: f32[] objects picked up, added to the target, dropped
+      beside the route by this push (collected = push_delivered + push_spilled).
+    route_length: f32[] world units pushed (spline length).  approach: f32[] world units driven
+      straight from the rover's position to the source before the push.
+    remaining: f32[] objects outside the target after the push.
+    mass: f32[] objects on the whole grid after the push (a push conserves it: ``initial_mass``).
+    delivered, spilled: f32[] objects, cumulative over the episode's pushes so far (float32 sums).
+    driven: f32[] world units, cumulative approaches plus routes.
+    push: i32[] the push's number (1, 2, ...; 0 when not valid).
+    valid: bool[] a push happened; False for the step that found the episode done (or ended it
+      without pushing: no source, no route, walk cap).
+    stop: i32[] the state's stop code after this step (``STOP_REASONS``).
+    """
+
+    source: jax.Array
+    mode: jax.Array
+    collected: jax.Array
+    push_delivered: jax.Array
+    push_spilled: jax.Array
+    route_length: jax.Array
+    approach: jax.Array
+    remaining: jax.Array
+    mass: jax.Array
+    delivered: jax.Array
+    spilled: jax.Array
+    driven: jax.Array
+    push: jax.Array
+    valid: jax.Array
+    stop: jax.Array
+
+
+def _f32(x):
+    return jnp.asarray(x, jnp.float32)
+
+
+def _i32(x):
+    return jnp.asarray(x, jnp.int32)
+
+
+def _outside(scene):
+    """f32[]: objects outside the target (exact: counts are multiples of QUANTUM)."""
+    return jnp.sum(jnp.where(scene.target_mask, 0.0, scene.obj))
+
+
+def _stop_code(remaining, initial_remaining, stop_at, tick, max_pushes: int):
+    """i32[]: the stop code checked before each push (run_episode's order: no material, done, budget)."""
+    return _i32(jnp.select([initial_remaining <= 0, remaining <= stop_at, tick >= max_pushes],
+                           [NO_MATERIAL, DONE, BUDGET], RUNNING))
+
+
+def _plan_code(plan: Plan, cap: int, shape):
+    """i32[]: why ``plan`` cannot be pushed (RUNNING when it can). An incomplete walk under a cap
+    shorter than any simple path is WALK_CAP (walking again may complete it), otherwise NO_ROUTE."""
+    incomplete = ~plan.complete
+    return _i32(jnp.select([~plan.has_source, incomplete & (cap < shape[0] * shape[1] + 1),
+                            incomplete | ~jnp.isfinite(plan.raw)],
+                           [CLEARED, WALK_CAP, NO_ROUTE], RUNNING))
+
+
+def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams | None = None,
+          episode: EpisodeParams | None = None) -> EpisodeState:
+    """The state before the first push: counts rounded to ``execute.QUANTUM``, the fabric built, the
+    rover on the target's centroid, the start's stop checks applied (no material, budget 0). Pure and
+    jittable (``vmap`` it over scenes of one shape). spill is not read; it keeps the signature of
+    ``step``. Concrete parameters are not validated here (``run_episode`` does)."""
+    params = FabricParams() if params is None else params
+    ep = EpisodeParams() if episode is None else episode
+    del spill
+    scene = scene.with_obj(execute.quantize(scene.obj))
+    fabric = build_fabric(scene, params)
+    target = jnp.asarray(scene.target_mask, bool)
+    centres = scene.cell_centers()
+    rover = jnp.sum(jnp.where(target[..., None], centres, 0.0), (0, 1)) / jnp.maximum(jnp.sum(target), 1)
+    initial_mass = _f32(jnp.sum(scene.obj))
+    initial_remaining = _f32(_outside(scene))
+    stop_at = _f32(_f32(ep.stop_fraction) * initial_remaining)
+    tick = _i32(0)
+    stop = _stop_code(initial_remaining, initial_remaining, stop_at, tick, ep.max_pushes)
+    zero = _f32(0.0)
+    return EpisodeState(scene, fabric, _f32(rover)[None], tick, stop != RUNNING, stop, zero, zero,
+                        initial_remaining, zero, initial_mass, initial_remaining, stop_at)
+
+
+def _advance(state: EpisodeState, plan: Plan, push: execute.Push, new_obj, go, ep: EpisodeParams):
+    """``(state, record)`` after pushing ``plan`` (``push``, ``new_obj``: ``execute``'s output) when
+    ``go``; otherwise ``state`` unchanged and an invalid record. The fabric is left as it was."""
+    scene = state.scene.with_obj(new_obj)
+    remaining = _f32(_outside(scene))
+    approach = jnp.linalg.norm(scene.cell_centers()[plan.source[0], plan.source[1]] - state.rovers[0])
+    tick = state.tick + 1
+    delivered = state.delivered + push.delivered
+    spilled = state.spilled + push.spilled
+    driven = state.driven + approach + push.length
+    stop = _stop_code(remaining, state.initial_remaining, state.stop_at, tick, ep.max_pushes)
+    pushed = EpisodeState(scene, state.fabric, state.rovers.at[0].set(plan.route.end), tick, stop != RUNNING,
+                          stop, delivered, spilled, remaining, driven, state.initial_mass,
+                          state.initial_remaining, state.stop_at)
+    new = jax.tree.map(lambda a, b: jnp.where(go, a, b), pushed, state)
+    keep = lambda x: jnp.where(go, x, jnp.zeros_like(x))  # noqa: E731
+    record = StepRecord(jnp.where(go, plan.source, -1), keep(plan.mode), keep(push.collected),
+                        keep(push.delivered), keep(push.spilled), keep(push.length), keep(approach),
+                        keep(remaining), keep(jnp.sum(new_obj)), keep(delivered), keep(spilled), keep(driven),
+                        keep(tick), jnp.asarray(go, bool), new.stop)
+    return new, jax.tree.map(lambda a, like: jnp.asarray(a, like.dtype), record, _record_like())
+
+
+def _record_like() -> StepRecord:
+    """The dtypes of a StepRecord's fields."""
+    f, i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
+    return StepRecord(jnp.zeros(2, jnp.int32), i, f, f, f, f, f, f, f, f, f, f, i, jnp.zeros((), bool), i)
+
+
+def _idle_record(state: EpisodeState) -> StepRecord:
+    like = _record_like()
+    return like._replace(source=jnp.full(2, -1, jnp.int32), stop=state.stop)
+
+
+_advance_jit = grid_jit(_advance)
+
+
+def act(state: EpisodeState, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams, *,
+        walk_cap: int | None = None, evaluator: spillage.Evaluator = spillage.curvature_spill):
+    """Plan and push one tick: ``(state, record, push)``. Pure and jittable.
+
+    The returned state's counts, rover, totals and stop code are after the push, but its fabric is
+    still the one planned on: refresh it (``step`` builds it in full; ``run_episode`` may update it
+    selectively from ``push.changed``). A state that is done, or whose plan cannot be pushed (no
+    source, no route, a route longer than ``walk_cap``), is returned unchanged but for the stop code,
+    with an invalid record. walk_cap: static walk length (default ``default_walk_cap``).
+    """
+    shape = state.scene.obj.shape
+    cap = default_walk_cap(shape) if walk_cap is None else int(walk_cap)
+    plan, _ = _plan(state.scene, params, episode, spill, state.fabric, cap, evaluator)
+    code = _plan_code(plan, cap, shape)
+    go = ~state.done & (code == RUNNING)
+    new_obj, push = execute.execute(state.scene, plan.route, spill, evaluator)
+    new, record = _advance(state, plan, push, new_obj, go, episode)
+    stop = jnp.where(state.done | go, new.stop, code)
+    return new._replace(done=stop != RUNNING, stop=stop), record._replace(stop=stop), push
+
+
+def step(state: EpisodeState, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams, *,
+         walk_cap: int | None = None, evaluator: spillage.Evaluator = spillage.curvature_spill):
+    """One tick with the full rebuild: ``(state, StepRecord)``. Pure, one jittable program.
+
+    A done state is returned as it is, with an invalid record, so ``jax.lax.scan`` may run more
+    steps than the episode needs (``rollout``). walk_cap, evaluator: static (``act``). Equals a tick
+    of ``run_episode(rebuild="full")``, except that a route longer than ``walk_cap`` ends the episode
+    (stop reason "walk_cap") where ``run_episode`` walks again with a longer cap.
+    """
+    def live(state):
+        new, record, _ = act(state, params, spill, episode, walk_cap=walk_cap, evaluator=evaluator)
+        fabric = jax.lax.cond(record.valid, lambda s: build_fabric(s, params), lambda s: state.fabric, new.scene)
+        return new._replace(fabric=fabric), record
+
+    return jax.lax.cond(state.done, lambda s: (s, _idle_record(s)), live, state)
+
+
+def rollout(state: EpisodeState, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams,
+            n_steps: int, *, walk_cap: int | None = None, evaluator: spillage.Evaluator = spillage.curvature_spill):
+    """``n_steps`` (static) ticks of ``step`` in one ``jax.lax.scan``: ``(state, StepRecord)`` with the
+    records stacked along a leading axis of n_steps (rows after the episode stopped are invalid)."""
+    return jax.lax.scan(lambda s, _: step(s, params, spill, episode, walk_cap=walk_cap, evaluator=evaluator),
+                        state, None, length=n_steps)
+
+
+def rollout_scenes(scenes, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams, n_steps: int,
+                   *, walk_cap: int | None = None, evaluator: spillage.Evaluator = spillage.curvature_spill):
+    """``reset`` then ``rollout`` for a batch of scenes of one shape in one program (``vmap``):
+    ``(initial states, final states, records)`` with a leading batch axis B; records are [B, n_steps].
+
+    scenes: one Scene whose leaves are stacked along a leading axis B (``jaxplan.transport.scene.stack_scenes``); params,
+    spill, episode are shared. Jitted as ``rollout_scenes_jit``.
+    """
+    def one(scene):
+        start = reset(scene, params, spill, episode)
+        final, records = rollout(start, params, spill, episode, n_steps, walk_cap=walk_cap, evaluator=evaluator)
+        return start, final, records
+
+    return jax.vmap(one)(scenes)
+
+
+step_jit = grid_jit(step, static_argnames=("walk_cap", "evaluator"))
+rollout_jit = grid_jit(rollout, static_argnames=("n_steps", "walk_cap", "evaluator"))
+# the code generator is picked by the batch's cells, B H W: the older one that suits single small
+# grids ran a batch of 64 episodes of 32 x 32 at half the speed
+rollout_scenes_jit = grid_jit(rollout_scenes, static_argnames=("n_steps", "walk_cap", "evaluator"),
+                              cells_of=lambda scenes, *args, **kwargs: int(np.prod(scenes.obj.shape)))
+
+
+# ------------------------------------------------------------------------------------------ the loop
+
+def _stop_message(code: int, state: EpisodeState, ep: EpisodeParams, plan: Plan | None) -> str:
+    if code == NO_MATERIAL:
+        return "the scene has no material outside the target: nothing to push"
+    if code == DONE:
+        remaining, initial = float(state.remaining), float(state.initial_remaining)
+        return f"{remaining:.3g} objects left outside the target (<= {float(ep.stop_fraction):.3g} of {initial:.3g})"
+    if code == CLEARED:
+        return "no occupied cell left outside the target"
+    if code == NO_ROUTE:
+        return (f"no complete route from cell {tuple(np.asarray(plan.source))} "
+                "to the target (raise FabricParams.max_hops or use monotone=True)")
+    if ep.max_pushes == 0:
+        return "the push budget is 0 (EpisodeParams.max_pushes): nothing was pushed"
+    return f"push budget of {ep.max_pushes} spent"
 
 
 def run_episode(scene, params: FabricParams | None = None, spill: spillage.SpillParams | None = None,
@@ -307,6 +570,10 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     Counts are rounded to ``execute.QUANTUM`` first (exact sums; see ``execute``). record: keep a
     per-tick snapshot (heat, headings, highways, route, connector) for ``viz.animate_episode``.
     progress: a progress bar on stderr. on_tick(t, metrics): called after every push (e.g. to log).
+
+    The host driver of the pieces ``step`` is made of (``reset``, the plan, ``execute``, the state's
+    update), adding what needs the host: timing, the selective rebuild, frames, and a second walk
+    with room for any simple path when a route is longer than ``default_walk_cap``.
     """
     params = FabricParams() if params is None else params
     spill = spillage.SpillParams() if spill is None else spill
@@ -315,62 +582,44 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     spillage.validate_spill_params(spill)
     validate_episode_params(ep)
 
-    scene = scene.with_obj(execute.quantize(scene.obj))
-    initial_mass = float(jnp.sum(scene.obj))
-    initial_remaining = _outside_mass(scene)
-    stop_at = float(ep.stop_fraction) * initial_remaining
-    fabric = build_fabric(scene, params)
-    centres = np.asarray(scene.cell_centers(), np.float64)
-    rover = centres[np.asarray(scene.target_mask)].mean(axis=0)
-    cap = _walk_cap(scene.shape)
-    mode = rebuild_mode(ep.rebuild, scene.shape)
+    state = reset(scene, params, spill, ep)
+    shape = state.scene.shape
+    initial_mass, initial_remaining = float(state.initial_mass), float(state.initial_remaining)
+    cap = default_walk_cap(shape)
+    mode = rebuild_mode(ep.rebuild, shape)
     rows: list[dict] = []
     frames: list[dict] = []
-    stop_reason, message = "budget", f"push budget of {ep.max_pushes} spent"
     bar = _progress(ep.max_pushes, progress)
     try:
-        remaining = initial_remaining
         for t in range(ep.max_pushes + 1):
-            if initial_remaining <= 0:
-                stop_reason, message = "no_material", "the scene has no material outside the target: nothing to push"
+            code, plan = int(state.stop), None
+            if code == RUNNING:
+                (plan, planned), plan_ms = timed(lambda: _plan(state.scene, params, ep, spill, state.fabric, cap,
+                                                               evaluator))
+                code = int(_plan_code(plan, cap, shape))
+                if code == WALK_CAP:
+                    cap = shape[0] * shape[1] + 1
+                    (plan, planned), plan_ms = timed(lambda: _plan(state.scene, params, ep, spill, state.fabric,
+                                                                   cap, evaluator))
+                    code = int(_plan_code(plan, cap, shape))
+            if code != RUNNING:
                 break
-            if remaining <= stop_at:
-                stop_reason, message = "done", (f"{remaining:.3g} objects left outside the target "
-                                                f"(<= {float(ep.stop_fraction):.3g} of {initial_remaining:.3g})")
-                break
-            if t == ep.max_pushes:
-                if ep.max_pushes == 0:
-                    message = "the push budget is 0 (EpisodeParams.max_pushes): nothing was pushed"
-                break
-            (plan, planned), plan_ms = timed(lambda: _plan(scene, params, ep, spill, fabric, cap, evaluator))
-            if not bool(plan.complete) and cap < scene.shape[0] * scene.shape[1] + 1:
-                # a route longer than the usual walk cap: walk again with room for any simple path
-                cap = scene.shape[0] * scene.shape[1] + 1
-                (plan, planned), plan_ms = timed(lambda: _plan(scene, params, ep, spill, fabric, cap, evaluator))
-            if not bool(plan.has_source):
-                stop_reason, message = "done", "no occupied cell left outside the target"
-                break
-            if not bool(plan.complete) or not np.isfinite(float(plan.raw)):
-                stop_reason, message = "no_route", (f"no complete route from cell {tuple(np.asarray(plan.source))} "
-                                                    "to the target (raise FabricParams.max_hops or use monotone=True)")
-                break
-            (new_obj, push), execute_ms = timed(lambda: execute.execute_jit(scene, plan.route, spill, evaluator))
-            scene = scene.with_obj(new_obj)
+            (new_obj, push), execute_ms = timed(lambda: execute.execute_jit(state.scene, plan.route, spill, evaluator))
+            state, rec = _advance_jit(state, plan, push, new_obj, True, ep)
             if mode == "selective":
-                (fabric, affected), rebuild_ms = timed(lambda: rebuild.selective_rebuild(scene, params, fabric,
-                                                                                            push.changed))
+                (fabric, affected), rebuild_ms = timed(lambda: rebuild.selective_rebuild(state.scene, params,
+                                                                                            state.fabric, push.changed))
                 dirty, full = int(affected.n_dirty), bool(affected.full)
             else:
-                fabric, rebuild_ms = timed(lambda: _rebuild_full_jit(scene, params))
-                dirty, full = scene.shape[0] * scene.shape[1], True
-            remaining = _outside_mass(scene)
-            approach = float(np.linalg.norm(centres[tuple(np.asarray(plan.source))] - rover))   # routes start at the source
-            rover = np.asarray(plan.route.end, np.float64)
-            row = dict(collected=float(push.collected), push_delivered=float(push.delivered),
-                       push_spilled=float(push.spilled), mode=int(plan.mode), source=np.asarray(plan.source),
-                       route_length=float(push.length), approach=approach, plan_ms=plan_ms,
+                fabric, rebuild_ms = timed(lambda: _rebuild_full_jit(state.scene, params))
+                dirty, full = shape[0] * shape[1], True
+            state = state._replace(fabric=fabric)
+            rec = jax.device_get(rec)
+            row = dict(collected=float(rec.collected), push_delivered=float(rec.push_delivered),
+                       push_spilled=float(rec.push_spilled), mode=int(rec.mode), source=np.asarray(rec.source),
+                       route_length=float(rec.route_length), approach=float(rec.approach), plan_ms=plan_ms,
                        rebuild_ms=rebuild_ms, execute_ms=execute_ms, dirty=dirty, full_rebuild=full,
-                       remaining=remaining)
+                       remaining=float(rec.remaining))
             rows.append(row)
             if record:
                 frames.append(_frame(planned, plan, push))
@@ -379,7 +628,9 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
             bar.update(1)
     finally:
         bar.close()
-    return _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, message, scene, mode)
+    stop_reason = STOP_REASONS[code]
+    message = _stop_message(code, state, ep, plan)
+    return _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, message, state.scene, mode)
 
 
 def _frame(fabric: Fabric, plan: Plan, push: execute.Push) -> dict:

@@ -26,7 +26,7 @@ from shapely.geometry import box as _shapely_box
 
 from jaxplan.core.compilation import grid_jit
 
-__all__ = ["FORMAT_VERSION", "Scene", "box", "circle"]
+__all__ = ["FORMAT_VERSION", "Scene", "box", "circle", "stack_scenes"]
 
 FORMAT_VERSION = 1
 
@@ -567,3 +567,9 @@ def _read_json(path: Path) -> dict:
     if not isinstance(doc["target"], str):
         raise ValueError(f"Scene.target: in {path} it must be a WKT string.")
     return {**doc, "name": doc.get("name")}
+
+
+def stack_scenes(scenes) -> Scene:
+    """One Scene pytree whose leaves are those of ``scenes`` (one grid shape, one cell size) stacked
+    on a new leading axis: the input of ``jax.vmap`` over scenes."""
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *scenes)

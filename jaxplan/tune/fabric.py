@@ -27,7 +27,7 @@ import optax
 from jaxplan.core import lattice
 from jaxplan.transport.fabric import build_fabric
 from jaxplan.transport.params import FabricParams
-from jaxplan.transport.scene import Scene
+from jaxplan.transport.scene import Scene, stack_scenes
 from jaxplan.transport.scenes import random_scene
 
 TUNED = ("theta_tol_deg", "tau_h", "anchor_lambda")
@@ -39,11 +39,6 @@ TUNED = ("theta_tol_deg", "tau_h", "anchor_lambda")
 def random_scenes(n: int, shape=(16, 16), seed: int = 0) -> list[Scene]:
     """``n`` scenes of ``jaxplan.random_scene``'s "piles" layout (seeds ``seed * n`` to ``seed * n + n - 1``)."""
     return [random_scene(seed * n + i, shape, layout="piles") for i in range(n)]
-
-
-def stack_scenes(scenes: list[Scene]) -> Scene:
-    """One ``Scene`` pytree whose leaves carry a leading batch axis (all scenes of one shape)."""
-    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *scenes)
 
 
 # ---------------------------------------------------------------------------------------------- objective
