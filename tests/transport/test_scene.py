@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from shapely.geometry import LineString, MultiPolygon, Point, Polygon
 
 from jaxplan.transport import scene as S
+from jaxplan.transport import scenes
 from jaxplan.reference.geometry import reference_geometry
 
 
@@ -132,9 +133,9 @@ def test_geometry_kernel_matches_shapely_reference(case):
     _assert_matches_reference(*case)
 
 
-@pytest.mark.parametrize("name", S.BUILTIN_SCENES)
+@pytest.mark.parametrize("name", scenes.BUILTIN_SCENES)
 def test_builtin_geometry_matches_reference(name):
-    scene = S.builtin_scene(name)
+    scene = scenes.builtin_scene(name)
     _assert_matches_reference(scene.shape, 1.0, (0.0, 0.0), scene.target)
 
 
@@ -273,14 +274,14 @@ def test_with_obj_validates_concrete_counts():
 
 
 def test_bad_suffix_and_builtin_name(tmp_path):
-    scene = S.builtin_scene()
+    scene = scenes.builtin_scene()
     with pytest.raises(ValueError, match="suffix"):
         scene.save(tmp_path / "scene.txt")
     with pytest.raises(ValueError, match="suffix"):
         S.Scene.load(tmp_path / "scene.pkl")
     with pytest.raises(ValueError, match="default") as err:
-        S.builtin_scene("nope")
-    assert all(name in str(err.value) for name in S.BUILTIN_SCENES)
+        scenes.builtin_scene("nope")
+    assert all(name in str(err.value) for name in scenes.BUILTIN_SCENES)
 
 
 def test_load_revalidates(tmp_path):
@@ -328,7 +329,7 @@ def test_save_load_round_trip(tmp_path, suffix, name):
 
 
 def test_json_layout(tmp_path):
-    scene = S.builtin_scene("default")
+    scene = scenes.builtin_scene("default")
     doc = json.loads(scene.save(tmp_path / "s.json").read_text())
     assert doc["format_version"] == 1 and doc["name"] == "default"
     assert doc["cell_size"] == 1.0 and doc["origin"] == [0.0, 0.0]
@@ -344,9 +345,9 @@ def test_json_layout(tmp_path):
     ("default", (25, 25)), ("corridor", (45, 45)), ("two_targets", (30, 30)), ("sparse65", (65, 65)),
 ])
 def test_builtin_scenes(name, shape):
-    assert set(S.BUILTIN_SCENES) == {"default", "corridor", "two_targets", "sparse65"}
-    assert S.DEFAULT_SCENE in S.BUILTIN_SCENES
-    scene = S.builtin_scene(name)
+    assert set(scenes.BUILTIN_SCENES) == {"default", "corridor", "two_targets", "sparse65"}
+    assert scenes.DEFAULT_SCENE in scenes.BUILTIN_SCENES
+    scene = scenes.builtin_scene(name)
     assert scene.name == name and scene.shape == shape
     obj, mask = np.asarray(scene.obj), np.asarray(scene.target_mask)
     assert obj.dtype == np.float32 and mask.dtype == bool
@@ -354,12 +355,12 @@ def test_builtin_scenes(name, shape):
     np.testing.assert_array_equal(obj, np.rint(obj))
     assert obj.min() >= 0 and obj.max() <= 6
     assert (obj[mask] == 0).all() and np.asarray(scene.occupied).any()
-    assert S.builtin_scene(name) is scene  # cached; safe because immutable
+    assert scenes.builtin_scene(name) is scene  # cached; safe because immutable
 
 
 def test_builtin_two_targets_is_multipolygon():
-    assert isinstance(S.builtin_scene("two_targets").target, MultiPolygon)
-    occupancy = np.asarray(S.builtin_scene("sparse65").occupied).mean()
+    assert isinstance(scenes.builtin_scene("two_targets").target, MultiPolygon)
+    occupancy = np.asarray(scenes.builtin_scene("sparse65").occupied).mean()
     assert 0.10 < occupancy < 0.20
 
 
@@ -377,7 +378,7 @@ def test_scene_accessors():
 
 
 def test_scene_is_immutable():
-    scene = S.builtin_scene()
+    scene = scenes.builtin_scene()
     with pytest.raises(AttributeError):
         scene.obj = jnp.zeros((25, 25))
     with pytest.raises(AttributeError):
@@ -385,7 +386,7 @@ def test_scene_is_immutable():
 
 
 def test_with_obj_keeps_geometry():
-    scene = S.builtin_scene()
+    scene = scenes.builtin_scene()
     new = scene.with_obj(np.full(scene.shape, 2.0))
     assert new.target is scene.target and new.name == scene.name
     assert new.dist is scene.dist and new.tvec is scene.tvec
@@ -393,7 +394,7 @@ def test_with_obj_keeps_geometry():
 
 
 def test_pytree_structure():
-    scene = S.builtin_scene()
+    scene = scenes.builtin_scene()
     leaves, treedef = jax.tree_util.tree_flatten(scene)
     assert len(leaves) == 6
     assert leaves[0] is scene.obj and leaves[3] is scene.tvec and leaves[5] is scene.origin
@@ -406,7 +407,7 @@ def test_pytree_structure():
 
 
 def test_with_obj_under_jit():
-    scene = S.builtin_scene()
+    scene = scenes.builtin_scene()
 
     @jax.jit
     def doubled_mass(sc, obj):
@@ -434,7 +435,7 @@ def test_no_recompilation_for_new_obj_or_target():
         traces.append(1)
         return (sc.obj * sc.dist).sum() + sc.tvec.sum() + sc.cell_centers().sum()
 
-    scene = S.builtin_scene()
+    scene = scenes.builtin_scene()
     mass(scene)
     mass(scene.with_obj(np.ones(scene.shape)))
     mass(scene.with_obj(jnp.zeros(scene.shape)))
@@ -446,7 +447,7 @@ def test_no_recompilation_for_new_obj_or_target():
 
 
 def test_vmap_over_stacked_scenes():
-    scene = S.builtin_scene()
+    scene = scenes.builtin_scene()
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), scene,
                                      scene.with_obj(np.ones(scene.shape)))
     masses = jax.vmap(lambda sc: sc.total_mass)(stacked)
