@@ -15,9 +15,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, MultiPolygon, Point, Polygon
 
-from jaxplan.transport import scene as S
 from jaxplan.reference.geometry import reference_geometry
-
+from jaxplan.transport import scene as S
 
 # --------------------------------------------------------------------------------------------------
 # Kernel vs reference (property test)
