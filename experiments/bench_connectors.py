@@ -29,9 +29,8 @@ def run(n: int, repeats: int) -> dict:
     import jax.numpy as jnp
 
     from jaxplan import FabricParams, SpillParams, build_fabric, extract_paths, plan_connectors
-    from jaxplan.transport import execute
-    from jaxplan.transport import rebuild
     from jaxplan.core.timing import timed
+    from jaxplan.transport import execute, rebuild
 
     params = FabricParams()
     scene = make_scene(n, 0.4, 0)
@@ -39,7 +38,8 @@ def run(n: int, repeats: int) -> dict:
     fabric = build_fabric(scene, params)
     old = plan_connectors(scene, params, fabric)
     source = jnp.stack(jnp.unravel_index(jnp.argmax(fabric.value), scene.shape))[None]
-    route = jax.tree.map(lambda a: a[0], execute.routes_from_paths(scene, extract_paths(fabric, source, max_steps=8 * n)))
+    route = jax.tree.map(lambda a: a[0],
+                         execute.routes_from_paths(scene, extract_paths(fabric, source, max_steps=8 * n)))
     new_obj, push = execute.execute_jit(scene, route, SpillParams(lam=0.05))
     after = scene.with_obj(new_obj)
     rebuilt, _ = rebuild.selective_rebuild(after, params, fabric, push.changed)

@@ -430,7 +430,7 @@ def stamp() -> dict:
     run on one CPU only (``taskset -c 0``, ``jaxplan.single_cpu``)."""
     pinned = hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) == 1
     return {"environment": environment(pinned),
-            "date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
+            "date": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")}
 
 
 def environment(single_cpu: bool) -> dict:
@@ -451,7 +451,7 @@ def environment(single_cpu: bool) -> dict:
         cpus = os.cpu_count()
     dev = jax.devices()[0]
     return {
-        "timestamp": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "timestamp": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "python": platform.python_version(), "platform": platform.platform(),
         "jax_version": jax.__version__, "backend": jax.default_backend(),
         "device": getattr(dev, "device_kind", str(dev)), "cpu_model": cpu_model,

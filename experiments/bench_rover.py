@@ -136,7 +136,10 @@ def fit_capacity_model(stacked, sim, idx, steps, left=None):
 def fit_lambda(predict, sim, idx):
     """Minimise sum (predict(lam)[idx] - sim[idx])^2 over lam in LAM_RANGE: grid + golden section."""
     idx = np.asarray(idx)
-    loss = lambda lam: float(np.sum((predict(lam)[0, idx] - sim[idx]) ** 2))
+
+    def loss(lam):
+        return float(np.sum((predict(lam)[0, idx] - sim[idx]) ** 2))
+
     grid = np.linspace(*LAM_RANGE, 201)
     losses = np.sum((predict(grid)[:, idx] - sim[idx][None]) ** 2, 1)
     k = int(np.argmin(losses))
@@ -225,8 +228,8 @@ def throughput(scene, n_routes, n_ticks, repeats, label):
 
     n_ticks None: whole routes (``check_routes``' horizon, fixed by the first engine's run and reused).
     """
-    from jaxplan.transport.rover import bridge
     from jaxplan.physics.rollout import Simulator
+    from jaxplan.transport.rover import bridge
 
     _, routes, _ = bridge.plan_routes(scene, n_routes=n_routes)
     b = int(np.asarray(routes.n_cells).shape[0])
@@ -522,8 +525,8 @@ def to_markdown(r):
     L += ["", "To predict (or plan) with the in-sample fit of the turning model: `jaxplan rover --lam {lam:.4g} "
           "--mu {mu:.4g} --capacity {capacity:.4g} --miss {miss:.4g} --turn-saturation {turn_saturation:.4g}` "
           "(the same for `episode` and `demo`; temperature {temperature:g}, the model's default). "
-          "`jaxplan.transport.spillage.capacity.ROVER_FIT` holds the fit this file was written with; after a re-run that "
-          "changes it, update ROVER_FIT (tests/transport/test_spill_capacity.py compares the two).".format(**cap)]
+          "`jaxplan.transport.spillage.capacity.ROVER_FIT` holds the fit this file was written with; after a re-run "
+          "that changes it, update ROVER_FIT (tests/transport/test_spill_capacity.py compares the two).".format(**cap)]
     nf = r["noise_floor"]
     L += ["", f"Noise floor: the first route of `{nf['scene']}` (source {tuple(nf['source'])}, {nf['collected']:.0f} "
           f"objects) rolled out with {len(nf['delivered'])} particle layouts (same counts, different jitter) delivered "
@@ -574,7 +577,8 @@ def to_markdown(r):
         f"{t['engines']['mjx'].get('reached')}, "
         f"delivered C {t['agreement']['delivered']['c']} vs MJX {t['agreement']['delivered']['mjx']}, "
         "largest mean-lateral-error difference "
-        f"{max(abs(a - b) for a, b in zip(t['agreement']['mean_lateral']['c'], t['agreement']['mean_lateral']['mjx'])):.4f} cell"
+        + format(max(abs(a - b) for a, b in zip(t['agreement']['mean_lateral']['c'],
+                                                t['agreement']['mean_lateral']['mjx'])), ".4f") + " cell"
         for t in r["throughput"])
     L += ["", f"Both engines on the same batch ({agree}). The small scene's routes are rolled out whole (MJX: one "
           "jit(vmap(scan)) over every control tick of the route); the default scene's comparison is a slice of its "
@@ -586,7 +590,8 @@ def to_markdown(r):
           "not), so the ratio on whole routes would be of the same order; full-route C-engine rates are in the "
           "next line.",
           "", "Physics runs of the route table (C engine, cold, including scoring): " + "; ".join(
-        f"{k}: {v['routes']} routes x {v.get('layouts', 1)} layouts x {v['ticks']} ticks, {v['particle_bodies']} particle bodies, {v['wall_s']:.1f} s "
+        f"{k}: {v['routes']} routes x {v.get('layouts', 1)} layouts x {v['ticks']} ticks, "
+        f"{v['particle_bodies']} particle bodies, {v['wall_s']:.1f} s "
         f"({v['route_steps_per_s']:,.0f} route-steps/s)" for k, v in r["physics_runs"].items()) + ".",
         f"Total script time {r['total_s']:.0f} s.", ""]
     return "\n".join(L)

@@ -71,8 +71,8 @@ def _tile(routes, batch):
 
 
 def _measure(scene, routes, world, backend, n_ticks, repeats):
-    from jaxplan.transport.rover import bridge
     from jaxplan.physics.rollout import Simulator
+    from jaxplan.transport.rover import bridge
 
     sim = _TimedSimulator(Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps,
                                     bounds=world.bounds, backend=backend))
@@ -88,7 +88,8 @@ def _measure(scene, routes, world, backend, n_ticks, repeats):
         physics.append(sim.last_s)
     o = chk.outcome
     return {"ticks": chk.n_ticks, "cold_s": cold, "cold_physics_s": cold_physics,
-            "warm_physics_s": physics, "warm_check_s": whole, "physics_median_s": float(np.median(physics)), "check_median_s": float(np.median(whole)),
+            "warm_physics_s": physics, "warm_check_s": whole, "physics_median_s": float(np.median(physics)),
+            "check_median_s": float(np.median(whole)),
             "finite": float(np.mean(o.finite)), "reached": float(np.mean(o.reached)),
             "delivered": np.asarray(o.delivered, float).tolist(),
             "mean_lateral": np.asarray(o.mean_lateral, float).tolist()}

@@ -10,8 +10,9 @@ One run measures, side by side and after compilation (every program is called on
   sweep's kernel), for each ``B`` of ``--chunks``.
 
 Settings: random 65x65 scenes (density 0.4, ``jaxplan.sweep.random_scene``) x theta_tol x tau_h x spill
-lambda. Each timing is the median of ``--repeats`` passes over all settings (the methods interleaved round-robin); the ratio is vmapped
-settings/s over loop settings/s measured in the same run. The solver's round counts per setting are
+lambda. Each timing is the median of ``--repeats`` passes over all settings (the methods interleaved
+round-robin); the ratio is vmapped settings/s over loop settings/s measured in the same run. The
+solver's round counts per setting are
 reported too: a vmapped ``while_loop`` runs until its slowest member converges, which is the main cost
 of batching settings whose DP needs different numbers of rounds.
 
@@ -26,9 +27,9 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import datetime as _dt
 import functools
 import itertools
-import datetime as _dt
 import json
 import os
 import platform
@@ -37,9 +38,8 @@ import time
 from pathlib import Path
 
 import jax
-import numpy as np
-
 import jax.numpy as jnp
+import numpy as np
 
 from jaxplan import build_fabric, sweep
 from jaxplan.transport import fabric
@@ -161,18 +161,18 @@ def run(args) -> dict:
                                            "max_abs_diff_vs_loop": diff(vals)}
     for key, secs in _interleaved_medians(fns, args.repeats).items():
         results[key]["seconds"] = secs
-    for key, r in results.items():
+    for _key, r in results.items():
         r["settings_per_s"] = n / r["seconds"]
     loop_rate = results["loop"]["settings_per_s"]
     shared_rate = results["loop_shared_table"]["settings_per_s"]
-    for key, r in results.items():
+    for _key, r in results.items():
         r["ratio_vs_loop"] = r["settings_per_s"] / loop_rate
         r["ratio_vs_loop_shared_table"] = r["settings_per_s"] / shared_rate
     best = max((k for k in results if k.startswith("sweep_")), key=lambda k: results[k]["settings_per_s"])
     best_plain = max((k for k in results if k.startswith("vmap_plain_")),
                      key=lambda k: results[k]["settings_per_s"], default=None)
     return {
-        "date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "date": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "jax": jax.__version__, "backend": jax.default_backend(), "device": str(jax.devices()[0]),
         "cpu": _cpu_name(), "cpus_available": len(os.sched_getaffinity(0)),
         "shared_machine": True,
@@ -201,8 +201,8 @@ def markdown(res: dict, quick: bool) -> str:
              f"{res['scenes']} scene(s) x theta_tol {res['thetas']} x tau_h {res['taus']} x spill lambda "
              f"{res['lams']}, i.e. {res['tables']} DP tables (scene x theta_tol) x {res['settings_per_table']} "
              f"settings sharing each; metrics of `jaxplan.sweep` (top_sources = {res['top_sources']}). Median of "
-             f"{res['repeats']} passes over all settings, after compilation, the methods' passes interleaved. 'max diff' is the largest difference "
-             "of the top_delivered metric from the first loop (objects).", "",
+             f"{res['repeats']} passes over all settings, after compilation, the methods' passes interleaved. "
+             "'max diff' is the largest difference of the top_delivered metric from the first loop (objects).", "",
              "| method | settings per call | settings/s | vs loop | vs shared-table loop | s per pass | "
              "compile s | max diff |",
              "|---|---:|---:|---:|---:|---:|---:|---:|"]

@@ -5,8 +5,9 @@ Replays the schedules of ``jaxplan pusharound`` result files with
 executed, also after a deviation) and reports per push: the stop reason (early stop at the planned
 pose, stall, horizon), validity, the pushed movable's centroid and yaw error against its predicted
 pose, the largest Hausdorff distance of any movable's outline from its predicted outline (the
-execution's failure measure), the transit and push seconds (table: the worst push of each schedule); per schedule: simulated time, wall time, and whether Eq. 7 holds at the end. A
-failed search's partial schedule replays as well (the result file keeps it).
+execution's failure measure), the transit and push seconds (table: the worst push of each schedule);
+per schedule: simulated time, wall time, and whether Eq. 7 holds at the end. A failed search's
+partial schedule replays as well (the result file keeps it).
 
 The scene of each result file is rebuilt from its ``scene.source`` (``nominal_scene(seed=N)`` or a
 scene file path). Wall times are on whatever CPU runs the script: indicative only; the ratio
@@ -85,7 +86,8 @@ def table(rows: list) -> str:
 
     for r in rows:
         stops = ", ".join(p["stop"] for p in r["pushes"]) or "-"
-        out.append(f"| {r['scene']} | {r['planned_success']} | {r['pushes_executed']}/{r['pushes_planned']} | {stops} | "
+        out.append(f"| {r['scene']} | {r['planned_success']} | {r['pushes_executed']}/{r['pushes_planned']} "
+                   f"| {stops} | "
                    f"{top(r, 'target_centroid_error_m')} | {top(r, 'target_yaw_error_rad')} | "
                    f"{top(r, 'deviation_m')} | {all(p['valid'] for p in r['pushes'])} | "
                    f"{r['connected']} | {r['simulated_s']:.1f} | {r['wall_s']:.1f} | "
@@ -103,7 +105,7 @@ def main(argv=None) -> int:
     note = ("Replayed without replanning, C engine; wall clock on this machine "
             "(indicative only); the first row includes the one-off jit of the two controllers.")
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
-    meta = {"date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"), "python": sys.version.split()[0],
+    meta = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "python": sys.version.split()[0],
             "machine": platform.machine(), "note": note}
     (RESULTS_DIR / f"{args.name}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1) + "\n")
     (RESULTS_DIR / f"{args.name}.md").write_text(f"# Execution fidelity\n\n{note}\n\n{md}")

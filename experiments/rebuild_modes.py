@@ -48,7 +48,8 @@ def measure(name: str, repeats: int, max_pushes: int, lam: float, density: float
     episodes = {}
     for _ in range(repeats):
         for mode in MODES:   # alternate, so drifts of the machine hit both alike
-            ep = run_episode(scene, spill=SpillParams(lam=lam), episode=EpisodeParams(max_pushes=max_pushes, rebuild=mode))
+            ep = run_episode(scene, spill=SpillParams(lam=lam),
+                             episode=EpisodeParams(max_pushes=max_pushes, rebuild=mode))
             per_tick[mode].append(float(np.median(ep.rebuild_ms[1:])) if ep.n_pushes > 1 else float("nan"))
             episodes[mode] = ep
     same = (np.array_equal(episodes["selective"].source, episodes["full"].source)
@@ -64,12 +65,14 @@ def markdown(result: dict) -> str:
              f"{result['date']}, {result['host']}, jax {result['jax']} ({result['backend']}). Median rebuild time per "
              f"tick (first tick excluded), each episode run {result['repeats']} times per rebuild, alternating; "
              f"`auto` = `episode.rebuild_mode` (full below {SELECTIVE_MIN_CELLS} cells on a CPU).", "",
-             "| scene | grid | pushes | selective ms (runs) | full ms (runs) | full / selective | auto picks | same episode |",
+             "| scene | grid | pushes | selective ms (runs) | full ms (runs) | full / selective | auto picks "
+             "| same episode |",
              "|---|---|---:|---|---|---:|---|---|"]
     for r in result["scenes"]:
         sel, full = r["median_rebuild_ms"]["selective"], r["median_rebuild_ms"]["full"]
         runs = lambda m: ", ".join(f"{x:.2f}" for x in r["rebuild_ms"][m])  # noqa: E731
-        lines.append(f"| {r['scene']} | {r['shape'][0]}x{r['shape'][1]} | {r['pushes']} | {sel:.2f} ({runs('selective')}) | "
+        lines.append(f"| {r['scene']} | {r['shape'][0]}x{r['shape'][1]} | {r['pushes']} "
+                     f"| {sel:.2f} ({runs('selective')}) | "
                      f"{full:.2f} ({runs('full')}) | {full / sel:.2f} | {r['auto']} | {r['same_episode']} |")
     return "\n".join(lines) + "\n"
 
@@ -93,7 +96,8 @@ def main(argv=None) -> int:
     for name in [*args.scenes, *(f"random{n}" for n in args.random)]:
         scenes.append(measure(name, args.repeats, args.max_pushes, args.lam, args.density))
         r = scenes[-1]
-        print(f"{name}: selective {r['median_rebuild_ms']['selective']:.2f} ms, full {r['median_rebuild_ms']['full']:.2f} ms "
+        print(f"{name}: selective {r['median_rebuild_ms']['selective']:.2f} ms, "
+              f"full {r['median_rebuild_ms']['full']:.2f} ms "
               f"per tick, auto -> {r['auto']}, same episode {r['same_episode']}", flush=True)
     result = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "host": platform.platform(),
               "jax": jax.__version__, "backend": jax.default_backend(), "repeats": args.repeats,

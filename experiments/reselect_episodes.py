@@ -70,7 +70,7 @@ def one_call(scene_name: str, lam: float, repeats: int) -> dict:
 
 def markdown(rows: list, calls: list, args) -> str:
     lines = ["# Episodes with and without Eq. 6 reselection of every source", "",
-             f"{_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC; {platform.machine()}, jax {jax.__version__} "
+             f"{_dt.datetime.now(_dt.UTC):%Y-%m-%d %H:%M} UTC; {platform.machine()}, jax {jax.__version__} "
              f"on {jax.default_backend()}; spill lam {args.lam}, push budget {args.max_pushes}; default FabricParams.",
              "", "Masses in objects; driven in world units; plan ms = median per tick, reselection included.", "",
              "| scene | reselect | initial | delivered | spilled | remaining | pushes | driven | plan ms | stop |",
@@ -79,7 +79,8 @@ def markdown(rows: list, calls: list, args) -> str:
         lines.append(f"| {r['scene']} | {'yes' if r['reselect'] else 'no'} | {r['initial_mass']:.1f} | "
                      f"{r['delivered']:.1f} | {r['spilled']:.1f} | {r['remaining']:.1f} | {r['pushes']} | "
                      f"{r['driven']:.0f} | {r['median_plan_ms']:.1f} | {r['stop_reason']} |")
-    lines += ["", f"One reselection of each scene's first fabric (median of {args.repeats} interleaved warm calls):", "",
+    lines += ["", f"One reselection of each scene's first fabric (median of {args.repeats} interleaved warm calls):",
+              "",
               "| scene | walk steps | compact ms | every entry ms | every / compact | identical fabrics |",
               "|---|---:|---:|---:|---:|---|"]
     for c in calls:
@@ -100,9 +101,9 @@ def main(argv=None) -> int:
     calls = [one_call(name, args.lam, args.repeats) for name in args.scenes]
     args.results_dir.mkdir(parents=True, exist_ok=True)
     meta = {"lam": args.lam, "max_pushes": args.max_pushes, "jax": jax.__version__, "backend": jax.default_backend(),
-            "utc": f"{_dt.datetime.now(_dt.timezone.utc):%Y-%m-%dT%H:%M:%SZ}"}
-    (args.results_dir / "reselect_episodes.json").write_text(json.dumps({"meta": meta, "rows": rows, "one_call": calls}, indent=1,
-                                                                        default=float))
+            "utc": f"{_dt.datetime.now(_dt.UTC):%Y-%m-%dT%H:%M:%SZ}"}
+    (args.results_dir / "reselect_episodes.json").write_text(
+        json.dumps({"meta": meta, "rows": rows, "one_call": calls}, indent=1, default=float))
     table = markdown(rows, calls, args)
     (args.results_dir / "reselect_episodes.md").write_text(table)
     print(table)

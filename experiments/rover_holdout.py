@@ -28,8 +28,15 @@ import numpy as np
 
 from experiments._results import write_results
 from experiments.bench_fabric import make_scene
-from experiments.bench_rover import (PUSH_IN, RESULTS_DIR, TARGET_LATERAL, _route_inputs, layout_row, stack_inputs,
-                                     within_target)
+from experiments.bench_rover import (
+    PUSH_IN,
+    RESULTS_DIR,
+    TARGET_LATERAL,
+    _route_inputs,
+    layout_row,
+    stack_inputs,
+    within_target,
+)
 
 SEED = 1
 SPARSE_DENSITY = 0.15     # sparse65's share of occupied cells
@@ -50,8 +57,8 @@ def _models(results_dir: Path) -> dict:
 def run_scene(name: str, scene, routes_n: int, layouts: int, models: dict) -> list[dict]:
     import jax
 
-    from jaxplan.transport.spillage import fit as spill_fit
     from jaxplan.transport.rover import bridge
+    from jaxplan.transport.spillage import fit as spill_fit
 
     _, routes, sources = bridge.plan_routes(scene, n_routes=routes_n)
     b = int(np.asarray(routes.n_cells).shape[0])
@@ -61,9 +68,11 @@ def run_scene(name: str, scene, routes_n: int, layouts: int, models: dict) -> li
     wall = time.perf_counter() - t0
     per_rollout = chk.outcome.rows()
     stacked = stack_inputs(_route_inputs(scene, routes))
-    preds = {label: np.asarray(spill_fit.predict_delivered(*stacked, params), np.float64) for label, params in models.items()}
+    preds = {label: np.asarray(spill_fit.predict_delivered(*stacked, params), np.float64)
+             for label, params in models.items()}
     # where the 2D model puts the rest: left on the route's cells (the miss term) and spilled
-    left = {label: np.asarray(spill_fit.predict_missed(*stacked, params.miss), np.float64) for label, params in models.items()}
+    left = {label: np.asarray(spill_fit.predict_missed(*stacked, params.miss), np.float64)
+            for label, params in models.items()}
     collected_2d = np.asarray(stacked[2], np.float64).sum(-1)
     rows = []
     for i in range(b):

@@ -100,7 +100,8 @@ def to_markdown(r):
          "| max lat (cell) | time (s) | reached | finite |",
          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for x in r["rows"]:
-        L.append(f"| {x['friction']:g} | {x['speed']:g} | {x['collected']:.0f} | {x['delivered']:.0f} | {x['spilled']:.0f} "
+        L.append(f"| {x['friction']:g} | {x['speed']:g} | {x['collected']:.0f} | {x['delivered']:.0f} "
+                 f"| {x['spilled']:.0f} "
                  f"| {x['left_behind']:.0f} | {x['lost']:.0f} | {x['mean_lateral']:.3f} | {x['max_lateral']:.3f} "
                  f"| {x['time']:.1f} | {x['reached']} | {x['finite']} |")
     return "\n".join(L) + "\n"

@@ -43,8 +43,15 @@ import numpy as np
 if __package__ in (None, ""):   # run as a script: make ``experiments`` importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from experiments.bench_fabric import (RESULTS_DIR, PeakMemory, _rss_bytes, bootstrap_ci, environment,  # noqa: E402
-                                      loglog_fit, make_scene)
+from experiments.bench_fabric import (  # noqa: E402
+    RESULTS_DIR,
+    PeakMemory,
+    _rss_bytes,
+    bootstrap_ci,
+    environment,
+    loglog_fit,
+    make_scene,
+)
 
 PAPER = {  # Table 2: medians (95% CI) in ms
     "full": {25: 420.0, 45: 980.0, 65: 1910.0},
@@ -129,8 +136,7 @@ def run_instance(n: int, density: float, seed: int, args, params, spill) -> dict
     import jax
 
     from jaxplan import build_fabric
-    from jaxplan.transport import execute
-    from jaxplan.transport import rebuild
+    from jaxplan.transport import execute, rebuild
 
     scene = make_scene(n, density, seed)
     scene = scene.with_obj(execute.quantize(scene.obj))
@@ -174,8 +180,7 @@ def _ticks(scene, fabric, args, params, spill) -> list[dict]:
     import jax
 
     from jaxplan import build_fabric
-    from jaxplan.transport import execute
-    from jaxplan.transport import rebuild
+    from jaxplan.transport import execute, rebuild
 
     global _best_route_jit
     if _best_route_jit is None:
@@ -211,8 +216,8 @@ def _ticks(scene, fabric, args, params, spill) -> list[dict]:
 
 
 def reference_ablation(n: int, density: float, seed: int, args) -> dict:
-    from jaxplan.transport import execute
     from jaxplan.reference import reference_fabric
+    from jaxplan.transport import execute
 
     scene = make_scene(n, density, seed)
     scene = scene.with_obj(execute.quantize(scene.obj))
@@ -503,9 +508,10 @@ def main(argv=None) -> int:
                         row["ablation"] = reference_ablation(n, density, seed, args)
                     rows.append(row)
                     log(f"{n}x{n} d={density:g} s={seed}: full {row['full_ms']:.2f} ms, selective "
-                        f"{row['selective_ms']:.3f} ms, speedup {row['speedup']:.1f}x, dirty {row['dirty_median']:.0f}, "
-                        f"equal {row['all_equal']}" + (f", reference time with reuse {-row['ablation']['reduction_pct']:+.1f}%"
-                                                       if ablate else ""))
+                        f"{row['selective_ms']:.3f} ms, speedup {row['speedup']:.1f}x, "
+                        f"dirty {row['dirty_median']:.0f}, equal {row['all_equal']}"
+                        + (f", reference time with reuse {-row['ablation']['reduction_pct']:+.1f}%"
+                           if ablate else ""))
         connectors = [time_connectors(n, params) for n in args.sizes + args.big_sizes if n <= 128]
     probes = [memory_probe(n, args) for n in args.sizes]
     sizes = list(args.sizes) + list(args.big_sizes)

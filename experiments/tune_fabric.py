@@ -116,7 +116,8 @@ def _markdown(out: dict, path: Path) -> None:
         s, t, h = r["summary"], r["tuned"], r["history"]
         me = s["mean_efficiency"]
         lines.append(
-            f"| {r['variant']} | {r['seed']} | {t['theta_tol_deg']:.1f} | {t['tau_h']:.3f} | {t['anchor_lambda']:.3f} | "
+            f"| {r['variant']} | {r['seed']} | {t['theta_tol_deg']:.1f} | {t['tau_h']:.3f} "
+            f"| {t['anchor_lambda']:.3f} | "
             f"{h[0]['objective']:.3f} -> {h[-1]['objective']:.3f} | {me['default']:.4f} | {me['tuned']:.4f} | "
             f"{100 * (me['tuned'] / me['default'] - 1):+.1f}% | {s['tuned_wins']}/{s['scenes']} | "
             f"{s['mean_pushes']['default']:.1f} | {s['mean_pushes']['tuned']:.1f} |")

@@ -53,7 +53,7 @@ def run(args) -> dict:
                      "threshold_err_median": float(np.median(e[:, 1])), "threshold_err_max": float(e[:, 1].max()),
                      "signed_errors": [list(map(float, x)) for x in errs]})
     clean = rows[0]
-    return {"date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    return {"date": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
             "jax": jax.__version__, "true": {"lam": TRUE.lam, "threshold": TRUE.threshold,
                                              "temperature": TRUE.temperature},
             "start": {"lam": START.lam, "threshold": START.threshold}, "routes": args.routes, "seeds": args.seeds,
@@ -90,7 +90,8 @@ def markdown(res: dict) -> str:
              f"{res['start']['threshold']}. {res['routes']} synthetic routes per data set, {res['seeds']} data sets "
              "(seeds) per noise level; noise = relative standard deviation of gaussian noise on each route's "
              "delivered and spilled mass. Errors are |fitted / true - 1|.", "",
-             "| noise | lambda error (median) | lambda error (max) | threshold error (median) | threshold error (max) |",
+             "| noise | lambda error (median) | lambda error (max) | threshold error (median) "
+             "| threshold error (max) |",
              "|---:|---:|---:|---:|---:|"]
     for r in res["rows"]:
         lines.append(f"| {r['noise']:g} | {100 * r['lam_err_median']:.3f}% | {100 * r['lam_err_max']:.3f}% | "

@@ -79,7 +79,7 @@ def has_borderline_step(scene: Scene, theta_tol_deg: float, margin: float = 5e-7
     s = float(scene.cell_size)
     h, w = dist.shape
     cos_t = np.cos(np.deg2rad(theta_tol_deg)) - lattice.CONE_EPS
-    for i, (dr, dc) in enumerate(lattice.DIRS):
+    for _i, (dr, dc) in enumerate(lattice.DIRS):
         unit = np.array([dc, dr], np.float64) / np.hypot(dr, dc)
         cone = tvec @ unit - cos_t
         nb = np.full((h, w), np.nan)

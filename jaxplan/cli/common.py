@@ -1,7 +1,6 @@
 """What every subcommand shares: the error type, scene loading, parameter dicts, atomic files."""
 from __future__ import annotations
 
-
 import argparse
 import json
 import os

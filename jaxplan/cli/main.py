@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-
 from jaxplan.cli import pusharound, rover, sweep, teams, transport
 from jaxplan.cli.common import EXIT_BAD_INPUT, CLIError, wrap
 from jaxplan.transport.scenes import BUILTIN_SCENES

@@ -1,7 +1,6 @@
 """The ``pusharound`` subcommand: plan and execute pushes that open a W-clear corridor."""
 from __future__ import annotations
 
-
 import json
 import os
 import sys
@@ -57,7 +56,8 @@ def _push_record(scene, k: int, item) -> dict:
             "directions_world": _xy(np.asarray(t.directions) @ rot.T),
             "contacts_body": _xy(t.contacts), "directions_body": _xy(t.directions), "active": active.tolist(),
             "velocity": _xy(t.velocity), "duration_s": float(np.asarray(t.duration)), "cost": float(item.cost),
-            "target_before": _xy(np.asarray(item.poses_before)[m]), "target_after": _xy(np.asarray(item.poses_after)[m]),
+            "target_before": _xy(np.asarray(item.poses_before)[m]),
+            "target_after": _xy(np.asarray(item.poses_after)[m]),
             "poses_before": _xy(item.poses_before), "poses_after": _xy(item.poses_after),
             "robots_before": _xy(item.robots_before), "robots_after": _xy(item.robots_after)}
 
@@ -67,8 +67,8 @@ def _obstacle_records(scene) -> list:
     def rings(poly):
         parts = list(getattr(poly, "geoms", [poly]))
         main = max(parts, key=lambda g: g.area)
-        return (_xy(np.asarray(main.exterior.coords)[:, :2]), [_xy(np.asarray(h.coords)[:, :2]) for h in main.interiors],
-                len(parts))
+        return (_xy(np.asarray(main.exterior.coords)[:, :2]),
+                [_xy(np.asarray(h.coords)[:, :2]) for h in main.interiors], len(parts))
 
     out = []
     for i, m in enumerate(scene.movables):

@@ -1,7 +1,6 @@
 """The ``rover`` subcommand: planned routes driven by a shovel rover in MuJoCo."""
 from __future__ import annotations
 
-
 import math
 import os
 import sys
@@ -13,6 +12,7 @@ import numpy as np
 from jaxplan.cli.common import CLIError, add_theta_option, atomic_write, fabric_params, load_scene, wrap, write_json
 from jaxplan.cli.transport import add_spill_options, spill_dict, spill_params
 from jaxplan.transport.scenes import DEFAULT_SCENE
+
 
 def _cmd_rover(args) -> int:
     # offscreen rendering needs the EGL backend chosen before mujoco is first imported

@@ -1,10 +1,8 @@
 """The ``sweep`` subcommand: a parameter sweep spec evaluated into a CSV."""
 from __future__ import annotations
 
-
-
-
 from jaxplan.cli.common import wrap
+
 
 def _cmd_sweep(args) -> int:
     from jaxplan.sweep import run_sweep

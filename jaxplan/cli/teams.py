@@ -1,10 +1,8 @@
 """The ``teams`` subcommand: the team-organization scenario of Endo et al."""
 from __future__ import annotations
 
-
-
-
 from jaxplan.cli.common import atomic_write, wrap
+
 
 def _cmd_teams(args) -> int:
     import matplotlib

@@ -1,7 +1,6 @@
 """Subcommands of the environment-first transport system: ``fabric``, ``demo``, ``episode``, ``scenes``."""
 from __future__ import annotations
 
-
 import dataclasses
 import math
 import os
@@ -11,8 +10,18 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.cli.common import (CLIError, add_theta_option, atomic_write, fabric_params, load_scene, params_dict,
-                                timed, wrap, write_csv, write_json)
+from jaxplan.cli.common import (
+    CLIError,
+    add_theta_option,
+    atomic_write,
+    fabric_params,
+    load_scene,
+    params_dict,
+    timed,
+    wrap,
+    write_csv,
+    write_json,
+)
 from jaxplan.transport.scenes import BUILTIN_SCENES, DEFAULT_SCENE
 
 FABRIC_ARRAYS = ("value", "length", "first_hop", "heading", "psi", "heat", "highways", "fallback",
@@ -331,7 +340,7 @@ def _cmd_episode(args) -> int:
     except OSError as exc:
         raise CLIError(f"--out: could not write into {str(out_dir)!r} ({exc.strerror or exc}).") from None
     _print_episode(summary)
-    for name, path in summary["outputs"].items():
+    for _name, path in summary["outputs"].items():
         print(f"wrote {path}")
     return 0
 
@@ -360,8 +369,8 @@ def add_spill_options(p) -> None:
     p.add_argument("--spill-threshold", type=float, default=_DEFAULT_SPILL_THRESHOLD, metavar="OBJ",
                    help="per-sample spills below this many objects are ignored, >= 0; default 0.001")
     p.add_argument("--capacity", type=float, default=None, metavar="OBJ",
-                   help="use the capacity-aware spill model (jaxplan.transport.spillage.capacity): the blade carries at "
-                        "most this many objects, > 0; default: the curvature model (no capacity)")
+                   help="use the capacity-aware spill model (jaxplan.transport.spillage.capacity): the blade carries "
+                        "at most this many objects, > 0; default: the curvature model (no capacity)")
     p.add_argument("--mu", type=float, default=None, metavar="X",
                    help="capacity-aware model: fraction of the load lost per world unit driven, >= 0 "
                         "(implies the capacity-aware model, uncapped unless --capacity is given); "

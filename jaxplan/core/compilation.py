@@ -114,8 +114,9 @@ def limit_malloc_arenas(arenas: int = 1) -> bool:
     XLA compiles on several threads, and glibc gives each thread an arena of its own; the memory a
     compilation frees stays in its thread's arena, so every compiled program leaves some behind.
     With one arena it is reused instead, which lowers the peak (``experiments/table2.py``'s memory
-    probe measures it; docs/benchmarks.md). The cost is some lock contention between threads that allocate at once, which planning
-    hardly does. Threads that have allocated already keep their arena, hence "call it first". Same
+    probe measures it; docs/benchmarks.md). The cost is some lock contention between threads that
+    allocate at once, which planning hardly does. Threads that have allocated already keep their
+    arena, hence "call it first". Same
     as ``MALLOC_ARENA_MAX=1`` in the environment; also ``jaxplan --low-memory COMMAND``. No effect
     (returns False) on other C libraries.
     """

@@ -34,7 +34,8 @@ from __future__ import annotations
 
 import concurrent.futures
 import os
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp

@@ -17,8 +17,14 @@ import math
 
 import numpy as np
 
-from jaxplan.reference.search import (Candidate, Graph, reachable_cells, reachable_mass_cyclic, reachable_mass_dag,
-                                      search_kbest)
+from jaxplan.reference.search import (
+    Candidate,
+    Graph,
+    reachable_cells,
+    reachable_mass_cyclic,
+    reachable_mass_dag,
+    search_kbest,
+)
 from jaxplan.reference.visibility import DIRS, MONOTONE_EPS, cone_ok, fallback_hop, in_grid
 
 __all__ = ["anchors", "anchor_graph", "connector", "connectors"]

@@ -1,4 +1,5 @@
-"""Serial reference of the spill model and of pushing a route (``jaxplan.transport.spillage``, ``jaxplan.transport.execute``).
+"""Serial reference of the spill model and of pushing a route (``jaxplan.transport.spillage``,
+``jaxplan.transport.execute``).
 
 Plain Python, float64, one sample at a time, written straight from docs/conventions.md.
 """
@@ -46,7 +47,8 @@ def catmull_rom_samples(points, samples_per_step: int, alpha: float = 0.5):
             t = (q + 0.5) / samples_per_step
             h00, h10, h01, h11 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t, -2 * t**3 + 3 * t**2, t**3 - t**2
             pos = h00 * p1 + h10 * m1 + h01 * p2 + h11 * m2
-            vel = (6 * t**2 - 6 * t) * p1 + (3 * t**2 - 4 * t + 1) * m1 + (6 * t - 6 * t**2) * p2 + (3 * t**2 - 2 * t) * m2
+            vel = ((6 * t**2 - 6 * t) * p1 + (3 * t**2 - 4 * t + 1) * m1 + (6 * t - 6 * t**2) * p2
+                   + (3 * t**2 - 2 * t) * m2)
             acc = (12 * t - 6) * p1 + (6 * t - 4) * m1 + (6 - 12 * t) * p2 + (6 * t - 2) * m2
             speed = math.hypot(vel[0], vel[1])
             cross = vel[0] * acc[1] - vel[1] * acc[0]
@@ -80,8 +82,8 @@ def execute_route(obj, target_mask, dist, tvec, cell_size, origin, cells, fallba
                   lam: float, threshold: float, samples_per_step: int, spline_alpha: float = 0.5):
     """Push the route ``cells`` (list of (row, col)) on a copy of ``obj``.
 
-    Returns ``(new_obj, info)`` with info keys ``collected``, ``spilled``, ``delivered`` (collected - spilled), ``residual_load`` (the
-    evaluator's delivered mass, before spills are rounded to ``QUANTUM``), ``length``,
+    Returns ``(new_obj, info)`` with info keys ``collected``, ``spilled``, ``delivered`` (collected - spilled),
+    ``residual_load`` (the evaluator's delivered mass, before spills are rounded to ``QUANTUM``), ``length``,
     ``samples``, ``spills``, ``drop_cells``.
     """
     obj = np.array(obj, np.float64)

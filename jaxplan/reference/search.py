@@ -51,7 +51,7 @@ import dataclasses
 import functools
 import heapq
 import math
-from typing import Callable, Hashable
+from collections.abc import Callable, Hashable
 
 import numpy as np
 

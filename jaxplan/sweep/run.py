@@ -39,14 +39,16 @@ so they give identical rows.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 
 from jaxplan.sweep.chunks import Chunk, chunk_size_for, evaluate_chunk
 from jaxplan.sweep.spec import METRICS, SweepSpec, columns_of, load_spec, settings_of, tables_of
+
 
 def _fmt(v) -> str:
     if isinstance(v, str):

@@ -14,7 +14,7 @@ import jax
 from jaxplan.transport import params as _params
 from jaxplan.transport.params import FabricParams, validate_params
 from jaxplan.transport.scene import Scene
-from jaxplan.transport.scenes import random_scene, BUILTIN_SCENES, builtin_scene
+from jaxplan.transport.scenes import BUILTIN_SCENES, builtin_scene, random_scene
 from jaxplan.transport.spillage import SpillParams, validate_spill_params
 
 __all__ = ["METRICS", "SweepSpec", "columns_of", "load_spec", "settings_of", "tables_of"]

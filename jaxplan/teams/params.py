@@ -73,7 +73,7 @@ class SiteParams:
     tol_param: Any = 0.1
     dt: Any = 1.0
 
-    def replace(self, **changes) -> "SiteParams":
+    def replace(self, **changes) -> SiteParams:
         return dataclasses.replace(self, **changes)
 
     @property
@@ -97,7 +97,7 @@ class TeamsConfig:
     strategy: str = "performance"
     record: bool = False
 
-    def replace(self, **changes) -> "TeamsConfig":
+    def replace(self, **changes) -> TeamsConfig:
         return dataclasses.replace(self, **changes)
 
 

@@ -11,7 +11,6 @@ from jaxplan.core.compilation import grid_jit
 from jaxplan.transport.fabric import Fabric, Table, continuation_dp
 from jaxplan.transport.params import FabricParams, validate_params
 
-
 _ANCHOR_BATCH = 8   # connector DPs evaluated together by vmap
 
 
@@ -143,7 +142,8 @@ def slot_anchors(anchor_flat, max_anchors: int):
     return jnp.where((anchors >= 0) & (jnp.arange(max_anchors) < jnp.sum(anchors >= 0)), anchors, -1)
 
 
-def _plan(scene, params: FabricParams, fabric: Fabric, max_anchors: int, max_candidates: int | None = None) -> Connectors:
+def _plan(scene, params: FabricParams, fabric: Fabric, max_anchors: int,
+          max_candidates: int | None = None) -> Connectors:
     h, w = fabric.occupied.shape
     centers = lattice.cell_centers((h, w), scene.cell_size, scene.origin)
     anchor_flat = choose_anchors(fabric.heat, fabric.highways, fabric.occupied, centers, params.anchor_lambda,

@@ -14,8 +14,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.transport import spillage
 from jaxplan.core.compilation import grid_jit
+from jaxplan.transport import spillage
 from jaxplan.transport.fabric import Paths
 
 # Counts written by a push are multiples of QUANTUM objects. Sums of such numbers are exact in
@@ -50,7 +50,8 @@ class Push(NamedTuple):
     """What executing one route did (objects; world units for lengths).
 
     collected: f32[], picked up from the route's cells.  spilled: f32[], dropped beside the route.
-    delivered: f32[], added to the target (= collected - spilled; spills are rounded to ``QUANTUM``).  length: f32[], spline length.
+    delivered: f32[], added to the target (= collected - spilled; spills are rounded to ``QUANTUM``).
+    length: f32[], spline length.
     changed: bool[H, W], non-target cells whose count changed (A_exec of Eq. 13).
     samples: spillage.PathSamples of the pushed spline; spill: f32[N] per sample.
     """

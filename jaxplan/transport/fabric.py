@@ -19,10 +19,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.core import lattice
-from jaxplan.transport import kbest
-from jaxplan.transport import heatmap
-from jaxplan.transport import visibility
 from jaxplan.core.compilation import grid_jit, traced
+from jaxplan.transport import heatmap, kbest, visibility
 from jaxplan.transport.params import FabricParams, validate_params
 
 

@@ -71,7 +71,7 @@ class FabricParams:
         h, w = shape
         return 2 * (h + w)
 
-    def replace(self, **changes) -> "FabricParams":
+    def replace(self, **changes) -> FabricParams:
         return dataclasses.replace(self, **changes)
 
     def resolved_max_hops(self, shape) -> int:

@@ -33,15 +33,23 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.transport import compact
 from jaxplan.core import lattice
-from jaxplan.transport import connectors
-from jaxplan.transport import heatmap
-from jaxplan.transport import visibility
 from jaxplan.core.compilation import grid_jit, traced
+from jaxplan.transport import compact, connectors, heatmap, visibility
 from jaxplan.transport.connectors import Connectors
-from jaxplan.transport.fabric import (Fabric, Table, fabric_of, make_table, full_table, highways_of, hop_lengths,
-                            hops_from_steps, own_fields, ranks_from_directions, with_flow)
+from jaxplan.transport.fabric import (
+    Fabric,
+    Table,
+    fabric_of,
+    full_table,
+    highways_of,
+    hop_lengths,
+    hops_from_steps,
+    make_table,
+    own_fields,
+    ranks_from_directions,
+    with_flow,
+)
 from jaxplan.transport.params import FabricParams
 
 

@@ -394,7 +394,7 @@ class Scene:
     # -- construction ------------------------------------------------------------------------
 
     @classmethod
-    def from_arrays(cls, obj, target, cell_size=1.0, origin=(0.0, 0.0), name=None) -> "Scene":
+    def from_arrays(cls, obj, target, cell_size=1.0, origin=(0.0, 0.0), name=None) -> Scene:
         """Validate the inputs and compute ``target_mask``, ``dist``, ``tvec`` with the JAX kernel.
 
         obj: [H, W] counts (array-like, finite, >= 0; rows = y, columns = x).
@@ -415,7 +415,7 @@ class Scene:
         return cls(jnp.asarray(obj), mask, dist, tvec, jnp.asarray(cell_size), jnp.asarray(origin),
                    target=target, name=name)
 
-    def with_obj(self, obj) -> "Scene":
+    def with_obj(self, obj) -> Scene:
         """The same geometry with new counts ``obj: [H, W]`` (same shape).
 
         Concrete counts are validated like :meth:`from_arrays`; traced ones (inside ``jit``) cannot
@@ -494,7 +494,7 @@ class Scene:
         return path
 
     @classmethod
-    def load(cls, path) -> "Scene":
+    def load(cls, path) -> Scene:
         """Read a scene written by :meth:`save` (``.npz`` or ``.json``) and re-validate it."""
         path = Path(path)
         suffix = _format_of(path)

@@ -75,7 +75,7 @@ _BUILDERS = {
 }
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _cached_builtin(name: str) -> Scene:
     return _BUILDERS[name]()  # Scenes are immutable, so sharing one instance is safe
 

@@ -23,11 +23,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.transport import execute
-from jaxplan.transport import fabric as _fabric
-from jaxplan.transport import rebuild
-from jaxplan.transport import spillage
 from jaxplan.core.compilation import grid_jit, traced
+from jaxplan.transport import execute, rebuild, spillage
+from jaxplan.transport import fabric as _fabric
 from jaxplan.transport.fabric import Fabric, walk_table
 
 DELIVERED_TIE = 1e-4   # objects

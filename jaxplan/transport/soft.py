@@ -27,8 +27,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.core import lattice
-from jaxplan.transport import visibility
 from jaxplan.core.compilation import grid_jit
+from jaxplan.transport import visibility
 from jaxplan.transport.params import FabricParams
 
 MIN_TEMPERATURE = 1e-6   # a traced temperature is floored here, so t = 0 under vmap/grad cannot divide by 0
@@ -138,7 +138,8 @@ def soft_dp(obj, occupied, goal, dist, tvec, log_p, allowed, cell_size, t, round
     Per occupied cell C, options: step i (allowed) with score ``V(N_i) - eta |step_i| - t^(3/4) i + log p_i``
     (``V = 0`` for a goal neighbour: entering it ends the path) and the fallback with score
     ``sum_i log(1 - p_i) - eta d(C)`` (all steps closed), ``eta = sqrt(t) / s`` (the length
-    tie-break; ``t^(3/4) i`` breaks the remaining ties toward the lower direction index). ``V(C) = obj(C) + t logsumexp(score / t)``, ``pi = softmax(score / t)``,
+    tie-break; ``t^(3/4) i`` breaks the remaining ties toward the lower direction index).
+    ``V(C) = obj(C) + t logsumexp(score / t)``, ``pi = softmax(score / t)``,
     expected raw ``R(C) = obj(C) + sum_i pi_i [N_i not goal] R(N_i)``, expected length
     ``L(C) = sum_i pi_i (|step_i| + [N_i not goal] L(N_i)) + pi_fb d(C)``. Rounds start from the
     0-step fallback (``V = R = obj``, ``L = d``) and run ``rounds`` times (static).

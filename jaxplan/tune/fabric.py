@@ -17,7 +17,8 @@ the episode's Rearrange rule does. Parameters are optimised in an unconstrained 
 from __future__ import annotations
 
 import math
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -98,11 +99,14 @@ class ObjectiveConfig(NamedTuple):
     aggregate: str = "job"
 
 
-def soft_efficiency(scene: Scene, params: FabricParams, config: ObjectiveConfig = ObjectiveConfig()):
+def soft_efficiency(scene: Scene, params: FabricParams, config: ObjectiveConfig | None = None):
     """``f32[]`` objects per world unit: the soft delivered mass per unit driven (``config.aggregate``).
 
     params: the (traced) fabric parameters; its temperature is replaced by ``config.temperature``.
+    config: None means ``ObjectiveConfig()``.
     """
+    if config is None:
+        config = ObjectiveConfig()
     if config.aggregate not in AGGREGATES:
         raise ValueError(f"ObjectiveConfig.aggregate: must be one of {AGGREGATES}; got {config.aggregate!r}.")
     t = config.temperature
@@ -162,7 +166,7 @@ class FitResult(NamedTuple):
 
 
 def fit_fabric(scenes: list[Scene], init: FabricParams | None = None, *, steps: int = 60,
-               learning_rate: float = 0.05, config: ObjectiveConfig = ObjectiveConfig(),
+               learning_rate: float = 0.05, config: ObjectiveConfig | None = None,
                on_step: Callable[[int, dict], None] | None = None) -> FitResult:
     """Maximise the mean ``soft_efficiency`` over ``scenes`` (one shape) with optax Adam.
 
@@ -171,6 +175,8 @@ def fit_fabric(scenes: list[Scene], init: FabricParams | None = None, *, steps: 
     """
     if steps < 1:
         raise ValueError(f"steps: must be >= 1; got {steps!r}.")
+    if config is None:
+        config = ObjectiveConfig()
     base = FabricParams() if init is None else init
     batch = stack_scenes(scenes)
 

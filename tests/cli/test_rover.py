@@ -46,7 +46,8 @@ def test_rover_writes_summary_table_and_figure(tmp_path, capsys):
                                          (["--scene", "nope.json"], "--scene"), (["--lam", "-1"], "lam"),
                                          (["--friction", "0"], "--friction"), (["--capacity", "0"], "--capacity"),
                                          (["--mu", "-1"], "--mu"), (["--mu", "nan"], "--mu"),
-                                         (["--miss", "-0.1"], "--miss"), (["--turn-saturation", "0"], "--turn-saturation"),
+                                         (["--miss", "-0.1"], "--miss"),
+                                         (["--turn-saturation", "0"], "--turn-saturation"),
                                          (["--turn-saturation", "nan"], "--turn-saturation")])
 def test_rover_bad_input_exits_2(tmp_path, capsys, argv, field):
     with pytest.raises(SystemExit) as info:
@@ -69,8 +70,8 @@ def test_turning_options_select_the_capacity_model():
 def test_rover_predicts_with_the_fitted_model_unless_a_spill_option_is_given():
     from jaxplan.cli.main import build_parser
     from jaxplan.cli.transport import spill_params
-    from jaxplan.transport.spillage.capacity import ROVER_FIT
     from jaxplan.transport.spillage import SpillParams
+    from jaxplan.transport.spillage.capacity import ROVER_FIT
 
     parse = build_parser().parse_args
     assert spill_params(parse(["rover"]), default=ROVER_FIT) is ROVER_FIT

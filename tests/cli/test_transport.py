@@ -149,7 +149,8 @@ def test_scenes_lists_builtins(capsys):
 @pytest.mark.parametrize("argv, expected", [
     ([], ["fabric", "demo", "episode", "scenes", "example"]),
     (["episode"], ["--scene", "--out", "--lam", "--max-pushes", "--rearrange-margin", "--stop-fraction",
-                   "--source-rule", "--reselect", "--no-animation", "summary.json", "metrics.csv", "episode.gif", "example"]),
+                   "--source-rule", "--reselect", "--no-animation", "summary.json", "metrics.csv", "episode.gif",
+                   "example"]),
     (["fabric"], ["--scene", "--theta-tol", "--tau-h", "--k", "--no-monotone", "--out", "example"]),
     (["demo"], ["--scene", "--out", "--theta-tol", "example", "summary.json", "fabric.png"]),
     (["scenes"], ["example"]),

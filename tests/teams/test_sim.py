@@ -13,15 +13,24 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as hs
 
 from jaxplan.reference.teams import reference_site
-from jaxplan.teams import (STRATEGIES, SiteParams, TeamsConfig, paper_config, paper_scenario,
-                           random_sites, run_sites, simulate_site)
-from jaxplan.teams import blackboard, model
+from jaxplan.teams import (
+    STRATEGIES,
+    SiteParams,
+    TeamsConfig,
+    blackboard,
+    model,
+    paper_config,
+    paper_scenario,
+    random_sites,
+    run_sites,
+    simulate_site,
+)
 from jaxplan.teams.sim import BROKEN, PHASES
 
 N_STEPS = 1100  # past the 900 s deadline, enough for the paper site to finish
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _jitted(cfg: TeamsConfig):
     return jax.jit(functools.partial(simulate_site, cfg))
 

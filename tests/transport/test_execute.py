@@ -9,9 +9,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxplan import FabricParams, Scene, box, build_fabric, extract_paths
+from jaxplan.reference import execute as ref_ex
 from jaxplan.transport import execute as ex
 from jaxplan.transport import spillage as sp
-from jaxplan.reference import execute as ref_ex
 from tests._scenes import scenes
 
 SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -84,8 +84,8 @@ def test_centripetal_spline_does_not_loop_before_a_long_fallback_segment():
     # the polyline turns 0.79 rad (45 deg) and then 0.62 rad back; a smooth curve without a loop turns
     # little more than that
     assert float(jnp.sum(jnp.abs(centripetal.turn))) < 2.5
-    assert float(jnp.sum(centripetal.ds)) == pytest.approx(float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1))),
-                                                           rel=0.02)
+    assert float(jnp.sum(centripetal.ds)) == pytest.approx(
+        float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1))), rel=0.02)
 
 
 @SETTINGS
@@ -132,9 +132,11 @@ def test_push_equals_reference(scene, lam, threshold, seed, rank):
     np.testing.assert_allclose(float(push.collected), info["collected"], rtol=1e-6)
     np.testing.assert_allclose(float(push.spilled), info["spilled"], rtol=1e-4, atol=4 * ex.QUANTUM)
     np.testing.assert_allclose(float(push.delivered), info["delivered"], rtol=1e-4, atol=4 * ex.QUANTUM)
-    np.testing.assert_allclose(info["delivered"], info["residual_load"], rtol=1e-3, atol=ex.QUANTUM * len(info["spills"]))
+    np.testing.assert_allclose(info["delivered"], info["residual_load"], rtol=1e-3,
+                               atol=ex.QUANTUM * len(info["spills"]))
     np.testing.assert_allclose(float(push.length), info["length"], rtol=1e-4)
-    np.testing.assert_allclose(np.asarray(push.spill), np.pad(info["spills"], (0, push.spill.shape[0] - len(info["spills"]))),
+    np.testing.assert_allclose(np.asarray(push.spill),
+                               np.pad(info["spills"], (0, push.spill.shape[0] - len(info["spills"]))),
                                rtol=1e-3, atol=ex.QUANTUM + threshold)
     if not _near_cell_edge(info, scene) and not any(0 < abs(v - threshold) < 1e-4 for v in info["spills"]):
         np.testing.assert_allclose(np.asarray(new_obj), ref_obj, rtol=1e-4, atol=8 * ex.QUANTUM)

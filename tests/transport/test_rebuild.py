@@ -9,13 +9,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxplan import FabricParams, build_fabric, builtin_scene, extract_paths
-from jaxplan.transport import heatmap
-from jaxplan.transport import visibility
+from jaxplan.reference import rebuild as ref_rb
 from jaxplan.transport import execute as ex
+from jaxplan.transport import heatmap, visibility
 from jaxplan.transport import rebuild as rb
 from jaxplan.transport import spillage as sp
 from jaxplan.transport.fabric import first_hops, hop_lengths
-from jaxplan.reference import rebuild as ref_rb
 from tests._scenes import ANGLES, scenes
 
 SETTINGS = settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -190,7 +189,8 @@ def test_rebuild_compiles_once_per_grid(pushed):
 def test_inside_jit_the_switch_program_gives_the_same_fabric(pushed):
     scene, params, fabric, push = pushed
     host, host_affected = rb.selective_rebuild(scene, params, fabric, push.changed)
-    traced, traced_affected = jax.jit(lambda s, f, c: rb.selective_rebuild(s, params, f, c))(scene, fabric, push.changed)
+    traced, traced_affected = jax.jit(lambda s, f, c: rb.selective_rebuild(s, params, f, c))(scene, fabric,
+                                                                                            push.changed)
     assert_same_fabric(traced, host)
     assert int(traced_affected.n_dirty) == int(host_affected.n_dirty)
     assert bool(traced_affected.full) == bool(host_affected.full)

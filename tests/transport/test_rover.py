@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from jaxplan import FabricParams, build_fabric, builtin_scene
+from jaxplan.physics.rollout import Simulator
 from jaxplan.transport import execute
+from jaxplan.transport.rebuild import selective_rebuild
 from jaxplan.transport.rover import bridge
 from jaxplan.transport.rover import model as rover
-from jaxplan.physics.rollout import Simulator
-from jaxplan.transport.rebuild import selective_rebuild
 from jaxplan.transport.scene import Scene, box
 
 TICKS = 240      # 12 s: the tiny routes finish in 10.2 and 9.3 s (blade pushed 1 cell past the end)
@@ -279,6 +279,7 @@ def test_check_routes_takes_a_friction_per_route(tiny):
     assert not np.allclose(chk.trajectory.qpos, checks["c"].trajectory.qpos)
     fields = bridge._friction_fields(world, [0.3, 1.2], 2)["geom_friction"]
     wheel = world.model.geom("wheel_left").id
-    assert fields[0, 0, 0] == 0.3 and fields[1, 0, 0] == 1.2 and fields[1, wheel, 0] == world.model.geom_friction[wheel, 0]
+    assert (fields[0, 0, 0] == 0.3 and fields[1, 0, 0] == 1.2
+            and fields[1, wheel, 0] == world.model.geom_friction[wheel, 0])
     with pytest.raises(ValueError, match="friction"):
         bridge.check_routes(scene, routes, n_ticks=2, world=world, simulator=sims["c"], friction=-1.0)

@@ -15,10 +15,9 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, MultiPolygon, Point, Polygon
 
+from jaxplan.reference.geometry import reference_geometry
 from jaxplan.transport import scene as S
 from jaxplan.transport import scenes
-from jaxplan.reference.geometry import reference_geometry
-
 
 # --------------------------------------------------------------------------------------------------
 # Kernel vs reference (property test)

@@ -10,11 +10,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxplan import FabricParams, Scene, box, build_fabric
-from jaxplan.transport import selection
+from jaxplan.reference.heatmap import heat_map, psi_map, table_path
 from jaxplan.transport import fabric as fab_mod
+from jaxplan.transport import selection
 from jaxplan.transport import spillage as sp
 from jaxplan.transport.episode import EpisodeParams, run_episode
-from jaxplan.reference.heatmap import heat_map, psi_map, table_path
 from tests._scenes import scenes
 
 SETTINGS = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])

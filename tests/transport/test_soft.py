@@ -10,10 +10,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxplan import Fabric, FabricParams, Scene, box, build_fabric, circle
-from jaxplan.transport import soft
 from jaxplan.core.lattice import cell_centers
-from jaxplan.transport.connectors import choose_anchors
 from jaxplan.reference.soft import reference_soft_fabric
+from jaxplan.transport import soft
+from jaxplan.transport.connectors import choose_anchors
 from tests._scenes import ANGLES, has_borderline_step, scenes
 
 FIELDS = ("value", "raw", "length", "policy", "psi", "heat", "highways", "candidate", "anchor_weights")

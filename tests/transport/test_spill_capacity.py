@@ -10,12 +10,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxplan import Scene, box
-from jaxplan.transport import execute as ex
-from jaxplan.transport.spillage import capacity as sc
-from jaxplan.transport.spillage import fit as spill_fit
-from jaxplan.transport import spillage as sp
 from jaxplan.reference import execute as ref_ex
 from jaxplan.reference import spill_capacity as ref_sc
+from jaxplan.transport import execute as ex
+from jaxplan.transport import spillage as sp
+from jaxplan.transport.spillage import capacity as sc
+from jaxplan.transport.spillage import fit as spill_fit
 
 SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 SLOTS = 8           # waypoint slots: one compiled shape for every example
@@ -160,7 +160,8 @@ def test_fit_recovers_a_capacity_from_model_generated_deliveries():
     pts, ns, picks = np.stack(pts), np.array(ns), np.stack(picks)
     truth = sc.CapacitySpillParams(capacity=11.0, lam=0.0, mu=0.02, temperature=0.5)
     obs = np.asarray(spill_fit.predict_delivered(pts, ns, picks, truth))
-    fit = spill_fit.fit_capacity(pts, ns, picks, obs, steps=100, grid={"capacity": (6.0, 16.0), "lam": (0.0,), "mu": (0.0, 0.05)})
+    fit = spill_fit.fit_capacity(pts, ns, picks, obs, steps=100,
+                                 grid={"capacity": (6.0, 16.0), "lam": (0.0,), "mu": (0.0, 0.05)})
     pred = np.asarray(spill_fit.predict_delivered(pts, ns, picks, fit.params))
     assert np.all(np.isfinite(fit.loss))
     assert np.sqrt(np.mean((pred - obs) ** 2)) < 0.3

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxplan.transport import spillage
 from jaxplan.reference.execute import spill_along
+from jaxplan.transport import spillage
 from jaxplan.transport.spillage import SpillParams
 from jaxplan.tune import SpillData, fit_spill, predict_spill, spill_loss, synthetic_spill_data
 from jaxplan.tune.spill import synthetic_routes

@@ -27,10 +27,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxplan.transport import execute
-from jaxplan.transport import spillage
-from jaxplan.transport.rover import model as rover_mod
 from jaxplan.physics.rollout import Simulator, Trajectory
+from jaxplan.transport import execute, spillage
+from jaxplan.transport.rover import model as rover_mod
 
 __all__ = ["PursuitParams", "RouteOutcome", "Check", "pursuit_policy", "route_path", "check_routes",
            "rasterise", "project", "plan_routes", "tracking_error", "world_for_routes", "PUSH_IN"]
@@ -214,7 +213,8 @@ class RouteOutcome(NamedTuple):
             row = {}
             for key, value in self._asdict().items():
                 v = value[i]
-                row[key] = bool(v) if isinstance(v, (bool, np.bool_)) else (int(v) if key == "max_contacts" else float(v))
+                row[key] = (bool(v) if isinstance(v, (bool, np.bool_))
+                            else (int(v) if key == "max_contacts" else float(v)))
             out.append(row)
         return out
 
@@ -409,7 +409,7 @@ def _score(scene, routes, world, traj: Trajectory, paths, layouts, masks, spill,
     ppo = world.config.particles_per_object
     target = np.asarray(scene.target_mask)
     cols = {k: [] for k in RouteOutcome._fields}
-    for i, (path, (xyz, cells, _), mask) in enumerate(zip(paths, layouts, masks)):
+    for i, (path, (xyz, _cells, _), mask) in enumerate(zip(paths, layouts, masks)):
         n_p = len(xyz)
         mass = np.full(n_p, 1.0 / ppo)
         final = world.particle_xyz(traj.qpos[i, -1])[:n_p, :2]

@@ -33,6 +33,7 @@ from typing import NamedTuple
 
 import mujoco
 import numpy as np
+
 from mjx_models import MODEL_DIR
 
 __all__ = ["RoverConfig", "World", "build_world", "particle_layout", "contact_usage", "rover_pose",
@@ -98,7 +99,7 @@ class RoverConfig:
             if not (isinstance(value, numbers.Integral) and value >= 1):
                 raise ValueError(f"RoverConfig.{name}: must be an integer >= 1; got {value!r}.")
 
-    def replace(self, **changes) -> "RoverConfig":
+    def replace(self, **changes) -> RoverConfig:
         return dataclasses.replace(self, **changes)
 
 
@@ -160,7 +161,8 @@ def _rover_xml(s: float, cfg: RoverConfig) -> str:
         wing_x=g.blade_front + (0.5 * cfg.wing_length - 0.02) * s, wing_y=g.blade_half_width - 0.02 * s,
         wing_hx=0.5 * cfg.wing_length * s,
         wing_mass=0.02 * cfg.rover_mass,
-        caster_x=-0.32 * s, caster_front_x=0.3 * s, caster_r=0.05 * s, caster_z=0.05 * s - g.wheel_r, caster_mass=0.02 * cfg.rover_mass,
+        caster_x=-0.32 * s, caster_front_x=0.3 * s, caster_r=0.05 * s, caster_z=0.05 * s - g.wheel_r,
+        caster_mass=0.02 * cfg.rover_mass,
         wheel_y=g.half_track, wheel_mass=0.04 * cfg.rover_mass, wheel_damping=0.05,
     )
     return body.format(**{k: f"{v:.6g}" for k, v in fields.items()})

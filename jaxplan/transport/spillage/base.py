@@ -25,7 +25,8 @@ only call it through that signature.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, ClassVar, NamedTuple
+from collections.abc import Callable
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -59,7 +60,7 @@ class SpillParams:
     enabled: bool = True
     spline_alpha: float = CENTRIPETAL
 
-    def replace(self, **changes) -> "SpillParams":
+    def replace(self, **changes) -> SpillParams:
         return dataclasses.replace(self, **changes)
 
 

@@ -9,8 +9,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.transport.spillage import base as spillage
-from jaxplan.transport.spillage.capacity import (CapacitySpillParams, capacity_spill, turning_near_pickups,
-                                                 validate_capacity_params)
+from jaxplan.transport.spillage.capacity import (
+    CapacitySpillParams,
+    capacity_spill,
+    turning_near_pickups,
+    validate_capacity_params,
+)
 
 __all__ = ["FIT_FIELDS", "FIT_GRID", "CapacityFit", "fit_capacity", "fit_miss", "predict_delivered", "predict_missed"]
 
@@ -103,7 +107,8 @@ def _check_fit_fields(fields, grid):
         raise ValueError(f"fit_capacity: fields must be a non-empty subset of {FIT_FIELDS}; got {tuple(fields)!r}.")
     missing = [f for f in fields if f not in grid or len(grid[f]) == 0]
     if missing:
-        raise ValueError(f"fit_capacity: grid has no start values for {missing}; give a sequence for each fitted field.")
+        raise ValueError(f"fit_capacity: grid has no start values for {missing}; "
+                         "give a sequence for each fitted field.")
 
 
 def fit_capacity(waypoints, n_points, waypoint_pickup, delivered, *, temperature: float = 0.5,
