@@ -32,11 +32,9 @@ import jax
 import numpy as np
 
 from experiments._results import write_results
-from jaxplan import FabricParams, SpillParams, build_fabric, run_episode
-from jaxplan.transport.episode import (STOP_REASONS, EpisodeParams, act, default_walk_cap, reset,
-                                       rollout_scenes_jit)
+from jaxplan import FabricParams, SpillParams, build_fabric, random_scene, run_episode
+from jaxplan.transport.episode import STOP_REASONS, EpisodeParams, act, default_walk_cap, reset, rollout_scenes_jit
 from jaxplan.transport.scene import stack_scenes
-from jaxplan import random_scene
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 

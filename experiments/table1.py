@@ -186,7 +186,8 @@ def summarise(records: list) -> list:
         rows.append({
             "planner": planner, "scene": scene, "density_n": n, "trials": len(rs),
             "success_pct": 100.0 * len(ok) / len(rs),
-            "exec_success_pct": (100.0 * sum(r["exec_success"] for r in executed) / len(executed)) if executed else None,
+            "exec_success_pct": ((100.0 * sum(r["exec_success"] for r in executed) / len(executed))
+                                 if executed else None),
             "replan_exec_success_pct": (100.0 * sum(r["replan_exec_success"] for r in replanned) / len(replanned)
                                         if replanned else None),
             "replans": _ms([r["replans"] for r in replanned]),
@@ -212,7 +213,8 @@ def _f(stat, digits=1):
 def _paper(name: str, scene: str, n) -> str:
     if scene == "nominal" and name in PAPER_TABLE1:
         p = PAPER_TABLE1[name]
-        return f"{p['success']} / {PAPER_TABLE1_RAL_SUCCESS[name]} · {p['pt']} · {p['et']} · {p['sims']} · {p['pushes']}"
+        return (f"{p['success']} / {PAPER_TABLE1_RAL_SUCCESS[name]} · {p['pt']} · {p['et']} · {p['sims']} · "
+                f"{p['pushes']}")
     if scene == "dense30" and name == "ours":
         p = PAPER_DENSE30
         return f"solved (1 run) · {p['pt']} · {p['et']} · {p['sims']} · {p['pushes']}"
@@ -260,7 +262,8 @@ def write_outputs(records: list, out: Path, args_dict: dict) -> dict:
         limit = "/".join(f"{t:g}" for t in r["time_limit_s"])
         lines.append(f"| {scene} | {r['planner']} | {r['trials']} | {limit} | {r['success_pct']:.1f} | {ex} | {rp} | "
                      f"{_f(r['planning_time_s'])} | {med:.2f} | {_f(r['execution_time_s'])} | "
-                     f"{_f(r['simulated_pushes'])} | {_f(r['pushes'])} | {_paper(r['planner'], r['scene'], r['density_n'])} |")
+                     f"{_f(r['simulated_pushes'])} | {_f(r['pushes'])} | "
+                     f"{_paper(r['planner'], r['scene'], r['density_n'])} |")
     (out / "table1.md").write_text("\n".join(lines) + "\n")
     return doc
 
@@ -320,7 +323,8 @@ def main(argv=None) -> dict:
     records = [json.loads(line) for line in jsonl.read_text().splitlines() if line.strip()] if jsonl.exists() else []
     done = {_trial_key(r) for r in records}
     # Trials interleave planners per seed, so an interrupted run has comparable counts for every planner.
-    todo = [] if args.report_only else [(p, s, n, seed) for s in scenes for n in (densities if s == "density" else [None])
+    todo = [] if args.report_only else [
+            (p, s, n, seed) for s in scenes for n in (densities if s == "density" else [None])
             for seed in range(args.seed0, args.seed0 + args.trials) for p in planners
             if (p, s, n, seed) not in done]
     from tqdm import tqdm  # noqa: PLC0415

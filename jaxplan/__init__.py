@@ -11,11 +11,40 @@ Each system is a package (``jaxplan.transport``, ``jaxplan.pusharound``, ``jaxpl
 public API is re-exported here; docs/architecture.md is the map.
 """
 from jaxplan.core import limit_malloc_arenas, single_cpu
-from jaxplan.transport import (BUILTIN_SCENES, DEFAULT_SCENE, Affected, Connectors, Episode, EpisodeParams,
-                               EpisodeState, Fabric, FabricParams, Paths, Push, Route, Scene, Selection, SoftFabric,
-                               SpillParams, StepRecord, Table, box, build_fabric, builtin_scene, circle, extract_paths,
-                               plan_connectors, random_scene, refresh_connectors, reselect, reset, run_episode,
-                               select_routes, selective_rebuild, step)
+from jaxplan.transport import (
+    BUILTIN_SCENES,
+    DEFAULT_SCENE,
+    Affected,
+    Connectors,
+    Episode,
+    EpisodeParams,
+    EpisodeState,
+    Fabric,
+    FabricParams,
+    Paths,
+    Push,
+    Route,
+    Scene,
+    Selection,
+    SoftFabric,
+    SpillParams,
+    StepRecord,
+    Table,
+    box,
+    build_fabric,
+    builtin_scene,
+    circle,
+    extract_paths,
+    plan_connectors,
+    random_scene,
+    refresh_connectors,
+    reselect,
+    reset,
+    run_episode,
+    select_routes,
+    selective_rebuild,
+    step,
+)
 
 # PushAround, the team model, sweeps and tuning load on first use: each pulls in libraries (MuJoCo,
 # optax) that planning on a grid does not need, so ``import jaxplan`` stays quick and small.

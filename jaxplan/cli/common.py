@@ -61,6 +61,16 @@ def params_dict(params) -> dict:
     return out
 
 
+def output_dir(path: str) -> Path:
+    """The folder ``--out`` names, created if missing; a ``CLIError`` naming the flag if it cannot be."""
+    out_dir = Path(path)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CLIError(f"--out: could not create {str(out_dir)!r} ({exc.strerror or exc}).") from None
+    return out_dir
+
+
 def atomic_write(path: Path, write) -> None:
     """Call ``write(binary_file)`` on a temp file next to ``path``, then rename it into place.
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.cli.common import CLIError, atomic_write, wrap, write_json
+from jaxplan.cli.common import CLIError, atomic_write, output_dir, wrap, write_json
 
 PUSHAROUND_RESULT_FORMAT = "jaxplan.pusharound.result"
 
@@ -157,11 +157,7 @@ def _cmd_pusharound(args) -> int:
             raise CLIError(f"--mode-table: {args.mode_table}: {exc}") from None
     elif args.mode_table is not None:
         table = ModeTable()
-    out_dir = Path(args.out)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CLIError(f"--out: could not create {str(out_dir)!r} ({exc.strerror or exc}).") from None
+    out_dir = output_dir(args.out)
     paths = {"result": out_dir / "result.json", "scene_final": out_dir / "scene_final.json",
              "figure": out_dir / "pusharound.png", "animation": out_dir / "pusharound.gif"}
 

@@ -5,11 +5,19 @@ import math
 import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-from jaxplan.cli.common import CLIError, add_theta_option, atomic_write, fabric_params, load_scene, wrap, write_json
+from jaxplan.cli.common import (
+    CLIError,
+    add_theta_option,
+    atomic_write,
+    fabric_params,
+    load_scene,
+    output_dir,
+    wrap,
+    write_json,
+)
 from jaxplan.cli.transport import add_spill_options, spill_dict, spill_params
 from jaxplan.transport.scenes import DEFAULT_SCENE
 
@@ -35,11 +43,7 @@ def _cmd_rover(args) -> int:
     spill = spill_params(args, default=ROVER_FIT)
     params = fabric_params(args)
     scene = load_scene(args.scene)
-    out_dir = Path(args.out)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CLIError(f"--out: could not create {str(out_dir)!r} ({exc.strerror or exc}).") from None
+    out_dir = output_dir(args.out)
 
     from jaxplan.transport.rover import bridge, report
     from jaxplan.transport.rover.model import RoverConfig

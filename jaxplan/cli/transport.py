@@ -16,6 +16,7 @@ from jaxplan.cli.common import (
     atomic_write,
     fabric_params,
     load_scene,
+    output_dir,
     params_dict,
     timed,
     wrap,
@@ -326,11 +327,7 @@ def _cmd_episode(args) -> int:
     matplotlib.use("Agg")
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
     scene = load_scene(args.scene)
-    out_dir = Path(args.out)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CLIError(f"--out: could not create {str(out_dir)!r} ({exc.strerror or exc}).") from None
+    out_dir = output_dir(args.out)
     episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
     summary = _episode_summary(scene, args.scene, params, spill, ep, episode)
     try:

@@ -47,7 +47,7 @@ import dataclasses
 import heapq
 import math
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import shapely
@@ -55,8 +55,17 @@ from shapely.geometry import LineString
 from shapely.ops import nearest_points
 
 from jaxplan.pusharound.physics import PushWorld, build_push_world
-from jaxplan.pusharound.push import (MAX_BATCH, PushOutcome, PushTask, direction_tasks, make_push_simulator,
-                                     push_cost, simulate_pushes, stack_tasks, start_positions)
+from jaxplan.pusharound.push import (
+    MAX_BATCH,
+    PushOutcome,
+    PushTask,
+    direction_tasks,
+    make_push_simulator,
+    push_cost,
+    simulate_pushes,
+    stack_tasks,
+    start_positions,
+)
 from jaxplan.pusharound.ranking import candidate_gaps
 from jaxplan.pusharound.scene import PushScene
 from jaxplan.pusharound.search import ScheduledPush, SearchResult, SearchStats
@@ -94,7 +103,7 @@ class BaselineConfig:
     route_margin: float = 0.25
     backend: str = "auto"
 
-    def replace(self, **changes) -> "BaselineConfig":
+    def replace(self, **changes) -> BaselineConfig:
         return dataclasses.replace(self, **changes)
 
 
@@ -105,7 +114,8 @@ def _check_config(cfg: BaselineConfig) -> None:
         if not getattr(cfg, name) > 0:
             raise ValueError(f"BaselineConfig.{name}: must be > 0; got {getattr(cfg, name)!r}.")
     if not 0 < cfg.max_push_s <= 2.0 + 1e-9:
-        raise ValueError(f"BaselineConfig.max_push_s: must be in (0, 2] s (the rollout horizon); got {cfg.max_push_s!r}.")
+        raise ValueError("BaselineConfig.max_push_s: must be in (0, 2] s (the rollout horizon); "
+                         f"got {cfg.max_push_s!r}.")
 
 
 # --------------------------------------------------------------------------------------------- plumbing
@@ -186,7 +196,8 @@ def schedule_duration(world: PushWorld, schedule) -> float:
     total = 0.0
     for p in schedule:
         one = stack_tasks([p.task])
-        dist = np.where(one.active[0], np.linalg.norm(_starts(world, one, p.poses_before) - p.robots_before, axis=-1), 0)
+        dist = np.where(one.active[0],
+                        np.linalg.norm(_starts(world, one, p.poses_before) - p.robots_before, axis=-1), 0)
         total += float(dist.max()) / world.config.transit_speed + float(one.duration[0])
     return total
 

@@ -114,7 +114,8 @@ def pair_distance(a, b):
 
 
 pair_distances = jax.jit(jax.vmap(pair_distance))
-pair_distances.__doc__ = """``pair_distance`` over pairs: ``a, b: f[P, V, 2]`` -> ``(d f[P], pa f[P, 2], pb f[P, 2])``."""
+pair_distances.__doc__ = """``pair_distance`` over pairs: ``a, b: f[P, V, 2]`` ->
+``(d f[P], pa f[P, 2], pb f[P, 2])``."""
 
 
 @jax.jit

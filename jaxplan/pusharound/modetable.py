@@ -181,7 +181,7 @@ class ModeTable:
                             for sig, recs in sorted(self.entries.items())}}
 
     @classmethod
-    def from_dict(cls, data: dict) -> "ModeTable":
+    def from_dict(cls, data: dict) -> ModeTable:
         if not isinstance(data, dict) or data.get("format") != _FORMAT:
             raise ValueError(f"format: not a ModeTable file (expected format {_FORMAT!r}).")
         if data.get("version") != 1:
@@ -204,5 +204,5 @@ class ModeTable:
         return path
 
     @classmethod
-    def load(cls, path) -> "ModeTable":
+    def load(cls, path) -> ModeTable:
         return cls.from_dict(json.loads(Path(path).read_text()))

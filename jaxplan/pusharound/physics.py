@@ -89,7 +89,7 @@ class PushPhysicsConfig:
     world_margin: float = 1.0
     sleep: bool = True
 
-    def replace(self, **changes) -> "PushPhysicsConfig":
+    def replace(self, **changes) -> PushPhysicsConfig:
         return dataclasses.replace(self, **changes)
 
 

@@ -113,8 +113,9 @@ def face_contacts(world: PushWorld, movable: int, direction, n_robots: int | Non
                   spread: float = 0.6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A contact mode pushing ``movable`` along the body-frame ``direction f[2]``: ``n_robots`` (default
     all) contact points on the body's back face, spaced across it by ``spread`` times its width seen
-    along ``direction`` (but at least a robot diameter plus twice the standoff apart). Returns ``(contacts f[N, 2], directions f[N, 2], active bool[N])``, N the
-    scene's robot count (robots beyond ``n_robots`` inactive, their rows a copy of the first)."""
+    along ``direction`` (but at least a robot diameter plus twice the standoff apart). Returns
+    ``(contacts f[N, 2], directions f[N, 2], active bool[N])``, N the scene's robot count (robots
+    beyond ``n_robots`` inactive, their rows a copy of the first)."""
     scene = world.scene
     n_all = len(world.robot_adr)
     n = n_all if n_robots is None else int(n_robots)
@@ -234,7 +235,8 @@ def check_tasks(world: PushWorld, tasks: PushTask) -> PushTask:
     for f, shape in shapes.items():
         a = np.asarray(getattr(tasks, f))
         if a.shape != shape:
-            raise ValueError(f"tasks.{f}: expected shape {list(shape)} (batch of {b}, {n} robots); got {list(a.shape)}.")
+            raise ValueError(f"tasks.{f}: expected shape {list(shape)} (batch of {b}, {n} robots); "
+                             f"got {list(a.shape)}.")
         out[f] = a
     if not 1 <= b <= MAX_BATCH:
         raise ValueError(f"tasks: batch size must be in 1..{MAX_BATCH}; got {b}.")
@@ -520,7 +522,8 @@ def quick_pass(world: PushWorld, tasks: PushTask, poses=None, robots=None) -> Qu
                 reason = "robot starts overlap"
             if not reason and fixed is not None:
                 for n in act:
-                    path = [_robot_reference_np(poses[m], tasks, i, n, t, r - cfg.press) for t in (0.0, tasks.duration[i])]
+                    path = [_robot_reference_np(poses[m], tasks, i, n, t, r - cfg.press)
+                            for t in (0.0, tasks.duration[i])]
                     swept = LineString(path).buffer(r, 8)
                     if fixed.intersects(swept) and swept.intersection(fixed).area > 1e-9:
                         reason = f"robot {n} sweep hits a fixed obstacle"

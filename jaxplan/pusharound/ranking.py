@@ -63,7 +63,7 @@ class RankingParams:
     depth: int = 3
     mass_ref: float = 10.0
 
-    def replace(self, **changes) -> "RankingParams":
+    def replace(self, **changes) -> RankingParams:
         return dataclasses.replace(self, **changes)
 
 

@@ -112,14 +112,14 @@ class PushScene:
         """World outlines of all obstacles: movables first (index m), then fixed (index M + f)."""
         return [m.polygon for m in self.movables] + [f.polygon for f in self.fixed]
 
-    def with_poses(self, poses) -> "PushScene":
+    def with_poses(self, poses) -> PushScene:
         """A copy with movable poses ``poses: f[M, 3]`` (no validation: a rollout may touch walls)."""
         poses = np.asarray(poses, np.float64).reshape(len(self.movables), 3)
         movables = tuple(dataclasses.replace(m, pose=tuple(float(v) for v in p))
                          for m, p in zip(self.movables, poses))
         return dataclasses.replace(self, movables=movables)
 
-    def replace(self, **changes) -> "PushScene":
+    def replace(self, **changes) -> PushScene:
         return dataclasses.replace(self, **changes)
 
     # ---------------------------------------------------------------- serialisation
@@ -147,7 +147,7 @@ class PushScene:
         return path
 
     @classmethod
-    def load(cls, path) -> "PushScene":
+    def load(cls, path) -> PushScene:
         path = Path(path)
         try:
             data = json.loads(path.read_text())
@@ -156,7 +156,7 @@ class PushScene:
         return cls.from_dict(data)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "PushScene":
+    def from_dict(cls, data: dict) -> PushScene:
         """Parse and validate a scene dictionary (the JSON format of ``docs/pusharound.md``)."""
         if not isinstance(data, dict):
             raise ValueError("scene: expected a JSON object.")

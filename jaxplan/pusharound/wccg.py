@@ -40,8 +40,15 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry import box as _box
 
-from jaxplan.pusharound.faces import (BRIDGE_EPS, QUAD_SEGS, Skeleton, active_bridges, build_skeleton,
-                                      cluster_region, cluster_rings)
+from jaxplan.pusharound.faces import (
+    BRIDGE_EPS,
+    QUAD_SEGS,
+    Skeleton,
+    active_bridges,
+    build_skeleton,
+    cluster_region,
+    cluster_rings,
+)
 from jaxplan.pusharound.kernels import aabb_gaps, pack_polygons, pair_distances, point_distances
 from jaxplan.pusharound.scene import PushScene
 

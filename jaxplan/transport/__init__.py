@@ -20,7 +20,8 @@ from jaxplan.transport.selection import Selection, reselect, select_routes
 from jaxplan.transport.soft import SoftFabric
 from jaxplan.transport.spillage import SpillParams
 
-__all__ = ["BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState", "Fabric",
-           "FabricParams", "Paths", "Push", "Route", "Scene", "Selection", "SoftFabric", "SpillParams", "StepRecord", "Table",
-           "box", "build_fabric", "builtin_scene", "circle", "extract_paths", "plan_connectors", "random_scene",
-           "refresh_connectors", "reselect", "reset", "run_episode", "select_routes", "selective_rebuild", "step"]
+__all__ = ["BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState",
+           "Fabric", "FabricParams", "Paths", "Push", "Route", "Scene", "Selection", "SoftFabric", "SpillParams",
+           "StepRecord", "Table", "box", "build_fabric", "builtin_scene", "circle", "extract_paths",
+           "plan_connectors", "random_scene", "refresh_connectors", "reselect", "reset", "run_episode",
+           "select_routes", "selective_rebuild", "step"]

@@ -4,8 +4,14 @@ import json
 import numpy as np
 import pytest
 
-from jaxplan.pusharound.baselines import (BASELINES, BaselineConfig, dfs_wccg, execute_open_loop, schedule_duration,
-                                          sl_push_offline)
+from jaxplan.pusharound.baselines import (
+    BASELINES,
+    BaselineConfig,
+    dfs_wccg,
+    execute_open_loop,
+    schedule_duration,
+    sl_push_offline,
+)
 from jaxplan.pusharound.physics import build_push_world
 from jaxplan.pusharound.push import make_push_simulator
 from jaxplan.pusharound.scenarios import corridor_scene, dense_scene, density_scene, nominal_scene

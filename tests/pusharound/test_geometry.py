@@ -16,13 +16,18 @@ import shapely  # noqa: E402
 from hypothesis import HealthCheck, assume, example, given, settings  # noqa: E402
 from hypothesis import strategies as hs  # noqa: E402
 
-from jaxplan.pusharound import (PushScene, build_wccg, connectivity, nominal_scene, plot_wccg,  # noqa: E402
-                                w_clear_path)
-from jaxplan.pusharound import shapes  # noqa: E402
+from jaxplan.pusharound import (  # noqa: E402
+    PushScene,
+    build_wccg,
+    connectivity,
+    nominal_scene,
+    plot_wccg,
+    shapes,  # noqa: E402
+    w_clear_path,
+)
 from jaxplan.pusharound.kernels import pack_polygons, pair_distances  # noqa: E402
 from jaxplan.pusharound.wccg import frontier_bridges  # noqa: E402
-from jaxplan.reference.pusharound import (path_clearance, reference_connected,  # noqa: E402
-                                          reference_pair_distances)
+from jaxplan.reference.pusharound import path_clearance, reference_connected, reference_pair_distances  # noqa: E402
 
 
 def _box(x0, y0, x1, y1):

@@ -9,8 +9,18 @@ from shapely.geometry import Point, box
 
 from jaxplan.pusharound import shapes
 from jaxplan.pusharound.physics import PushPhysicsConfig, build_push_world, initial_state, movable_poses
-from jaxplan.pusharound.push import (PushTask, direction_tasks, face_contacts, free_components, make_push_simulator,
-                                     push_cost, quick_pass, simulate_pushes, stack_tasks, swept_hulls)
+from jaxplan.pusharound.push import (
+    PushTask,
+    direction_tasks,
+    face_contacts,
+    free_components,
+    make_push_simulator,
+    push_cost,
+    quick_pass,
+    simulate_pushes,
+    stack_tasks,
+    swept_hulls,
+)
 from jaxplan.pusharound.scenarios import random_shape
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene
 from jaxplan.reference.pusharound import swept_polygon
@@ -84,8 +94,8 @@ def test_world_geometry_matches_scene_pieces():
             assert n <= 32
         else:
             s = m.geom_size[gi]
-            verts = np.array([[a * s[0], b * s[1], c * s[2]] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)]) @ rot.T \
-                + d.geom_xpos[gi]
+            verts = np.array([[a * s[0], b * s[1], c * s[2]]
+                              for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)]) @ rot.T + d.geom_xpos[gi]
         kinds.add(int(m.geom_type[gi]))
         piece = scene.movables[mi].world_pieces()[pi]
         np.testing.assert_allclose(np.r_[verts[:, :2].min(0), verts[:, :2].max(0)], piece.bounds, atol=1e-6)

@@ -10,8 +10,8 @@ from jaxplan.pusharound import shapes
 from jaxplan.pusharound.modetable import ModeKey, ModeTable, shape_signature
 from jaxplan.pusharound.physics import build_push_world
 from jaxplan.pusharound.push import make_push_simulator
-from jaxplan.pusharound.scene import Fixed, Movable, PushScene
 from jaxplan.pusharound.ranking import RankingParams
+from jaxplan.pusharound.scene import Fixed, Movable, PushScene
 from jaxplan.pusharound.search import SearchConfig, face_graph, plan_pushes
 from jaxplan.pusharound.wccg import build_wccg, connectivity
 

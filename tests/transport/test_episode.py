@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from jaxplan import FabricParams, Scene, box, build_fabric
+from jaxplan.reference import execute as ref_ex
 from jaxplan.transport import selection
 from jaxplan.transport import spillage as sp
 from jaxplan.transport.episode import EpisodeParams, rebuild_mode, run_episode
 from jaxplan.transport.fabric import table_hops
-from jaxplan.reference import execute as ref_ex
 
 
 @pytest.fixture(scope="module")

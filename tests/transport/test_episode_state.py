@@ -16,10 +16,19 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplan import FabricParams, SpillParams, run_episode
-from jaxplan.transport.episode import (BUDGET, RUNNING, STOP_REASONS, EpisodeParams, EpisodeState, StepRecord,
-                             default_walk_cap, reset, rollout, step)
-from jaxplan import random_scene
+from jaxplan import FabricParams, SpillParams, random_scene, run_episode
+from jaxplan.transport.episode import (
+    BUDGET,
+    RUNNING,
+    STOP_REASONS,
+    EpisodeParams,
+    EpisodeState,
+    StepRecord,
+    default_walk_cap,
+    reset,
+    rollout,
+    step,
+)
 
 SHAPE = (24, 24)
 N_SCENES = 8

@@ -49,5 +49,5 @@ class ExecutionConfig:
     record_every: int = 4
     backend: str = "c"
 
-    def replace(self, **changes) -> "ExecutionConfig":
+    def replace(self, **changes) -> ExecutionConfig:
         return dataclasses.replace(self, **changes)

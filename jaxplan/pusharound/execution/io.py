@@ -27,8 +27,10 @@ def load_schedule(result) -> list:
                             np.asarray(p["directions_body"], np.float64), np.asarray(p["active"], bool),
                             np.asarray(p["velocity"], np.float64), float(p["duration_s"]))
             out.append(ScheduledPush(task, tuple(p["gap"]) if p.get("gap") is not None else None, float(p["cost"]),
-                                     np.asarray(p["poses_before"], np.float64), np.asarray(p["poses_after"], np.float64),
-                                     np.asarray(p["robots_before"], np.float64), np.asarray(p["robots_after"], np.float64)))
+                                     np.asarray(p["poses_before"], np.float64),
+                                     np.asarray(p["poses_after"], np.float64),
+                                     np.asarray(p["robots_before"], np.float64),
+                                     np.asarray(p["robots_after"], np.float64)))
         except (KeyError, TypeError, ValueError) as e:
             raise ValueError(f"schedule[{k}]: malformed push record ({type(e).__name__}: {e}).") from None
     return out

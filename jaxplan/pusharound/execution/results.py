@@ -32,8 +32,8 @@ class ExecutedPush(NamedTuple):
     robots_after: f[N, 2]; stop: "reached" | "stalled" | "horizon" | "transit_timeout";
     valid: the physics checks passed (else ``invalid`` names the failed ones: "hit_fixed",
     "left_workspace", "tipped", "not_finite"); deviation: f[] largest Hausdorff distance of a movable
-    outline from its predicted one [m]; ok: the push counts as succeeded; transit_s, push_s: simulated seconds of both phases;
-    plan: which plan it came from (0 the original, k the k-th replan)."""
+    outline from its predicted one [m]; ok: the push counts as succeeded; transit_s, push_s: simulated
+    seconds of both phases; plan: which plan it came from (0 the original, k the k-th replan)."""
 
     task: PushTask
     planned: np.ndarray

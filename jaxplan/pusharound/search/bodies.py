@@ -20,7 +20,8 @@ class BodyOutlines:
         self.fixed = [f.polygon for f in scene.fixed]
         x0, y0, x1, y1 = scene.workspace
         t = 1.0
-        self.walls = shapely.union_all([shapely.box(x0 - t, y0 - t, x0, y1 + t), shapely.box(x1, y0 - t, x1 + t, y1 + t),
+        self.walls = shapely.union_all([shapely.box(x0 - t, y0 - t, x0, y1 + t),
+                                        shapely.box(x1, y0 - t, x1 + t, y1 + t),
                                         shapely.box(x0, y0 - t, x1, y0), shapely.box(x0, y1, x1, y1 + t)])
 
     def movable(self, m: int, pose):

@@ -106,13 +106,14 @@ class SearchConfig:
         if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool):
             raise ValueError(f"SearchConfig.seed: must be an int; got {self.seed!r}.")
         if not self.speeds or any(not (isinstance(s, (int, float)) and 0 <= s <= 0.8) for s in self.speeds):
-            raise ValueError(f"SearchConfig.speeds: need speeds in [0, 0.8] m/s (0: just opening); got {self.speeds!r}.")
+            raise ValueError("SearchConfig.speeds: need speeds in [0, 0.8] m/s (0: just opening); "
+                             f"got {self.speeds!r}.")
         if any(not (isinstance(w, (int, float)) and math.isfinite(w)) for w in self.omegas):
             raise ValueError(f"SearchConfig.omegas: must be finite numbers [rad/s]; got {self.omegas!r}.")
         if not self.team_sizes or any(not isinstance(n, int) or n < 1 for n in self.team_sizes):
             raise ValueError(f"SearchConfig.team_sizes: must be ints >= 1; got {self.team_sizes!r}.")
 
-    def replace(self, **changes) -> "SearchConfig":
+    def replace(self, **changes) -> SearchConfig:
         return dataclasses.replace(self, **changes)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import heapq
 import math
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -47,13 +47,13 @@ class OpenList:
         return bool(self._heap) and f > self._heap[0][0] + 1e-9
 
 
-def plan_pushes(scene: PushScene, config: SearchConfig = SearchConfig(), ranking: RankingParams = SEARCH_RANKING,
+def plan_pushes(scene: PushScene, config: SearchConfig | None = None, ranking: RankingParams = SEARCH_RANKING,
                 *, world: PushWorld | None = None, sim=None, mode_table: ModeTable | None = None,
                 progress: Callable[[dict], None] | None = None) -> SearchResult:
     """Plan a pushing schedule that opens a W-clear corridor (Algorithm 1; docstring of
     :mod:`jaxplan.pusharound.search`).
 
-    scene: the initial state; config: :class:`SearchConfig`; ranking: Eqs. 8-9 weights and the
+    scene: the initial state; config: :class:`SearchConfig` (the defaults when None); ranking: Eqs. 8-9 weights and the
     presearch's beam / depth; world / sim: a prebuilt :func:`build_push_world` of ``scene`` and its
     :func:`make_push_simulator` (built here when None; pass them to reuse across calls); mode_table: a
     :class:`ModeTable` to read and update (a fresh one when None); progress: called with a dict after
@@ -61,6 +61,8 @@ def plan_pushes(scene: PushScene, config: SearchConfig = SearchConfig(), ranking
 
     Returns a :class:`SearchResult`. If Eq. 7 already holds: success with an empty schedule.
     """
+    if config is None:
+        config = SearchConfig()
     check_inputs(scene, config, ranking, mode_table, world, sim)
     ctx = new_context(scene, config, ranking, world, sim, mode_table)
     run = SearchRun(np.random.default_rng(config.seed), progress)

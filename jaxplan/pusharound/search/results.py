@@ -30,8 +30,9 @@ class SearchStats(NamedTuple):
     """planning_time_s: wall clock; expansions: batches simulated; simulated_pushes: rollouts run
     (padding excluded); physics_calls: ``simulate_pushes`` calls; mode_table_hits: candidates
     simulated whose mode the table had validated on that shape; evaluations: nodes ranked (targets
-    and estimate); checks: Eq. 7 tests (WCCG + connectivity); nodes: nodes created; quick_pass_rejected: candidates the quick-pass removed;
-    valid_rollouts: rollouts physics validated; children: children pushed to the queue; rank_calls;
+    and estimate); checks: Eq. 7 tests (WCCG + connectivity); nodes: nodes created;
+    quick_pass_rejected: candidates the quick-pass removed; valid_rollouts: rollouts physics
+    validated; children: children pushed to the queue; rank_calls;
     max_depth: longest schedule seen; time_*_s: time in ranking (incl. WCCG and Eq. 7), the
     quick-pass, physics, and candidate generation."""
 
