@@ -22,19 +22,21 @@ def build_parser() -> argparse.ArgumentParser:
                   "(.npz or .json, see docs/scene-format.md)")
     parser = argparse.ArgumentParser(
         prog="jaxplan", formatter_class=fmt,
-        description=wrap("Environment-first planning for aggregate transport: build the "
-                          "trajectory fabric (visibility, K-best paths, heatmap, highways) of a "
-                          "scene with JAX."),
+        description=wrap("Plan how robots move bulk material and clear paths on a construction "
+                         "site: environment-first aggregate transport (fabric, demo, episode, rover, "
+                         "sweep, scenes), PushAround path clearing (pusharound) and team organization "
+                         "(teams), as jit-compiled JAX kernels."),
         epilog="examples:\n  jaxplan demo\n  jaxplan episode --scene corridor --out out/corridor\n"
                "  jaxplan fabric --scene corridor --out fabric.npz\n"
+               "  jaxplan pusharound --seed 3 --out out/push3\n  jaxplan teams --out out/teams\n"
                "  jaxplan sweep sweep.toml --out sweep.csv\n"
                "  jaxplan scenes\n\nRun 'jaxplan COMMAND --help' for the options of a command.")
     parser.add_argument("--single-cpu", action="store_true",
-                        help="run JAX on one CPU core (on the 2-core test machine about as fast up to "
-                             "65x65, slower on large grids; see jaxplan.single_cpu)")
+                        help="run JAX on one CPU core (often as fast on small grids, slower on large "
+                             "ones; see jaxplan.single_cpu)")
     parser.add_argument("--low-memory", action="store_true",
-                        help="one malloc arena for all threads: about 20 MB less peak memory on a 65x65 "
-                             "planning run (see jaxplan.limit_malloc_arenas)")
+                        help="one malloc arena for all threads: less peak memory "
+                             "(see jaxplan.limit_malloc_arenas)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for system in (transport, teams, rover, pusharound, sweep):
         system.add_parsers(sub, fmt, scene_help)
