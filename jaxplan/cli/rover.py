@@ -150,8 +150,8 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
     p.add_argument("--friction", type=float, default=None, metavar="MU",
                    help="sliding friction of floor, gravel and shovel, > 0; default: the rover model's (0.6)")
     p.add_argument("--solver", default="CG", choices=("CG", "Newton"),
-                   help="MuJoCo's constraint solver on either engine; default CG (faster on a CPU: C engine "
-                        "2.1x, MJX 4.4x). On an H100, MJX ran 1.3-3.2x faster with Newton (docs/physics.md)")
+                   help="MuJoCo's constraint solver on either engine; default CG (faster on a CPU); MJX on a "
+                        "GPU runs faster with Newton (docs/physics.md)")
     add_theta_option(p)
     add_spill_options(p)
     p.add_argument("--no-render", action="store_true", help="skip the rendered frames")

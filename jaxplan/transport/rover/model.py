@@ -56,10 +56,9 @@ class RoverConfig:
     iterations, ls_iterations: solver iterations. MJX (float32) flips the rover with 10; 30 is
     stable on the demo routes and costs little where the solver converges early.
     solver: "CG" (default) or "Newton", MuJoCo's constraint solver on both engines. Newton factorises
-    an nv x nv matrix every iteration (nv = 6 per particle): with 64 particles CG stepped the C
-    engine 2.1x and MJX on a CPU 4.4x faster, with the same deliveries; on an H100 MJX ran
-    1.3-3.2x faster with Newton (fewer, larger kernels per step), so use Newton for MJX on a GPU
-    (docs/physics.md).
+    an nv x nv matrix every iteration (nv = 6 per particle), so CG steps faster on a CPU with
+    either engine, with the same deliveries; on a GPU MJX runs faster with Newton (fewer, larger
+    kernels per step), so use Newton for MJX there (docs/physics.md, docs/benchmarks.md).
     pair_factor, hull_factor: contact-cap sizing (module docstring).  friction: floor and
     particle sliding friction.  roll_stop: seconds for a rolling particle to stop (joint
     damping stands in for rolling resistance).  wheel_kv: velocity-actuator gain (N m s / rad), moderate on purpose.
