@@ -87,11 +87,9 @@ def single_cpu() -> int:
 
     XLA sizes its CPU thread pool once, from the process's CPU affinity, when the backend starts. On
     the paper's grids the programs are hundreds of tiny operations, and handing them between two
-    threads costs about what it gains: on this project's 2-core CPU the 65^2 build took 1.97 ms pinned
-    against 2.40 ms on both cores in one pair of runs and 2.17 against 2.19 ms in the next
-    (``experiments/bench_fabric.py`` with and without ``--single-cpu``, medians over 15 instances),
-    while 1024^2 took 0.99-1.15 s against 0.79 s, and XLA then compiles on
-    one core too (the first 25^2 build: 4.0 against 2.7 s). So pin for long re-planning runs on
+    threads costs about what it gains, while large grids run faster on all cores, and XLA then
+    compiles on one core too (``experiments/bench_fabric.py`` with and without ``--single-cpu``
+    compares them on any machine). So pin for long re-planning runs on
     small grids, not for large grids or one-off calls. Also ``jaxplan --single-cpu COMMAND`` or
     ``taskset -c 0 python ...``.
     """

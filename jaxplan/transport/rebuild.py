@@ -332,9 +332,8 @@ def capacity_buckets(capacity: int, smallest: int = 64) -> tuple[int, ...]:
     """Dirty-buffer sizes for one grid: ``smallest`` (64), doubling, up to ``capacity`` (always the
     last). A round's cost grows faster than linearly with the buffer (cache), so the buckets are
     close together; a doubling within 1.5x of ``capacity`` is left out, as ``capacity`` costs about
-    the same and is one program fewer to compile and hold (65^2: 512 beside 528). Ad hoc, one dirty
-    cell: the finish took 0.59 / 0.67 / 1.00 ms in buffers of 64 / 128 / 256 at 65^2 and 1.04 /
-    1.54 / 1.76 ms at 256^2. ``selection.select_all`` sizes its buffers the same way."""
+    the same and is one program fewer to compile and hold (65^2: 512 beside 528).
+    ``selection.select_all`` sizes its buffers the same way."""
     sizes = []
     size = smallest
     while size * 3 < capacity * 2:
