@@ -7,10 +7,11 @@ the latter to observed deliveries. A new model is one module plus one ``register
 """
 from jaxplan.transport.spillage.base import (CENTRIPETAL, EVALUATORS, Evaluator, PathSamples, SpillParams,
                                              evaluate_route, evaluator_for, pickups_per_sample, register,
-                                             sample_route, threshold_spill, validate_spill_params)
+                                             sample_route, sample_route_prefix, threshold_spill,
+                                             validate_spill_params)
 from jaxplan.transport.spillage.curvature import curvature_spill
 from jaxplan.transport.spillage.capacity import CapacitySpillParams, capacity_spill
 
 __all__ = ["CENTRIPETAL", "EVALUATORS", "CapacitySpillParams", "Evaluator", "PathSamples", "SpillParams",
            "capacity_spill", "curvature_spill", "evaluate_route", "evaluator_for", "pickups_per_sample", "register",
-           "sample_route", "threshold_spill", "validate_spill_params"]
+           "sample_route", "sample_route_prefix", "threshold_spill", "validate_spill_params"]
