@@ -155,8 +155,8 @@ def markdown(result: dict) -> str:
              "| run | walk cap | pushes | seconds | pushes/s | vs host loop | compile s | same pushes |",
              "|---|---:|---:|---:|---:|---:|---:|---|"]
     for r in result["batched"]:
-        lines.append(f"| vmap + scan | {r['walk_cap']} | {r['pushes']} | {r['median_s']:.3f} | {r['pushes_per_s']:.0f} | "
-                     f"{r['ratio']:.2f}x | {r['compile_s']:.1f} | {r['same_pushes']} |")
+        lines.append(f"| vmap + scan | {r['walk_cap']} | {r['pushes']} | {r['median_s']:.3f} | "
+                     f"{r['pushes_per_s']:.0f} | {r['ratio']:.2f}x | {r['compile_s']:.1f} | {r['same_pushes']} |")
     lines.append(f"| host loop | {result['default_walk_cap']} (+retry) | {h['pushes']} | {h['total_s']:.3f} | "
                  f"{h['pushes_per_s']:.0f} | 1.00x | ({h['first_episode_s']:.1f} s first episode) | |")
     lines += ["", f"Host loop per push (medians): plan {h['median_plan_ms']:.2f} ms, execute "
@@ -167,8 +167,9 @@ def markdown(result: dict) -> str:
     if parts:
         b = result["batch"]
         host_ms = 1e3 / h["pushes_per_s"]
-        lines += ["", f"Where a batch step's time goes (each part jitted and vmapped alone on the first state, walk cap "
-                  f"{parts['walk_cap']}): `act` (plan, push, bookkeeping) {parts['act_ms']:.1f} ms and the full build "
+        lines += ["", "Where a batch step's time goes (each part jitted and vmapped alone on the first state, "
+                  f"walk cap {parts['walk_cap']}): `act` (plan, push, bookkeeping) {parts['act_ms']:.1f} ms and "
+                  "the full build "
                   f"{parts['build_ms']:.1f} ms for {b} episodes, i.e. {parts['act_ms'] / b:.2f} and "
                   f"{parts['build_ms'] / b:.2f} ms per episode, against the host loop's plan + execute "
                   f"{h['median_plan_ms'] + h['median_execute_ms']:.2f} ms and rebuild {h['median_rebuild_ms']:.2f} ms "
@@ -187,7 +188,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0], epilog="example: python "
                                  "experiments/bench_episode.py --batch 64 --side 32 --max-pushes 30 --also-walk-cap 64",
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--batch", type=int, default=None, help="episodes (random scenes, seeds 0..B-1; default 64, --quick 4)")
+    ap.add_argument("--batch", type=int, default=None,
+                    help="episodes (random scenes, seeds 0..B-1; default 64, --quick 4)")
     ap.add_argument("--side", type=int, default=None, help="grid side N for N x N scenes (default 32, --quick 12)")
     ap.add_argument("--max-pushes", type=int, default=None, help="push budget per episode (default 30, --quick 4)")
     ap.add_argument("--density", type=float, default=0.4, help="occupied fraction of the scenes (default 0.4)")
@@ -195,7 +197,8 @@ def main(argv=None) -> int:
     ap.add_argument("--walk-cap", type=int, default=None,
                     help="static walk length of the batch (default episode.default_walk_cap)")
     ap.add_argument("--also-walk-cap", type=int, default=None, metavar="N", help="a second batch row walked N steps")
-    ap.add_argument("--repeats", type=int, default=None, help="timed calls of the compiled batch (default 3, --quick 1)")
+    ap.add_argument("--repeats", type=int, default=None,
+                    help="timed calls of the compiled batch (default 3, --quick 1)")
     ap.add_argument("--quick", action="store_true",
                     help="a tiny run (defaults 4 episodes, 12x12, 4 pushes, 1 repeat; explicit options win)")
     ap.add_argument("--no-breakdown", action="store_true", help="skip timing act and the build apart")

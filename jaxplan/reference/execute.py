@@ -78,6 +78,17 @@ def spill_along(samples, waypoint_pickup, lam: float, threshold: float, temperat
     return load, spills
 
 
+def first_visits(cells):
+    """``[bool]``: for each cell of the list ``cells`` ((row, col) tuples), whether it is its first
+    occurrence (a pushed route collects each cell once; ``execute._first_visit``)."""
+    seen = set()
+    out = []
+    for rc in cells:
+        out.append(rc not in seen)
+        seen.add(rc)
+    return out
+
+
 def execute_route(obj, target_mask, dist, tvec, cell_size, origin, cells, fallback, *,
                   lam: float, threshold: float, samples_per_step: int, spline_alpha: float = 0.5):
     """Push the route ``cells`` (list of (row, col)) on a copy of ``obj``.
@@ -98,12 +109,7 @@ def execute_route(obj, target_mask, dist, tvec, cell_size, origin, cells, fallba
     end = centre(last) + np.asarray(tvec[last]) * dist[last] if fallback else centre(last)
     if fallback:
         points.append(end)
-    seen = set()
-    pickup = []
-    for rc in cells:
-        take = rc not in seen and not target_mask[rc]
-        seen.add(rc)
-        pickup.append(obj[rc] if take else 0.0)
+    pickup = [obj[rc] if first and not target_mask[rc] else 0.0 for rc, first in zip(cells, first_visits(cells))]
     pickup.append(0.0)
     samples = catmull_rom_samples(points, samples_per_step, spline_alpha)
     delivered, spills = spill_along(samples, pickup, lam, threshold)

@@ -34,21 +34,18 @@ frames and a second, longer walk when a route does not fit the cap.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.core import lattice
-from jaxplan.transport import connectors
-from jaxplan.transport import execute
-from jaxplan.transport import rebuild
-from jaxplan.transport import selection
-from jaxplan.transport import spillage
 from jaxplan.core.compilation import grid_jit
 from jaxplan.core.timing import timed
-from jaxplan.transport.fabric import Fabric, Table, walk_table, build_fabric
+from jaxplan.transport import connectors, execute, rebuild, selection, spillage
+from jaxplan.transport.fabric import Fabric, Table, build_fabric, walk_table
 from jaxplan.transport.params import FabricParams, validate_params
 
 MODES = ("deliver", "rearrange")
@@ -102,7 +99,7 @@ class EpisodeParams:
     rebuild: str = "auto"
     reselect: bool = False
 
-    def replace(self, **changes) -> "EpisodeParams":
+    def replace(self, **changes) -> EpisodeParams:
         return dataclasses.replace(self, **changes)
 
 
@@ -524,8 +521,8 @@ def rollout_scenes(scenes, params: FabricParams, spill: spillage.SpillParams, ep
     """``reset`` then ``rollout`` for a batch of scenes of one shape in one program (``vmap``):
     ``(initial states, final states, records)`` with a leading batch axis B; records are [B, n_steps].
 
-    scenes: one Scene whose leaves are stacked along a leading axis B (``jaxplan.transport.scene.stack_scenes``); params,
-    spill, episode are shared. Jitted as ``rollout_scenes_jit``.
+    scenes: one Scene whose leaves are stacked along a leading axis B
+    (``jaxplan.transport.scene.stack_scenes``); params, spill, episode are shared. Jitted as ``rollout_scenes_jit``.
     """
     def one(scene):
         start = reset(scene, params, spill, episode)

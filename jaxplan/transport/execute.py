@@ -23,6 +23,11 @@ from jaxplan.transport.fabric import Paths
 # selective rebuild equals a from-scratch build exactly.
 QUANTUM = 2.0 ** -10
 
+# Spline segments sampled per round when a route is evaluated (``spillage.sample_route_prefix``):
+# route buffers are as long as the static walk cap allows (2 (cap + 1) slots in an episode), routes
+# a few dozen cells, so the spline is sampled over the route's own segments only, this many at a time.
+SPLINE_CHUNK = 32
+
 
 @grid_jit
 def quantize(obj):
@@ -53,7 +58,8 @@ class Push(NamedTuple):
     delivered: f32[], added to the target (= collected - spilled; spills are rounded to ``QUANTUM``).
     length: f32[], spline length.
     changed: bool[H, W], non-target cells whose count changed (A_exec of Eq. 13).
-    samples: spillage.PathSamples of the pushed spline; spill: f32[N] per sample.
+    samples: spillage.PathSamples of the pushed spline (``sample_route_prefix``: padding samples
+      are zero); spill: f32[N] per sample.
     """
 
     collected: jax.Array
@@ -100,19 +106,30 @@ def waypoints(scene, route: Route):
     return points, route.n_cells + route.fallback.astype(jnp.int32)
 
 
-def _first_visit(cells, n_cells):
-    """``bool[S]``: valid rows whose cell does not appear in an earlier row (walks may revisit)."""
+def _first_visit(cells, n_cells, shape):
+    """``bool[S]``: valid rows whose cell does not appear in an earlier row (walks may revisit).
+
+    cells: i32[S, 2] (row, col), the first ``n_cells`` rows valid (the padding after them is not
+    read); shape: (H, W). Each cell's earliest row is found by one scatter-min over the grid, O(S +
+    H W): the pairwise test of every row against every earlier one was O(S^2), which at the walk
+    caps of a batch (S = 2 (cap + 1) = 514 route slots for routes of 20-odd cells) cost more than
+    the rest of the push.
+    """
     s = cells.shape[0]
-    same = jnp.all(cells[:, None] == cells[None, :], -1)
-    earlier = jnp.tril(jnp.ones((s, s), bool), -1)
-    return (jnp.arange(s) < n_cells) & ~jnp.any(same & earlier, axis=1)
+    h, w = shape
+    rows = jnp.arange(s, dtype=jnp.int32)
+    valid = rows < n_cells
+    safe = jnp.maximum(cells, 0)
+    flat = jnp.where(valid, safe[:, 0] * w + safe[:, 1], h * w)     # padding rows go to a spare slot
+    earliest = jnp.full(h * w + 1, s, jnp.int32).at[flat].min(rows)
+    return valid & (earliest[flat] == rows)
 
 
 def waypoint_pickup(scene, route: Route):
     """``f32[S+1]`` objects collected at each waypoint: non-target route cells, each cell once."""
     safe = jnp.maximum(route.cells, 0)
     obj = scene.obj[safe[:, 0], safe[:, 1]]
-    collect = _first_visit(route.cells, route.n_cells) & ~scene.target_mask[safe[:, 0], safe[:, 1]]
+    collect = _first_visit(route.cells, route.n_cells, scene.shape) & ~scene.target_mask[safe[:, 0], safe[:, 1]]
     return jnp.append(jnp.where(collect, obj, 0.0), 0.0), collect
 
 
@@ -147,7 +164,8 @@ def execute(scene, route: Route, spill: spillage.SpillParams,
     obj = jnp.asarray(scene.obj, jnp.float32)
     points, n_points = waypoints(scene, route)
     pickup, collect = waypoint_pickup(scene, route)
-    _, spill_per_sample, samples = spillage.evaluate_route(points, n_points, pickup, spill, evaluator)
+    _, spill_per_sample, samples = spillage.evaluate_route(points, n_points, pickup, spill, evaluator,
+                                                           chunk=SPLINE_CHUNK)
     spill_per_sample = quantize(spill_per_sample)
     safe = jnp.maximum(route.cells, 0)
     flat_route = safe[:, 0] * w + safe[:, 1]

@@ -62,7 +62,7 @@ def _delivered(scene, table, source, rank, spill: spillage.SpillParams, max_step
     route = execute.route_from_path(scene, path.cells, path.n_cells, path.fallback)
     points, n_points = execute.waypoints(scene, route)
     pickup, _ = execute.waypoint_pickup(scene, route)
-    return spillage.evaluate_route(points, n_points, pickup, spill, evaluator)[0]
+    return spillage.evaluate_route(points, n_points, pickup, spill, evaluator, chunk=execute.SPLINE_CHUNK)[0]
 
 
 def select_routes(scene, fabric: Fabric, sources, slack_tau, spill: spillage.SpillParams, *, max_steps: int,

@@ -5,7 +5,8 @@ from experiments import bench_episode
 
 
 def test_the_batch_and_the_host_loop_push_alike_and_the_table_is_written(tmp_path):
-    assert bench_episode.main(["--quick", "--batch", "2", "--max-pushes", "2", "--no-breakdown", "--results-dir", str(tmp_path)]) == 0
+    argv = ["--quick", "--batch", "2", "--max-pushes", "2", "--no-breakdown", "--results-dir", str(tmp_path)]
+    assert bench_episode.main(argv) == 0
     result = json.loads((tmp_path / "episode.json").read_text())
     (row,) = result["batched"]
     assert row["same_pushes"] and row["pushes"] == result["host"]["pushes"] == 4

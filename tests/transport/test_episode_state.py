@@ -110,8 +110,8 @@ def test_mass_identity_holds_at_every_step(batch):
     np.testing.assert_allclose(final.scene.obj.sum((1, 2)), start.initial_mass, rtol=1e-6)
     np.testing.assert_allclose(final.remaining + final.delivered, start.initial_remaining, rtol=1e-5)
     target = start.scene.target_mask
-    np.testing.assert_allclose(np.where(target, final.scene.obj, 0).sum((1, 2)) - np.where(target, start.scene.obj, 0).sum((1, 2)),
-                               final.delivered, rtol=1e-5, atol=1e-3)
+    gained = np.where(target, final.scene.obj, 0).sum((1, 2)) - np.where(target, start.scene.obj, 0).sum((1, 2))
+    np.testing.assert_allclose(gained, final.delivered, rtol=1e-5, atol=1e-3)
 
 
 def test_records_after_the_end_are_invalid_and_finite(batch):

@@ -16,6 +16,7 @@ from jaxplan.transport.spillage.base import (
     pickups_per_sample,
     register,
     sample_route,
+    sample_route_prefix,
     threshold_spill,
     validate_spill_params,
 )
@@ -24,4 +25,4 @@ from jaxplan.transport.spillage.curvature import curvature_spill
 
 __all__ = ["CENTRIPETAL", "EVALUATORS", "CapacitySpillParams", "Evaluator", "PathSamples", "SpillParams",
            "capacity_spill", "curvature_spill", "evaluate_route", "evaluator_for", "pickups_per_sample", "register",
-           "sample_route", "threshold_spill", "validate_spill_params"]
+           "sample_route", "sample_route_prefix", "threshold_spill", "validate_spill_params"]

@@ -192,6 +192,66 @@ def sample_route(waypoints, n_points, samples_per_step: int, alpha: float = CENT
                        jnp.tile(jnp.arange(m) == 0, s - 1), valid)
 
 
+def sample_route_prefix(waypoints, n_points, samples_per_step: int, alpha: float = CENTRIPETAL, *,
+                        chunk: int = 32) -> PathSamples:
+    """``sample_route``'s samples, computed only for the route's own segments, ``chunk`` at a time.
+
+    waypoints: f32[S, 2] world (x, y); n_points: i32[] (>= 1); samples_per_step, alpha: as in
+    ``sample_route``; chunk (static): segments per round. Returns the same ``PathSamples`` (N = (S - 1)
+    * samples_per_step): equal to ``sample_route``'s on the valid samples; on the padding samples turn
+    and ds are 0 as there, pos and tangent are 0 (``sample_route`` leaves the clipped spline's values
+    there, which nothing reads: their spill is 0).
+
+    Why: S comes from a static walk cap (``2 (cap + 1)`` route slots in an episode, 514 on 32 x 32)
+    while routes are a few dozen cells, and the spline's per-sample arithmetic over every padding
+    slot was most of a push's cost. Here a ``while_loop`` runs ceil((n_points - 1) / chunk) rounds,
+    each the same arithmetic on ``chunk`` segments; under ``vmap`` the rounds of the longest route.
+    Not reverse-differentiable (a ``while_loop``): the spill fits differentiate ``sample_route``.
+    """
+    _check_alpha(alpha, "sample_route_prefix: alpha")
+    waypoints = jnp.asarray(waypoints, jnp.float32)
+    s = waypoints.shape[0]
+    m = samples_per_step
+    segments = s - 1
+    if segments < 1:          # a single waypoint: no segment, nothing to loop over
+        return sample_route(waypoints, n_points, samples_per_step, alpha)
+    chunk = max(1, min(int(chunk), segments))
+    rounds = -(-segments // chunk)
+    # control points of every segment (cheap gathers), padded to whole chunks with copies of the last
+    ctrl = _control_points(waypoints, n_points)
+    ctrl = jnp.concatenate([ctrl, jnp.broadcast_to(ctrl[-1:], (rounds * chunk - segments, 4, 2))], 0)
+    t = (jnp.arange(m, dtype=jnp.float32) + 0.5) / m
+    planes, points = jnp.zeros((rounds * chunk, m), jnp.float32), jnp.zeros((rounds * chunk, m, 2), jnp.float32)
+    start = (jnp.int32(0), points, points, planes, planes)
+    valid_segments = jnp.maximum(n_points - 1, 0)
+
+    def more(carry):
+        return carry[0] * chunk < valid_segments
+
+    def sample_chunk(carry):
+        c, pos_all, tangent_all, turn_all, ds_all = carry
+        first = c * chunk
+        part = jax.lax.dynamic_slice_in_dim(ctrl, first, chunk, 0)
+        # the arithmetic of sample_route, segment by segment
+        pos, vel, acc = _hermite(part, t, float(alpha))              # [chunk, m, 2]
+        speed2 = jnp.sum(vel ** 2, -1)
+        cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
+        turn = cross / jnp.maximum(speed2, _TINY) / m
+        moving = speed2 > _TINY
+        ds = jnp.where(moving, jnp.sqrt(jnp.where(moving, speed2, 1.0)), 0.0) / m
+        tangent = vel / jnp.sqrt(jnp.maximum(speed2, _TINY))[..., None]
+        put = lambda whole, new: jax.lax.dynamic_update_slice_in_dim(whole, new, first, 0)  # noqa: E731
+        return c + 1, put(pos_all, pos), put(tangent_all, tangent), put(turn_all, turn), put(ds_all, ds)
+
+    _, pos, tangent, turn, ds = jax.lax.while_loop(more, sample_chunk, start)
+    segment = jnp.repeat(jnp.arange(segments, dtype=jnp.int32), m)
+    valid = segment < n_points - 1
+    flat = lambda a: a[:segments].reshape((-1,) + a.shape[2:])  # noqa: E731
+    return PathSamples(jnp.where(valid[:, None], flat(pos), 0.0), jnp.where(valid[:, None], flat(tangent), 0.0),
+                       jnp.where(valid, flat(turn), 0.0), jnp.where(valid, flat(ds), 0.0), segment,
+                       jnp.tile(jnp.arange(m) == 0, segments), valid)
+
+
 def pickups_per_sample(samples: PathSamples, waypoint_pickup):
     """``f32[N]``: each waypoint's objects (``waypoint_pickup: f32[S]``) at its segment's first sample."""
     return jnp.where(samples.first & samples.valid, waypoint_pickup[samples.segment], 0.0)
@@ -238,14 +298,20 @@ def evaluator_for(params: SpillParams) -> Evaluator:
 
 
 def evaluate_route(waypoints, n_points, waypoint_pickup, params: SpillParams,
-                   evaluator: Evaluator | None = None):
+                   evaluator: Evaluator | None = None, *, chunk: int | None = None):
     """``(delivered f32[], spill f32[N], samples)`` for one route; ``vmap`` it over routes.
 
     waypoints: f32[S, 2] world units; n_points: i32[]; waypoint_pickup: f32[S] objects collected at
     each waypoint (0 for the final target cell or fallback point and for repeated cells).
-    evaluator: the spill model (default: ``evaluator_for(params)``).
+    evaluator: the spill model (default: ``evaluator_for(params)``). chunk (static): None samples
+    the spline over all S slots (``sample_route``; differentiable); an int samples only the route's
+    own segments, that many at a time (``sample_route_prefix``; the same delivered mass and spills,
+    for planning with long static route buffers, not for gradients).
     """
     evaluator = evaluator_for(params) if evaluator is None else evaluator
-    samples = sample_route(waypoints, n_points, params.samples_per_step, params.spline_alpha)
+    if chunk is None:
+        samples = sample_route(waypoints, n_points, params.samples_per_step, params.spline_alpha)
+    else:
+        samples = sample_route_prefix(waypoints, n_points, params.samples_per_step, params.spline_alpha, chunk=chunk)
     delivered, spill = evaluator(samples, pickups_per_sample(samples, waypoint_pickup), params)
     return delivered, jnp.where(samples.valid, spill, 0.0), samples
