@@ -162,6 +162,22 @@ def _hermite(ctrl, t, alpha: float):
     return pos, vel, acc
 
 
+def _segment_samples(ctrl, t, alpha: float, m: int):
+    """``(pos [G, m, 2], tangent [G, m, 2], turn [G, m], ds [G, m])`` at parameters ``t: f32[m]`` of
+    the G segments whose control points are ``ctrl: f32[G, 4, 2]``; turn and ds per sample (1/m of a
+    segment), as ``PathSamples`` holds them."""
+    pos, vel, acc = _hermite(ctrl, t, float(alpha))
+    speed2 = jnp.sum(vel ** 2, -1)
+    cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
+    # kappa * ds = cross / |r'|^3 * |r'| dt
+    turn = cross / jnp.maximum(speed2, _TINY) / m
+    # Double where: exactly 0 on zero-length (padding) segments, with a finite gradient there.
+    moving = speed2 > _TINY
+    ds = jnp.where(moving, jnp.sqrt(jnp.where(moving, speed2, 1.0)), 0.0) / m
+    tangent = vel / jnp.sqrt(jnp.maximum(speed2, _TINY))[..., None]
+    return pos, tangent, turn, ds
+
+
 def sample_route(waypoints, n_points, samples_per_step: int, alpha: float = CENTRIPETAL) -> PathSamples:
     """Sample the spline through ``waypoints[:n_points]`` at the midpoints of ``samples_per_step``
     equal parameter steps per segment.
@@ -175,15 +191,7 @@ def sample_route(waypoints, n_points, samples_per_step: int, alpha: float = CENT
     m = samples_per_step
     ctrl = _control_points(waypoints, n_points)
     t = (jnp.arange(m, dtype=jnp.float32) + 0.5) / m
-    pos, vel, acc = _hermite(ctrl, t, float(alpha))              # [S-1, m, 2]
-    speed2 = jnp.sum(vel ** 2, -1)
-    cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
-    # kappa * ds = cross / |r'|^3 * |r'| dt
-    turn = cross / jnp.maximum(speed2, _TINY) / m
-    # Double where: exactly 0 on zero-length (padding) segments, with a finite gradient there.
-    moving = speed2 > _TINY
-    ds = jnp.where(moving, jnp.sqrt(jnp.where(moving, speed2, 1.0)), 0.0) / m
-    tangent = vel / jnp.sqrt(jnp.maximum(speed2, _TINY))[..., None]
+    pos, tangent, turn, ds = _segment_samples(ctrl, t, alpha, m)   # [S-1, m, ...]
     segment = jnp.repeat(jnp.arange(s - 1, dtype=jnp.int32), m)
     valid = segment < n_points - 1
     flat = lambda a: a.reshape((-1,) + a.shape[2:])  # noqa: E731
@@ -232,14 +240,7 @@ def sample_route_prefix(waypoints, n_points, samples_per_step: int, alpha: float
         c, pos_all, tangent_all, turn_all, ds_all = carry
         first = c * chunk
         part = jax.lax.dynamic_slice_in_dim(ctrl, first, chunk, 0)
-        # the arithmetic of sample_route, segment by segment
-        pos, vel, acc = _hermite(part, t, float(alpha))              # [chunk, m, 2]
-        speed2 = jnp.sum(vel ** 2, -1)
-        cross = vel[..., 0] * acc[..., 1] - vel[..., 1] * acc[..., 0]
-        turn = cross / jnp.maximum(speed2, _TINY) / m
-        moving = speed2 > _TINY
-        ds = jnp.where(moving, jnp.sqrt(jnp.where(moving, speed2, 1.0)), 0.0) / m
-        tangent = vel / jnp.sqrt(jnp.maximum(speed2, _TINY))[..., None]
+        pos, tangent, turn, ds = _segment_samples(part, t, alpha, m)   # [chunk, m, ...]
         put = lambda whole, new: jax.lax.dynamic_update_slice_in_dim(whole, new, first, 0)  # noqa: E731
         return c + 1, put(pos_all, pos), put(tangent_all, tangent), put(turn_all, turn), put(ds_all, ds)
 
