@@ -54,7 +54,7 @@ _LAZY = {
     **{name: "jaxplan.teams" for name in ("SiteParams", "TeamsConfig", "paper_scenario", "random_sites",
                                            "run_sites", "simulate_site")},
 }
-_LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference", "core", "transport", "cli")
+_LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference", "cli")
 
 __all__ = [
     "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState",

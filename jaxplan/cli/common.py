@@ -93,13 +93,6 @@ def atomic_write(path: Path, write) -> None:
         raise
 
 
-def timed(fn, *args):
-    """``(result, milliseconds)`` of one call, waiting for every output array."""
-    from jaxplan.core.timing import timed
-
-    return timed(fn, *args)
-
-
 def write_json(path: Path, data) -> None:
     text = json.dumps(data, indent=2) + "\n"
     atomic_write(path, lambda fh: fh.write(text.encode()))

@@ -18,11 +18,11 @@ from jaxplan.cli.common import (
     load_scene,
     output_dir,
     params_dict,
-    timed,
     wrap,
     write_csv,
     write_json,
 )
+from jaxplan.core.timing import timed
 from jaxplan.transport.scenes import BUILTIN_SCENES, DEFAULT_SCENE
 
 FABRIC_ARRAYS = ("value", "length", "first_hop", "heading", "psi", "heat", "highways", "fallback",
