@@ -2,17 +2,17 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import tempfile
 import textwrap
 from pathlib import Path
 
 import numpy as np
 
+from jaxplan.core.outputs import RunFolder
 from jaxplan.transport.scenes import BUILTIN_SCENES
 
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130   # 128 + SIGINT, as shells report a Ctrl-C
 
 
 class CLIError(Exception):
@@ -61,6 +61,26 @@ def params_dict(params) -> dict:
     return out
 
 
+def run_folder(args, outputs) -> RunFolder:
+    """The ``RunFolder`` of ``--out`` for this command (``with run_folder(args, NAMES) as run: ...``).
+
+    outputs: the file names the command may write; a previous run's files are removed on entry.
+    Open it after every input is validated, so that bad input leaves the folder as it was.
+    """
+    arguments = {k: v for k, v in vars(args).items() if not callable(v)}
+    return _OutFlagFolder(args.out, command=args.command, arguments=arguments, outputs=outputs)
+
+
+class _OutFlagFolder(RunFolder):
+    """A ``RunFolder`` whose errors on opening name the ``--out`` flag."""
+
+    def __enter__(self):
+        try:
+            return super().__enter__()
+        except ValueError as exc:
+            raise CLIError(f"--out: {exc}") from None
+
+
 def output_dir(path: str) -> Path:
     """The folder ``--out`` names, created if missing; a ``CLIError`` naming the flag if it cannot be."""
     out_dir = Path(path)
@@ -71,37 +91,11 @@ def output_dir(path: str) -> Path:
     return out_dir
 
 
-def atomic_write(path: Path, write) -> None:
-    """Call ``write(binary_file)`` on a temp file next to ``path``, then rename it into place.
-
-    Nothing is left at ``path`` (or beside it) when ``write`` fails. The file gets the usual
-    permissions (0666 minus the umask), not mkstemp's 0600.
-    """
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
-def write_json(path: Path, data) -> None:
-    text = json.dumps(data, indent=2) + "\n"
-    atomic_write(path, lambda fh: fh.write(text.encode()))
-
-
-def write_csv(path: Path, columns: dict) -> None:
+def csv_text(columns: dict) -> str:
+    """Columns (name -> equal-length sequences) as CSV text with a header line."""
     names = list(columns)
     lines = [",".join(names)] + [",".join(str(v) for v in row) for row in zip(*columns.values())]
-    atomic_write(path, lambda fh: fh.write(("\n".join(lines) + "\n").encode()))
+    return "\n".join(lines) + "\n"
 
 
 def angle(text: str) -> float:

@@ -10,7 +10,7 @@ import argparse
 import sys
 
 from jaxplan.cli import pusharound, rover, sweep, teams, transport
-from jaxplan.cli.common import EXIT_BAD_INPUT, CLIError, wrap
+from jaxplan.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CLIError, wrap
 from jaxplan.transport.scenes import BUILTIN_SCENES
 
 __all__ = ["main"]
@@ -47,7 +47,8 @@ def main(argv=None) -> int:
     """Run the CLI with ``argv`` (default ``sys.argv[1:]``); returns 0 on success.
 
     Bad input raises ``SystemExit(2)`` after printing ``error: <message>`` to stderr (argparse's
-    own usage errors exit with 2 as well).
+    own usage errors exit with 2 as well). Ctrl-C raises ``SystemExit(130)`` after printing
+    ``interrupted: <where the partial output is>``; the output folder's run.json says "interrupted".
     """
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -68,6 +69,7 @@ def main(argv=None) -> int:
         message = " ".join(str(exc).split()) or type(exc).__name__
         print(f"error: {message}", file=sys.stderr)
         raise SystemExit(EXIT_BAD_INPUT) from None
-    except KeyboardInterrupt:
-        print("error: interrupted", file=sys.stderr)
-        raise SystemExit(130) from None
+    except KeyboardInterrupt as exc:   # RunInterrupted says where the partial output is
+        detail = " ".join(str(exc).split())
+        print(f"interrupted: {detail}" if detail else "interrupted", file=sys.stderr)
+        raise SystemExit(EXIT_INTERRUPTED) from None

@@ -2,14 +2,14 @@
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from jaxplan.cli.common import CLIError, atomic_write, output_dir, wrap, write_json
+from jaxplan.cli.common import CLIError, run_folder, wrap
+from jaxplan.core.outputs import atomic_write
 
 PUSHAROUND_RESULT_FORMAT = "jaxplan.pusharound.result"
 
@@ -131,16 +131,7 @@ def _cmd_pusharound(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    import threading
-    from types import SimpleNamespace
-
-    from tqdm import tqdm
-
-    from jaxplan.pusharound import PushScene, build_push_world, build_wccg, connectivity, w_clear_path
-    from jaxplan.pusharound.animation import animate_execution, save_final_png
-    from jaxplan.pusharound.execution import ExecutionConfig, execute_schedule, plan_frames
     from jaxplan.pusharound.modetable import ModeTable
-    from jaxplan.pusharound.search import SearchConfig, plan_pushes
 
     if not args.time_limit > 0:
         raise CLIError(f"--time-limit: must be > 0 seconds; got {args.time_limit}.")
@@ -157,15 +148,44 @@ def _cmd_pusharound(args) -> int:
             raise CLIError(f"--mode-table: {args.mode_table}: {exc}") from None
     elif args.mode_table is not None:
         table = ModeTable()
-    out_dir = output_dir(args.out)
-    paths = {"result": out_dir / "result.json", "scene_final": out_dir / "scene_final.json",
-             "figure": out_dir / "pusharound.png", "animation": out_dir / "pusharound.gif"}
+    with run_folder(args, PUSHAROUND_OUTPUTS) as run:
+        plan, execution, success, path = _plan_execute_write(args, scene, source, table, run)
+
+    st = plan.stats
+    print(f"plan: {'success' if plan.success else 'failed (' + plan.reason + ')'}, {len(plan.schedule)} pushes, "
+          f"{st.planning_time_s:.1f} s planning, {st.expansions} expansions, {st.simulated_pushes} simulated pushes")
+    if execution is not None:
+        print(f"execution: {'success' if execution.success else 'failed'} ({execution.reason}), "
+              f"{len(execution.executed)} pushes, {execution.replans} replans, "
+              f"{execution.execution_time_s:.1f} s simulated")
+    print(f"result: {'success' if success else 'no corridor'}" + ("" if path is None else
+                                                                  f", W-clear path of {len(path)} points"))
+    for name in run.files:
+        print(f"wrote {run.path / name}")
+    return 0
+
+
+PUSHAROUND_OUTPUTS = ("result.json", "scene_final.json", "pusharound.png", "pusharound.gif")
+
+
+def _plan_execute_write(args, scene, source, table, run):
+    """Plan, execute (unless --no-execute) and write the outputs into ``run``; result.json exists from
+    the start and is rewritten at each stage. Returns (plan, execution or None, success, path)."""
+    import threading
+    from types import SimpleNamespace
+
+    from tqdm import tqdm
+
+    from jaxplan.pusharound import PushScene, build_push_world, build_wccg, connectivity, w_clear_path
+    from jaxplan.pusharound.animation import animate_execution, save_final_png
+    from jaxplan.pusharound.execution import ExecutionConfig, execute_schedule, plan_frames
+    from jaxplan.pusharound.search import SearchConfig, plan_pushes
 
     def write_result(**kw):
         try:
-            write_json(paths["result"], _pusharound_result(scene, source, args, **kw))
+            run.write_json("result.json", _pusharound_result(scene, source, args, **kw))
         except OSError as exc:
-            raise CLIError(f"--out: could not write into {str(out_dir)!r} ({exc.strerror or exc}).") from None
+            raise CLIError(f"--out: could not write into {str(run.path)!r} ({exc.strerror or exc}).") from None
 
     config = SearchConfig(time_limit_s=float(args.time_limit), backend=args.backend, seed=int(args.seed))
     world = build_push_world(scene)
@@ -248,39 +268,22 @@ def _cmd_pusharound(args) -> int:
               reason=reason)
     write_result(**kw, final_check=final_check)
     try:
-        write_json(paths["scene_final"], final.to_dict())
+        run.write_json("scene_final.json", final.to_dict())
         title = (f"{'executed' if execution is not None else 'planned'}: "
                  f"{'W-clear corridor' if path is not None else 'no W-clear path'} (W = {scene.width:g} m)")
-        atomic_write(paths["figure"], lambda fh: save_final_png(final, final.poses, final.robots, path, fh,
-                                                                  title=title))
+        run.write("pusharound.png", lambda fh: save_final_png(final, final.poses, final.robots, path, fh,
+                                                               title=title))
         shown = execution if execution is not None else SimpleNamespace(
             frames=plan_frames(scene, plan), executed=plan.schedule, w_clear_path=path)
-        tmp = out_dir / ".pusharound.gif.tmp.gif"
-        with tqdm(total=1, desc="animation", unit="frame", file=sys.stderr, leave=False) as abar:
+        with tqdm(total=1, desc="animation", unit="frame", file=sys.stderr, leave=False) as abar, \
+                run.staged("pusharound.gif") as tmp:
             def tick(i, n):
                 abar.total, abar.n = n, i
                 abar.refresh()
-            try:
-                animate_execution(scene, shown, tmp, fps=args.fps, max_frames=args.max_frames, progress=tick)
-                os.replace(tmp, paths["animation"])
-            finally:
-                if tmp.exists():
-                    tmp.unlink()
+            animate_execution(scene, shown, tmp, fps=args.fps, max_frames=args.max_frames, progress=tick)
     except OSError as exc:
-        raise CLIError(f"--out: could not write into {str(out_dir)!r} ({exc.strerror or exc}).") from None
-
-    st = plan.stats
-    print(f"plan: {'success' if plan.success else 'failed (' + plan.reason + ')'}, {len(plan.schedule)} pushes, "
-          f"{st.planning_time_s:.1f} s planning, {st.expansions} expansions, {st.simulated_pushes} simulated pushes")
-    if execution is not None:
-        print(f"execution: {'success' if execution.success else 'failed'} ({execution.reason}), "
-              f"{len(execution.executed)} pushes, {execution.replans} replans, "
-              f"{execution.execution_time_s:.1f} s simulated")
-    print(f"result: {'success' if success else 'no corridor'}" + ("" if path is None else
-                                                                  f", W-clear path of {len(path)} points"))
-    for p in paths.values():
-        print(f"wrote {p}")
-    return 0
+        raise CLIError(f"--out: could not write into {str(run.path)!r} ({exc.strerror or exc}).") from None
+    return plan, execution, success, path
 
 
 def add_parsers(sub, fmt, scene_help: str) -> None:

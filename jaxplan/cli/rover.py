@@ -8,16 +8,7 @@ import time
 
 import numpy as np
 
-from jaxplan.cli.common import (
-    CLIError,
-    add_theta_option,
-    atomic_write,
-    fabric_params,
-    load_scene,
-    output_dir,
-    wrap,
-    write_json,
-)
+from jaxplan.cli.common import CLIError, add_theta_option, fabric_params, load_scene, run_folder, wrap
 from jaxplan.cli.transport import add_spill_options, spill_dict, spill_params
 from jaxplan.transport.scenes import DEFAULT_SCENE
 
@@ -28,9 +19,6 @@ def _cmd_rover(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from tqdm import tqdm
-
     if args.routes < 1:
         raise CLIError(f"--routes: must be an int >= 1; got {args.routes}.")
     if not args.speed > 0:
@@ -43,10 +31,28 @@ def _cmd_rover(args) -> int:
     spill = spill_params(args, default=ROVER_FIT)
     params = fabric_params(args)
     scene = load_scene(args.scene)
-    out_dir = output_dir(args.out)
+    with run_folder(args, ROVER_OUTPUTS) as run:
+        summary = _check_and_write(args, scene, params, spill, run)
+    print(summary["table"], end="")
+    print(f"{len(summary['routes'])} routes x {summary['ticks']} ticks on the {summary['backend']} engine in "
+          f"{summary['rollout_seconds']:.1f} s; frames: {summary['frames']}")
+    for path in summary["outputs"].values():
+        print(f"wrote {path}")
+    return 0
+
+
+ROVER_OUTPUTS = ("routes.md", "rover.png", "frames.png", "summary.json")
+
+
+def _check_and_write(args, scene, params, spill, run) -> dict:
+    """Plan, roll out, plot and render; write the outputs into ``run``; returns the summary (and, under
+    "table", the markdown table)."""
+    import matplotlib.pyplot as plt
+    from tqdm import tqdm
 
     from jaxplan.transport.rover import bridge, report
     from jaxplan.transport.rover.model import RoverConfig
+    from jaxplan.transport.spillage.capacity import ROVER_FIT
 
     stages = ["plan (build_fabric + extract_paths)", "physics rollouts", "figure", "rendering"]
     with tqdm(total=len(stages), desc="jaxplan rover", unit="stage", file=sys.stderr, leave=False) as bar:
@@ -75,8 +81,8 @@ def _cmd_rover(args) -> int:
                 frames_note = f"rendering unavailable ({type(exc).__name__}: {exc})"
         bar.update()
 
-    paths = {"table": out_dir / "routes.md", "figure": out_dir / "rover.png", "summary": out_dir / "summary.json"}
     b = len(rows)
+    table = report.table_markdown(rows)
     summary = {
         "scene": scene.name or args.scene,
         "shape": list(scene.shape),
@@ -97,26 +103,22 @@ def _cmd_rover(args) -> int:
                   "(execute.execute); lateral errors in cells, blade point to spline; rollout_seconds "
                   "includes compilation on MJX"),
     }
+    outputs = {}
     try:
-        atomic_write(paths["figure"], lambda fh: fig.savefig(fh, format="png", dpi=110))
-        atomic_write(paths["table"], lambda fh: fh.write(report.table_markdown(rows).encode()))
+        outputs["figure"] = run.write("rover.png", lambda fh: fig.savefig(fh, format="png", dpi=110))
+        outputs["table"] = run.write("routes.md", lambda fh: fh.write(table.encode()))
         if frames is not None:
-            paths["frames"] = out_dir / "frames.png"
             strip = np.concatenate(list(frames), axis=1)
-            atomic_write(paths["frames"], lambda fh: plt.imsave(fh, strip, format="png"))
-        summary["frames"] = frames_note or f"{len(frames)} frames of route 0 in {paths['frames']}"
-        summary["outputs"] = {k: str(v) for k, v in paths.items()}
-        write_json(paths["summary"], summary)
+            outputs["frames"] = run.write("frames.png", lambda fh: plt.imsave(fh, strip, format="png"))
+        summary["frames"] = frames_note or f"{len(frames)} frames of route 0 in {outputs['frames']}"
+        outputs["summary"] = run.file("summary.json")
+        summary["outputs"] = {k: str(v) for k, v in outputs.items()}
+        run.write_json("summary.json", summary)
     except OSError as exc:
-        raise CLIError(f"--out: could not write into {str(out_dir)!r} ({exc.strerror or exc}).") from None
+        raise CLIError(f"--out: could not write into {str(run.path)!r} ({exc.strerror or exc}).") from None
     finally:
         plt.close(fig)
-    print(report.table_markdown(rows), end="")
-    print(f"{b} routes x {check.n_ticks} ticks on the {summary['backend']} engine in {rollout_s:.1f} s; "
-          f"frames: {summary['frames']}")
-    for path in summary["outputs"].values():
-        print(f"wrote {path}")
-    return 0
+    return dict(summary, table=table)
 
 
 def add_parsers(sub, fmt, scene_help: str) -> None:

@@ -5,12 +5,25 @@ from jaxplan.cli.common import wrap
 
 
 def _cmd_sweep(args) -> int:
+    from jaxplan.core.outputs import RunInterrupted
     from jaxplan.sweep import run_sweep
 
-    out = run_sweep(args.spec, args.out, backend=args.backend, address=args.address,
-                    memory_budget_mb=args.memory_budget_mb, progress=not args.no_progress)
+    try:
+        out = run_sweep(args.spec, args.out, backend=args.backend, address=args.address,
+                        memory_budget_mb=args.memory_budget_mb, progress=not args.no_progress)
+    except KeyboardInterrupt:
+        raise RunInterrupted(f"{args.out!r} keeps the {_rows(args.out)} complete row(s) written so far; "
+                             "run the same command again to resume.") from None
     print(f"wrote {out}")
     return 0
+
+
+def _rows(path) -> int:
+    try:
+        with open(path, "rb") as fh:
+            return max(sum(1 for _ in fh) - 1, 0)   # minus the header
+    except OSError:
+        return 0
 
 
 def add_parsers(sub, fmt, scene_help: str) -> None:

@@ -1,17 +1,21 @@
 """The ``teams`` subcommand: the team-organization scenario of Endo et al."""
 from __future__ import annotations
 
-from jaxplan.cli.common import atomic_write, wrap
+from jaxplan.cli.common import run_folder, wrap
+
+TEAMS_OUTPUTS = ("fig6.png", "summary.json")
 
 
 def _cmd_teams(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")  # writes files only; works without a display
-    from jaxplan.teams.report import run_paper
+    from jaxplan.teams.report import check_paper_options, run_paper
 
-    summary = run_paper(args.out, strategy=args.strategy, seed=args.seed, v_after=args.v_after,
-                        deadline=args.deadline, steps=args.steps, write=atomic_write)
+    check_paper_options(args.strategy, args.v_after, args.deadline, args.seed, args.steps)
+    with run_folder(args, TEAMS_OUTPUTS) as run:
+        summary = run_paper(run.path, strategy=args.strategy, seed=args.seed, v_after=args.v_after,
+                            deadline=args.deadline, steps=args.steps, write=run.write)
     for team in summary["teams"]:
         print(f"team {team['team']}: cleared at {team['clear_time_s']} s, delivered "
               f"{team['delivered_kg']:g} of {team['initial_mass_kg']:g} kg (last at "

@@ -1,9 +1,9 @@
 """Subcommands of the environment-first transport system: ``fabric``, ``demo``, ``episode``, ``scenes``."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
-import os
 import statistics
 import sys
 from pathlib import Path
@@ -13,15 +13,14 @@ import numpy as np
 from jaxplan.cli.common import (
     CLIError,
     add_theta_option,
-    atomic_write,
+    csv_text,
     fabric_params,
     load_scene,
-    output_dir,
     params_dict,
+    run_folder,
     wrap,
-    write_csv,
-    write_json,
 )
+from jaxplan.core.outputs import atomic_write
 from jaxplan.core.timing import timed
 from jaxplan.transport.scenes import BUILTIN_SCENES, DEFAULT_SCENE
 
@@ -89,70 +88,62 @@ def _cmd_demo(args) -> int:
 
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
     scene = load_scene(args.scene)  # bad input fails here, before the progress bar starts
-    out_dir = Path(args.out)
-    stages = ["build fabric (first call compiles)", "warm builds", "plan connectors", "plot"]
-    with tqdm(total=len(stages), desc="jaxplan demo", unit="stage", file=sys.stderr,
-              leave=False) as bar:
-        bar.set_postfix_str(stages[0])
-        fabric, compile_ms = timed(build_fabric, scene, params)
-        bar.update()
-        bar.set_postfix_str(stages[1])
-        warm = [timed(build_fabric, scene, params)[1] for _ in range(_WARM_REPEATS)]
-        warm_ms = statistics.median(warm)
-        bar.update()
-        bar.set_postfix_str(stages[2])
-        connectors = jax.block_until_ready(plan_connectors(scene, params, fabric))
-        bar.update()
-        bar.set_postfix_str(stages[3])
-        fig = plot_fabric(scene, fabric, connectors)
-        bar.update()
+    with run_folder(args, DEMO_OUTPUTS) as run:
+        stages = ["build fabric (first call compiles)", "warm builds", "plan connectors", "plot"]
+        with tqdm(total=len(stages), desc="jaxplan demo", unit="stage", file=sys.stderr,
+                  leave=False) as bar:
+            bar.set_postfix_str(stages[0])
+            fabric, compile_ms = timed(build_fabric, scene, params)
+            bar.update()
+            bar.set_postfix_str(stages[1])
+            warm = [timed(build_fabric, scene, params)[1] for _ in range(_WARM_REPEATS)]
+            warm_ms = statistics.median(warm)
+            bar.update()
+            bar.set_postfix_str(stages[2])
+            connectors = jax.block_until_ready(plan_connectors(scene, params, fabric))
+            bar.update()
+            bar.set_postfix_str(stages[3])
+            fig = plot_fabric(scene, fabric, connectors)
+            bar.update()
 
-    png = out_dir / "fabric.png"
-    summary_path = out_dir / "summary.json"
-    h, w = scene.shape
-    summary = {
-        "scene": scene.name or args.scene,
-        "shape": [h, w],
-        "cell_size": float(np.asarray(scene.cell_size)),
-        "params": params_dict(params),
-        "total_mass": float(np.asarray(scene.total_mass)),
-        "occupied_cells": int(np.asarray(fabric.occupied).sum()),
-        "max_value_J": float(np.asarray(fabric.value).max()),
-        "highway_cells": int(np.asarray(fabric.highways).sum()),
-        "roots_with_connector": int(np.asarray(connectors.has_connector).sum()),
-        "connectors_truncated": bool(np.asarray(connectors.truncated)),
-        "solver_iterations": int(np.asarray(fabric.rounds)),
-        "converged": bool(np.asarray(fabric.converged)),
-        "compile_ms": round(compile_ms, 3),
-        "warm_build_ms": round(warm_ms, 3),
-        "timing_note": ("compile_ms: wall time of the first build_fabric call (trace + compile + "
-                        "run; small if this process had compiled it already); warm_build_ms: "
-                        f"median of {_WARM_REPEATS} further calls; both with "
-                        "jax.block_until_ready."),
-        "backend": jax.default_backend(),
-        "jax_version": jax.__version__,
-        "outputs": {"figure": str(png), "summary": str(summary_path)},
-    }
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write(png, lambda fh: fig.savefig(fh, format="png", dpi=120))
-        write_json(summary_path, summary)   # the fabric part lands even if the episode fails
-    except OSError as exc:
-        raise CLIError(f"--out: could not write into {str(out_dir)!r} "
-                       f"({exc.strerror or exc}).") from None
-    finally:
-        plt.close(fig)
+        h, w = scene.shape
+        summary = {
+            "scene": scene.name or args.scene,
+            "shape": [h, w],
+            "cell_size": float(np.asarray(scene.cell_size)),
+            "params": params_dict(params),
+            "total_mass": float(np.asarray(scene.total_mass)),
+            "occupied_cells": int(np.asarray(fabric.occupied).sum()),
+            "max_value_J": float(np.asarray(fabric.value).max()),
+            "highway_cells": int(np.asarray(fabric.highways).sum()),
+            "roots_with_connector": int(np.asarray(connectors.has_connector).sum()),
+            "connectors_truncated": bool(np.asarray(connectors.truncated)),
+            "solver_iterations": int(np.asarray(fabric.rounds)),
+            "converged": bool(np.asarray(fabric.converged)),
+            "compile_ms": round(compile_ms, 3),
+            "warm_build_ms": round(warm_ms, 3),
+            "timing_note": ("compile_ms: wall time of the first build_fabric call (trace + compile + "
+                            "run; small if this process had compiled it already); warm_build_ms: "
+                            f"median of {_WARM_REPEATS} further calls; both with "
+                            "jax.block_until_ready."),
+            "backend": jax.default_backend(),
+            "jax_version": jax.__version__,
+            "outputs": {"figure": str(run.file("fabric.png")), "summary": str(run.file("summary.json"))},
+        }
+        with _writing_into(run):
+            try:
+                run.write("fabric.png", lambda fh: fig.savefig(fh, format="png", dpi=120))
+            finally:
+                plt.close(fig)
+            run.write_json("summary.json", summary)   # the fabric part lands even if the episode fails
 
-    # the main job: an episode on the same scene (plan, push, spill, rebuild until delivered)
-    episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
-    summary["episode"] = _episode_summary(scene, args.scene, params, spill, ep, episode)
-    try:
-        summary["outputs"].update(_episode_files(scene, episode, out_dir, animate=not args.no_animation,
-                                                 fps=args.fps))
-        write_json(summary_path, summary)
-    except OSError as exc:
-        raise CLIError(f"--out: could not write into {str(out_dir)!r} "
-                       f"({exc.strerror or exc}).") from None
+        # the main job: an episode on the same scene (plan, push, spill, rebuild until delivered)
+        episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
+        summary["episode"] = _episode_summary(scene, args.scene, params, spill, ep, episode)
+        with _writing_into(run):
+            summary["outputs"].update(_episode_files(scene, episode, run, animate=not args.no_animation,
+                                                     fps=args.fps))
+            run.write_json("summary.json", summary)
 
     print(f"scene {summary['scene']!r}: {h}x{w}, cell size {summary['cell_size']:g}, "
           f"total mass {summary['total_mass']:g}, {summary['occupied_cells']} occupied cells")
@@ -238,36 +229,43 @@ def episode_params(args):
     return ep
 
 
-def _episode_files(scene, episode, out_dir: Path, *, animate: bool, fps: int) -> dict:
-    """Write metrics (JSON, CSV), the final figure and the animation; returns their paths.
+DEMO_OUTPUTS = ("fabric.png", "summary.json", "metrics.json", "metrics.csv", "episode.png", "episode.gif")
+EPISODE_OUTPUTS = DEMO_OUTPUTS[1:]
+
+
+@contextlib.contextmanager
+def _writing_into(run):
+    """Turn a failed write into one ``--out`` error line."""
+    try:
+        yield
+    except OSError as exc:
+        raise CLIError(f"--out: could not write into {str(run.path)!r} ({exc.strerror or exc}).") from None
+
+
+def _episode_files(scene, episode, run, *, animate: bool, fps: int) -> dict:
+    """Write metrics (JSON, CSV), the final figure and the animation into ``run``; returns their paths.
 
     Files are written one by one, each atomically, cheapest first: if the animation fails the
-    metrics and the figure are already on disk.
+    metrics and the figure are already on disk (and in the run's manifest).
     """
     import matplotlib.pyplot as plt
     from tqdm import tqdm
 
     from jaxplan.transport.viz import animate_episode, plot_episode
 
-    paths = {"metrics_json": out_dir / "metrics.json", "metrics_csv": out_dir / "metrics.csv",
-             "episode_figure": out_dir / "episode.png"}
-    write_json(paths["metrics_json"], {"totals": episode.totals(), "per_tick": episode.per_tick()})
-    write_csv(paths["metrics_csv"], episode.per_tick())
+    per_tick = episode.per_tick()
+    paths = {"metrics_json": run.write_json("metrics.json", {"totals": episode.totals(), "per_tick": per_tick}),
+             "metrics_csv": run.write("metrics.csv", lambda fh: fh.write(csv_text(per_tick).encode()))}
     fig = plot_episode(scene, episode)
     try:
-        atomic_write(paths["episode_figure"], lambda fh: fig.savefig(fh, format="png", dpi=110))
+        paths["episode_figure"] = run.write("episode.png", lambda fh: fig.savefig(fh, format="png", dpi=110))
     finally:
         plt.close(fig)
     if animate and episode.frames:
-        paths["animation"] = out_dir / "episode.gif"
-        tmp = out_dir / ".episode.gif.tmp.gif"
-        with tqdm(total=len(episode.frames), desc="animation", unit="frame", file=sys.stderr, leave=False) as bar:
-            try:
-                animate_episode(scene, episode, tmp, fps=fps, progress=lambda i, n: bar.update(1))
-                os.replace(tmp, paths["animation"])
-            finally:
-                if tmp.exists():
-                    tmp.unlink()
+        with tqdm(total=len(episode.frames), desc="animation", unit="frame", file=sys.stderr, leave=False) as bar, \
+                run.staged("episode.gif") as tmp:
+            animate_episode(scene, episode, tmp, fps=fps, progress=lambda i, n: bar.update(1))
+        paths["animation"] = run.file("episode.gif")
     return {k: str(v) for k, v in paths.items()}
 
 
@@ -327,15 +325,13 @@ def _cmd_episode(args) -> int:
     matplotlib.use("Agg")
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
     scene = load_scene(args.scene)
-    out_dir = output_dir(args.out)
-    episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
-    summary = _episode_summary(scene, args.scene, params, spill, ep, episode)
-    try:
-        summary["outputs"] = _episode_files(scene, episode, out_dir, animate=not args.no_animation, fps=args.fps)
-        summary["outputs"]["summary"] = str(out_dir / "summary.json")
-        write_json(out_dir / "summary.json", summary)
-    except OSError as exc:
-        raise CLIError(f"--out: could not write into {str(out_dir)!r} ({exc.strerror or exc}).") from None
+    with run_folder(args, EPISODE_OUTPUTS) as run:
+        episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
+        summary = _episode_summary(scene, args.scene, params, spill, ep, episode)
+        with _writing_into(run):
+            summary["outputs"] = _episode_files(scene, episode, run, animate=not args.no_animation, fps=args.fps)
+            summary["outputs"]["summary"] = str(run.file("summary.json"))
+            run.write_json("summary.json", summary)
     _print_episode(summary)
     for _name, path in summary["outputs"].items():
         print(f"wrote {path}")

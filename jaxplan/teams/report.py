@@ -15,7 +15,7 @@ import numpy as np
 from jaxplan.teams.params import STRATEGIES
 from jaxplan.teams.scenario import PAPER, paper_config, paper_scenario
 
-__all__ = ["plot_performance", "summarize", "run_paper"]
+__all__ = ["check_paper_options", "plot_performance", "run_paper", "summarize"]
 
 _PRED, _REAL, _TRUCKS = "#2563eb", "#dc2626", "#6b7280"
 
@@ -94,7 +94,8 @@ def summarize(params, result, trace, strategy: str) -> dict:
     }
 
 
-def _check_options(strategy: str, v_after: float, deadline: float, seed: int, steps: int) -> None:
+def check_paper_options(strategy: str, v_after: float, deadline: float, seed: int, steps: int) -> None:
+    """Raise ``ValueError`` naming the option (its CLI flag) when one is out of range."""
     if strategy not in STRATEGIES:
         raise ValueError(f"--strategy: must be one of {', '.join(STRATEGIES)}; got {strategy!r}.")
     if not (math.isfinite(v_after) and v_after > 0):
@@ -126,7 +127,7 @@ def run_paper(out_dir, strategy: str = "performance", seed: int = 0,
 
     from jaxplan.teams.sim import simulate_site
 
-    _check_options(strategy, v_after, deadline, seed, steps)
+    check_paper_options(strategy, v_after, deadline, seed, steps)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out: {str(out)!r} exists and is not a directory; pass a directory.")

@@ -33,7 +33,8 @@ def test_teams_writes_figure_and_summary(teams_run, capsys):
         assert times[0] == 0.0 and times == sorted(times)
         assert max(n for _, n in timeline) == team["max_trucks"] <= 10
     assert summary["deadline_met"] == all(t["clear_time_s"] <= 900 for t in summary["teams"])
-    assert sorted(p.name for p in out.iterdir()) == ["fig6.png", "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["fig6.png", "run.json", "summary.json"]
+    assert json.loads((out / "run.json").read_text())["files"] == ["fig6.png", "summary.json"]
 
 
 def test_teams_options(tmp_path, capsys):

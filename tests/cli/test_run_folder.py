@@ -1,0 +1,107 @@
+"""Output folders of the CLI: each run's run.json lists its files, a rerun never leaves an earlier
+run's files beside its own, Ctrl-C exits 130 with the folder marked interrupted, and bad input leaves
+the folder as it was."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from jaxplan.cli import main
+from jaxplan.cli import transport as cli_transport
+from jaxplan.core.outputs import MANIFEST
+
+EPISODE = ["episode", "--scene", "default", "--max-pushes", "1"]
+
+
+def _files(folder) -> list[str]:
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
+
+
+def _manifest(folder) -> dict:
+    return json.loads((folder / MANIFEST).read_text())
+
+
+@pytest.fixture(scope="module")
+def earlier_run(tmp_path_factory):
+    """A folder holding a complete episode run with its animation."""
+    out = tmp_path_factory.mktemp("earlier") / "out"
+    assert main([*EPISODE, "--out", str(out)]) == 0
+    return out
+
+
+def _copy(src, dst):
+    import shutil
+
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_manifest_of_a_complete_run(earlier_run):
+    m = _manifest(earlier_run)
+    assert m["status"] == "complete" and m["command"] == "episode"
+    assert m["arguments"]["max_pushes"] == 1 and m["arguments"]["scene"] == "default"
+    assert sorted(m["files"]) == sorted(f for f in _files(earlier_run) if f != MANIFEST)
+    assert "episode.gif" in m["files"] and "summary.json" in m["files"]
+
+
+def test_rerun_without_animation_drops_the_old_gif(earlier_run, tmp_path, capsys):
+    out = _copy(earlier_run, tmp_path / "out")
+    assert main([*EPISODE, "--no-animation", "--out", str(out)]) == 0
+    m = _manifest(out)
+    assert m["status"] == "complete" and "episode.gif" not in m["files"]
+    assert _files(out) == sorted([MANIFEST, *m["files"]])
+
+
+def test_interrupted_episode_exits_130_and_marks_the_folder(earlier_run, tmp_path, monkeypatch, capsys):
+    out = _copy(earlier_run, tmp_path / "out")
+    (out / "my_notes.txt").write_text("kept")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_transport, "_run_episode", interrupted)
+    with pytest.raises(SystemExit) as info:
+        main([*EPISODE, "--out", str(out)])
+    assert info.value.code == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("interrupted: ") and str(out) in err[0]
+    m = _manifest(out)
+    assert m["status"] == "interrupted" and m["files"] == []
+    assert _files(out) == sorted([MANIFEST, "my_notes.txt"])   # no earlier summary.json or episode.gif
+
+
+def test_interrupted_demo_keeps_only_its_own_fabric_part(earlier_run, tmp_path, monkeypatch, capsys):
+    out = _copy(earlier_run, tmp_path / "out")
+    monkeypatch.setattr(cli_transport, "_run_episode", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
+    with pytest.raises(SystemExit) as info:
+        main(["demo", "--max-pushes", "1", "--out", str(out)])
+    assert info.value.code == 130
+    m = _manifest(out)
+    assert m["status"] == "interrupted" and m["command"] == "demo"
+    assert sorted(m["files"]) == ["fabric.png", "summary.json"]
+    assert _files(out) == sorted([MANIFEST, "fabric.png", "summary.json"])
+    assert "episode" not in json.loads((out / "summary.json").read_text())
+
+
+def test_bad_input_leaves_the_folder_as_it_was(earlier_run, tmp_path, capsys):
+    out = _copy(earlier_run, tmp_path / "out")
+    before = {f: (out / f).read_bytes() for f in _files(out)}
+    with pytest.raises(SystemExit) as info:
+        main([*EPISODE, "--theta-tol", "500", "--out", str(out)])
+    assert info.value.code == 2
+    assert {f: (out / f).read_bytes() for f in _files(out)} == before
+
+
+def test_failed_write_marks_the_run_failed(tmp_path, monkeypatch, capsys):
+    def no_space(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(cli_transport, "_episode_files", no_space)
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as info:
+        main([*EPISODE, "--no-animation", "--out", str(out)])
+    assert info.value.code == 2
+    assert "--out" in capsys.readouterr().err
+    m = _manifest(out)
+    assert m["status"] == "failed" and "No space left" in m["error"]
