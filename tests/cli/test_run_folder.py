@@ -9,7 +9,7 @@ import pytest
 
 from jaxplan.cli import main
 from jaxplan.cli import transport as cli_transport
-from jaxplan.core.outputs import MANIFEST
+from jaxplan.core.outputs import MANIFEST, read_manifest
 
 EPISODE = ["episode", "--scene", "default", "--max-pushes", "1"]
 
@@ -105,3 +105,30 @@ def test_failed_write_marks_the_run_failed(tmp_path, monkeypatch, capsys):
     assert "--out" in capsys.readouterr().err
     m = _manifest(out)
     assert m["status"] == "failed" and "No space left" in m["error"]
+
+
+def test_real_sigint_mid_episode(earlier_run, tmp_path):
+    """Ctrl-C delivered to a real process while the episode runs."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = _copy(earlier_run, tmp_path / "out")
+    proc = subprocess.Popen([sys.executable, "-m", "jaxplan.cli", *EPISODE[:-1], "500", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if (read_manifest(out) or {}).get("status") == "running":
+            break
+        time.sleep(0.1)
+    time.sleep(1.0)   # into the episode
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1].startswith("interrupted: ")
+    m = _manifest(out)
+    assert m["status"] == "interrupted"
+    assert _files(out) == sorted([MANIFEST, *m["files"]])
