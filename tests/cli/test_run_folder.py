@@ -132,3 +132,21 @@ def test_real_sigint_mid_episode(earlier_run, tmp_path):
     m = _manifest(out)
     assert m["status"] == "interrupted"
     assert _files(out) == sorted([MANIFEST, *m["files"]])
+
+
+def test_interrupted_sweep_says_how_many_rows_are_kept(tmp_path, monkeypatch, capsys):
+    import jaxplan.sweep
+
+    out = tmp_path / "s.csv"
+
+    def interrupted_after_two_rows(spec, path, **kwargs):
+        out.write_text("setting,scene\n0,default\n1,default\n")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(jaxplan.sweep, "run_sweep", interrupted_after_two_rows)
+    with pytest.raises(SystemExit) as info:
+        main(["sweep", str(tmp_path / "spec.toml"), "--out", str(out), "--no-progress"])
+    assert info.value.code == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"interrupted: {str(out)!r} keeps the 2 complete row(s) written so far; run the same "
+                   "command again to resume."]
