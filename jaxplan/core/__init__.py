@@ -4,8 +4,11 @@
 - ``compilation``: ``grid_jit`` (jit with grid-size-aware XLA options), ``single_cpu``,
   ``limit_malloc_arenas``.
 - ``timing``: wall-clock timing of JAX calls.
+- ``outputs``: files written atomically and output folders with a ``run.json`` manifest (``RunFolder``).
 """
 from jaxplan.core.compilation import grid_jit, limit_malloc_arenas, single_cpu, traced
+from jaxplan.core.outputs import RunFolder, RunInterrupted, atomic_write, read_manifest
 from jaxplan.core.timing import timed
 
-__all__ = ["grid_jit", "limit_malloc_arenas", "single_cpu", "timed", "traced"]
+__all__ = ["RunFolder", "RunInterrupted", "atomic_write", "grid_jit", "limit_malloc_arenas", "read_manifest",
+           "single_cpu", "timed", "traced"]
