@@ -20,19 +20,26 @@ class CLIError(Exception):
 
 
 def load_scene(spec: str):
-    """A built-in scene by name, or a scene file (.npz / .json) by path."""
+    """A built-in scene by name, or a scene file (.npz / .json) by path.
+
+    A bad file -- missing, a directory, unreadable, damaged, wrong keys or values -- is one
+    ``CLIError("--scene: Scene file <path>: ...")`` (``Scene.load`` names what is wrong).
+    """
     from jaxplan.transport.scene import Scene
     from jaxplan.transport.scenes import builtin_scene
 
     if spec in BUILTIN_SCENES:
         return builtin_scene(spec)
     path = Path(spec)
-    if path.is_file():
+    if path.is_dir():
+        raise CLIError(f"--scene: {spec!r} is a directory; give a .npz/.json scene file or a built-in "
+                       f"scene ({', '.join(BUILTIN_SCENES)}).")
+    if path.exists():
         try:
             return Scene.load(path)
-        except OSError as exc:
-            raise CLIError(f"--scene: could not read {spec!r} ({exc.strerror or exc}).") from None
-    if path.suffix.lower() in (".npz", ".json") or os.sep in spec or path.exists():
+        except ValueError as exc:
+            raise CLIError(f"--scene: {exc}") from None
+    if path.suffix.lower() in (".npz", ".json") or os.sep in spec:
         raise CLIError(f"--scene: no such scene file {spec!r}.")
     raise CLIError(f"--scene: {spec!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) "
                    "nor an existing .npz/.json scene file.")
@@ -79,16 +86,6 @@ class _OutFlagFolder(RunFolder):
             return super().__enter__()
         except ValueError as exc:
             raise CLIError(f"--out: {exc}") from None
-
-
-def output_dir(path: str) -> Path:
-    """The folder ``--out`` names, created if missing; a ``CLIError`` naming the flag if it cannot be."""
-    out_dir = Path(path)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CLIError(f"--out: could not create {str(out_dir)!r} ({exc.strerror or exc}).") from None
-    return out_dir
 
 
 def csv_text(columns: dict) -> str:

@@ -21,21 +21,37 @@ def _pusharound_scene(args):
     if args.scene is None:
         return nominal_scene(args.seed), f"nominal_scene(seed={args.seed})"
     path = Path(args.scene)
-    if not path.is_file():
+    if not path.exists():
         raise CLIError(f"--scene: no such scene file {args.scene!r} (a PushAround scene .json, see "
                        "docs/pusharound.md; leave --scene out for the built-in nominal scene).")
     try:
         return PushScene.load(path), str(path)
-    except OSError as exc:
-        raise CLIError(f"--scene: could not read {args.scene!r} ({exc.strerror or exc}).") from None
-    except UnicodeDecodeError:
-        raise CLIError(f"--scene: {args.scene!r} is not a text (JSON) file.") from None
-    except ValueError as exc:
-        msg = str(exc)
-        raise CLIError(f"--scene: {msg}" if msg.startswith(str(path)) else f"--scene: {args.scene}: {msg}") from None
-    except (KeyError, TypeError, IndexError, AttributeError) as exc:  # a malformed entry the parser did not name
-        raise CLIError(f"--scene: {args.scene}: malformed scene ({type(exc).__name__}: {exc}); "
-                       "see docs/pusharound.md for the format.") from None
+    except ValueError as exc:  # PushScene.load names the file and what is wrong with it
+        raise CLIError(f"--scene: {exc}") from None
+
+
+def _mode_table(name):
+    """The table of ``--mode-table`` (read if the file exists, else empty), or None without the flag.
+
+    The file is written after planning, so its folder must exist and the path must not be a directory.
+    """
+    from jaxplan.pusharound.modetable import ModeTable
+
+    if name is None:
+        return None
+    path = Path(name)
+    if path.is_dir():
+        raise CLIError(f"--mode-table: {name!r} is a directory; give a .json file (read if it exists, "
+                       "saved after the run).")
+    if not path.exists():
+        if not path.parent.is_dir():
+            raise CLIError(f"--mode-table: the folder {str(path.parent)!r} does not exist; create it or "
+                           "pick another path for the table.")
+        return ModeTable()
+    try:
+        return ModeTable.load(path)
+    except ValueError as exc:  # ModeTable.load names the file and what is wrong with it
+        raise CLIError(f"--mode-table: {exc}") from None
 
 
 def _xy(a) -> list:
@@ -131,7 +147,6 @@ def _cmd_pusharound(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from jaxplan.pusharound.modetable import ModeTable
 
     if not args.time_limit > 0:
         raise CLIError(f"--time-limit: must be > 0 seconds; got {args.time_limit}.")
@@ -140,14 +155,7 @@ def _cmd_pusharound(args) -> int:
     if args.max_frames < 2:
         raise CLIError(f"--max-frames: must be an int >= 2; got {args.max_frames}.")
     scene, source = _pusharound_scene(args)
-    table = None
-    if args.mode_table is not None and Path(args.mode_table).is_file():
-        try:
-            table = ModeTable.load(args.mode_table)
-        except (OSError, ValueError) as exc:
-            raise CLIError(f"--mode-table: {args.mode_table}: {exc}") from None
-    elif args.mode_table is not None:
-        table = ModeTable()
+    table = _mode_table(args.mode_table)
     with run_folder(args, PUSHAROUND_OUTPUTS) as run:
         plan, execution, success, path = _plan_execute_write(args, scene, source, table, run)
 

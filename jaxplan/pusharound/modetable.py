@@ -182,19 +182,32 @@ class ModeTable:
 
     @classmethod
     def from_dict(cls, data: dict) -> ModeTable:
+        """Parse a table dict (the JSON of :meth:`to_dict`); ValueError naming the bad field."""
         if not isinstance(data, dict) or data.get("format") != _FORMAT:
             raise ValueError(f"format: not a ModeTable file (expected format {_FORMAT!r}).")
-        if data.get("version") != 1:
+        if type(data.get("version")) is not int or data["version"] != 1:
             raise ValueError(f"version: unsupported ModeTable version {data.get('version')!r} (expected 1).")
-        table = cls(data.get("resolution", 0.1), data.get("angle_bins", 16))
-        for sig, recs in data.get("entries", {}).items():
+        unknown = [k for k in data if k not in _TABLE_KEYS]
+        if unknown:
+            raise ValueError(f"unknown key(s) {', '.join(map(repr, unknown))}; a ModeTable file has the keys "
+                             f"{', '.join(_TABLE_KEYS)}.")
+        resolution = data.get("resolution", 0.1)
+        if not _is_number(resolution) or not math.isfinite(resolution):
+            raise ValueError(f"resolution: must be a finite number > 0 (m); got {resolution!r}.")
+        angle_bins = data.get("angle_bins", 16)
+        if type(angle_bins) is not int:
+            raise ValueError(f"angle_bins: must be an int >= 4; got {angle_bins!r}.")
+        table = cls(resolution, angle_bins)
+        entries = data.get("entries", {})
+        if not isinstance(entries, dict):
+            raise ValueError(f"entries: expected an object mapping shape signatures to lists of mode "
+                             f"records; got {type(entries).__name__}.")
+        for sig, recs in entries.items():
+            if not isinstance(recs, list):
+                raise ValueError(f"entries[{sig!r}]: expected a list of mode records; got {type(recs).__name__}.")
             for i, r in enumerate(recs):
-                try:
-                    key = ModeKey(int(r["bin"]), int(r["n_robots"]), float(r["speed"]), float(r["omega"]))
-                    rec = ModeRecord(key, int(r["success"]), int(r["trials"]), r.get("contacts"))
-                except (KeyError, TypeError, ValueError) as e:
-                    raise ValueError(f"entries[{sig!r}][{i}]: malformed mode record ({e}).") from None
-                table.entries.setdefault(str(sig), {})[key] = rec
+                rec = _record(r, f"entries[{sig!r}][{i}]", table.angle_bins)
+                table.entries.setdefault(str(sig), {})[rec.key] = rec
         return table
 
     def save(self, path) -> Path:
@@ -205,4 +218,66 @@ class ModeTable:
 
     @classmethod
     def load(cls, path) -> ModeTable:
-        return cls.from_dict(json.loads(Path(path).read_text()))
+        """Read a table written by :meth:`save`. Every problem -- missing, a directory, unreadable,
+        empty, not UTF-8 JSON, malformed records -- raises one ``ValueError("ModeTable file <path>:
+        ...")``."""
+        path = Path(path)
+        try:
+            if path.is_dir():
+                raise ValueError("is a directory; give the path of a ModeTable .json file.")
+            raw = path.read_bytes()
+            if not raw.strip():
+                raise ValueError("is empty; a ModeTable file is one JSON object (ModeTable.save).")
+            return cls.from_dict(json.loads(raw.decode("utf-8")))
+        except FileNotFoundError:
+            raise ValueError(f"ModeTable file {path}: no such file; check the path.") from None
+        except OSError as exc:
+            raise ValueError(f"ModeTable file {path}: could not be read ({exc.strerror or exc}).") from None
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"ModeTable file {path}: is not UTF-8 text (byte {exc.start}: {exc.reason}), so "
+                             "not a ModeTable JSON file.") from None
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"ModeTable file {path}: not valid JSON ({exc}).") from None
+        except RecursionError:
+            raise ValueError(f"ModeTable file {path}: its JSON is nested too deeply.") from None
+        except ValueError as exc:
+            raise ValueError(f"ModeTable file {path}: {exc}") from None
+
+
+_TABLE_KEYS = ("format", "version", "resolution", "angle_bins", "entries")
+_RECORD_KEYS = ("bin", "n_robots", "speed", "omega", "success", "trials", "contacts")
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _record(r, field: str, angle_bins: int) -> ModeRecord:
+    """One mode record of a table file, every field checked (names ``field`` and the bad key)."""
+    if not isinstance(r, dict):
+        raise ValueError(f"{field}: malformed mode record (expected an object with the keys "
+                         f"{', '.join(_RECORD_KEYS)}; got {type(r).__name__}).")
+    unknown = [k for k in r if k not in _RECORD_KEYS]
+    missing = [k for k in _RECORD_KEYS[:-1] if k not in r]
+    if unknown or missing:
+        what = f"unknown key(s) {unknown}" if unknown else f"missing key(s) {missing}"
+        raise ValueError(f"{field}: malformed mode record ({what}); the keys are {', '.join(_RECORD_KEYS)}.")
+    ints = {"bin": (0, angle_bins - 1), "n_robots": (1, None), "success": (0, None), "trials": (0, None)}
+    for key, (lo, hi) in ints.items():
+        v = r[key]
+        if type(v) is not int or v < lo or (hi is not None and v > hi):
+            bound = f"in [{lo}, {hi}]" if hi is not None else f">= {lo}"
+            raise ValueError(f"{field}.{key}: malformed mode record (must be an int {bound}; got {v!r}).")
+    for key in ("speed", "omega"):
+        if not _is_number(r[key]) or not math.isfinite(r[key]):
+            raise ValueError(f"{field}.{key}: malformed mode record (must be a finite number; got {r[key]!r}).")
+    if r["success"] > r["trials"]:
+        raise ValueError(f"{field}: malformed mode record (success {r['success']} > trials {r['trials']}).")
+    contacts = r.get("contacts")
+    if contacts is not None and not (isinstance(contacts, list) and all(
+            isinstance(c, list) and len(c) == 2 and all(_is_number(x) and math.isfinite(x) for x in c)
+            for c in contacts)):
+        raise ValueError(f"{field}.contacts: malformed mode record (must be null or a list of [x, y] "
+                         f"numbers; got {contacts!r:.60}).")
+    key = ModeKey(r["bin"], r["n_robots"], float(r["speed"]), float(r["omega"]))
+    return ModeRecord(key, r["success"], r["trials"], contacts)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 from pathlib import Path
 
 import numpy as np
@@ -148,34 +149,48 @@ class PushScene:
 
     @classmethod
     def load(cls, path) -> PushScene:
+        """Read a scene file (the JSON format of ``docs/pusharound.md``) and validate it.
+
+        Every problem -- missing, a directory, unreadable, empty, not UTF-8 JSON, wrong keys, types or
+        values -- raises one ``ValueError("Scene file <path>: <what is wrong>; <fix>")``.
+        """
         path = Path(path)
         try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path}: not valid JSON ({e}).") from None
-        return cls.from_dict(data)
+            data = _read_json_file(path)
+            return cls.from_dict(data)
+        except ValueError as exc:
+            raise ValueError(f"Scene file {path}: {exc}") from None
 
     @classmethod
     def from_dict(cls, data: dict) -> PushScene:
-        """Parse and validate a scene dictionary (the JSON format of ``docs/pusharound.md``)."""
+        """Parse and validate a scene dictionary (the JSON format of ``docs/pusharound.md``).
+
+        Raises ``ValueError`` naming the field (``movables[2].mass: ...``) for unknown or missing keys,
+        values of the wrong type, non-finite numbers, bad polygons and an inconsistent scene.
+        """
         if not isinstance(data, dict):
-            raise ValueError("scene: expected a JSON object.")
-        if data.get("format", FORMAT) != FORMAT or data.get("version", FORMAT_VERSION) != FORMAT_VERSION:
+            raise ValueError(f"scene: expected a JSON object with the keys {', '.join(_TOP_KEYS)}; got "
+                             f"{_kind(data)}.")
+        _check_keys(data, _TOP_KEYS, "scene", required=("workspace", "vehicle_width", "start", "goal"))
+        fmt, version = data.get("format", FORMAT), data.get("version", FORMAT_VERSION)
+        if fmt != FORMAT or type(version) is not int or version != FORMAT_VERSION:
             raise ValueError(f"format/version: expected {FORMAT!r} version {FORMAT_VERSION}; got "
-                             f"{data.get('format')!r} version {data.get('version')!r}.")
-        for key in ("workspace", "vehicle_width", "start", "goal"):
-            if key not in data:
-                raise ValueError(f"{key}: missing; see docs/pusharound.md for the scene format.")
+                             f"{fmt!r} version {version!r}.")
         ws = _floats(data["workspace"], 4, "workspace", "[x0, y0, x1, y1] in metres")
-        fixed = tuple(_parse_fixed(f, i) for i, f in enumerate(data.get("fixed", [])))
-        movables = tuple(_parse_movable(m, i) for i, m in enumerate(data.get("movables", [])))
-        rob = data.get("robots", {}) or {}
-        positions = np.asarray(rob.get("positions", []), np.float64).reshape(-1, 2) \
-            if len(rob.get("positions", [])) else np.zeros((0, 2))
+        fixed = tuple(_parse_fixed(f, i) for i, f in enumerate(_list(data.get("fixed", []), "fixed")))
+        movables = tuple(_parse_movable(m, i) for i, m in enumerate(_list(data.get("movables", []), "movables")))
+        rob = data.get("robots")
+        rob = {} if rob is None else rob
+        if not isinstance(rob, dict):
+            raise ValueError(f"robots: expected an object with 'positions' and 'radius'; got {_kind(rob)}.")
+        _check_keys(rob, ("positions", "radius"), "robots")
+        positions = [_floats(p, 2, f"robots.positions[{k}]", "[x, y] in metres")
+                     for k, p in enumerate(_list(rob.get("positions", []), "robots.positions"))]
         scene = cls(workspace=tuple(ws), width=_scalar(data["vehicle_width"], "vehicle_width"),
                     start=tuple(_floats(data["start"], 2, "start", "[x, y]")),
                     goal=tuple(_floats(data["goal"], 2, "goal", "[x, y]")),
-                    fixed=fixed, movables=movables, robots=positions,
+                    fixed=fixed, movables=movables,
+                    robots=np.asarray(positions, np.float64).reshape(-1, 2),
                     robot_radius=_scalar(rob.get("radius", 0.15), "robots.radius"))
         validate_scene(scene)
         return scene
@@ -185,35 +200,97 @@ class PushScene:
 # Parsing helpers
 # ---------------------------------------------------------------------------------------------------
 
-def _scalar(v, field: str) -> float:
+_TOP_KEYS = ("format", "version", "workspace", "vehicle_width", "start", "goal", "fixed", "movables", "robots")
+_FIXED_KEYS = ("name", "pieces", "polygon")
+_MOVABLE_KEYS = ("name", "pieces", "polygon", "pose", "mass", "inertia", "friction", "shape")
+
+
+def _read_json_file(path: Path):
+    """The JSON document in ``path``; ValueError saying what is wrong with the file itself."""
+    if path.is_dir():
+        raise ValueError("is a directory; give the path of a scene .json file.")
     try:
-        out = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{field}: expected a number; got {v!r}.") from None
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise ValueError("no such file; check the path.") from None
+    except OSError as exc:
+        raise ValueError(f"could not be read ({exc.strerror or exc}); check the file's permissions.") from None
+    if not raw.strip():
+        raise ValueError("is empty; a scene file is one JSON object (docs/pusharound.md).")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"is not UTF-8 text (byte {exc.start}: {exc.reason}), so not a JSON scene file "
+                         "(docs/pusharound.md).") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"not valid JSON ({exc}).") from None
+    except RecursionError:
+        raise ValueError("not a scene: its JSON is nested too deeply.") from None
+
+
+def _kind(v) -> str:
+    """What a parsed JSON value is, for messages: ``a string ('abc')``."""
+    if v is None:
+        return "null"
+    kind = {bool: "a boolean", str: "a string", dict: "an object", list: "a list", tuple: "a list"}.get(
+        type(v), "a number" if _is_number(v) else type(v).__name__)
+    return f"{kind} ({v!r:.40})"
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+
+
+def _check_keys(entry: dict, allowed: tuple, field: str, required: tuple = ()) -> None:
+    unknown = [k for k in entry if k not in allowed]
+    if unknown:
+        raise ValueError(f"{field}: unknown key(s) {', '.join(map(repr, unknown))}; the allowed keys are "
+                         f"{', '.join(allowed)} (docs/pusharound.md).")
+    for key in required:
+        if key not in entry:
+            raise ValueError(f"{key}: missing; see docs/pusharound.md for the scene format.")
+
+
+def _list(v, field: str) -> list:
+    if not isinstance(v, (list, tuple)):
+        raise ValueError(f"{field}: expected a list; got {_kind(v)}.")
+    return list(v)
+
+
+def _name(entry: dict, default: str, field: str) -> str:
+    name = entry.get("name", default)
+    if not isinstance(name, str):
+        raise ValueError(f"{field}.name: expected a string; got {_kind(name)}.")
+    return name
+
+
+def _scalar(v, field: str) -> float:
+    if not _is_number(v):
+        raise ValueError(f"{field}: expected a number; got {_kind(v)}.")
+    out = float(v)
     if not math.isfinite(out):
         raise ValueError(f"{field}: must be finite; got {v!r}.")
     return out
 
 
 def _floats(v, n: int, field: str, what: str) -> list:
-    try:
-        out = [float(x) for x in v]
-    except (TypeError, ValueError):
-        raise ValueError(f"{field}: expected {what}; got {v!r}.") from None
+    if not isinstance(v, (list, tuple, np.ndarray)) or not all(_is_number(x) for x in v):
+        raise ValueError(f"{field}: expected {what}; got {_kind(v)}.")
+    out = [float(x) for x in v]
     if len(out) != n or not all(math.isfinite(x) for x in out):
         raise ValueError(f"{field}: expected {what} ({n} finite numbers); got {v!r}.")
     return out
 
 
 def _polygon(verts, field: str) -> Polygon:
-    try:
-        xy = np.asarray(verts, np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{field}: expected a list of [x, y] vertices.") from None
-    if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] < 3:
-        raise ValueError(f"{field}: expected at least 3 [x, y] vertices; got shape {xy.shape}.")
-    if not np.all(np.isfinite(xy)):
-        raise ValueError(f"{field}: vertices must be finite numbers.")
+    if not isinstance(verts, (list, tuple, np.ndarray)):
+        raise ValueError(f"{field}: expected a list of [x, y] vertices; got {_kind(verts)}.")
+    if len(verts) < 3:
+        raise ValueError(f"{field}: expected at least 3 [x, y] vertices; got {len(verts)}.")
+    xy = np.asarray([_floats(p, 2, f"{field}[{k}]", "a vertex [x, y]") for k, p in enumerate(verts)],
+                    np.float64)
     poly = Polygon(xy)
     if not poly.is_valid:
         reason = shapely.is_valid_reason(poly)
@@ -227,8 +304,11 @@ def _polygon(verts, field: str) -> Polygon:
 
 def _pieces(entry: dict, field: str) -> tuple:
     """Convex pieces from ``pieces`` (each must be convex) or ``polygon`` (decomposed if not convex)."""
+    if "pieces" in entry and "polygon" in entry:
+        raise ValueError(f"{field}: has both 'pieces' and 'polygon'; give one of them.")
     if "pieces" in entry:
-        pieces = tuple(_polygon(p, f"{field}.pieces[{k}]") for k, p in enumerate(entry["pieces"]))
+        raw = _list(entry["pieces"], f"{field}.pieces")
+        pieces = tuple(_polygon(p, f"{field}.pieces[{k}]") for k, p in enumerate(raw))
         if not pieces:
             raise ValueError(f"{field}.pieces: empty; give at least one convex piece.")
         for k, p in enumerate(pieces):
@@ -249,14 +329,18 @@ def _pieces(entry: dict, field: str) -> tuple:
 def _parse_fixed(entry, i: int) -> Fixed:
     field = f"fixed[{i}]"
     if not isinstance(entry, dict):
-        raise ValueError(f"{field}: expected an object with 'pieces' or 'polygon'.")
-    return Fixed(name=str(entry.get("name", f"fixed{i}")), pieces=_pieces(entry, field))
+        raise ValueError(f"{field}: expected an object with 'pieces' or 'polygon'; got {_kind(entry)}.")
+    _check_keys(entry, _FIXED_KEYS, field)
+    return Fixed(name=_name(entry, f"fixed{i}", field), pieces=_pieces(entry, field))
 
 
 def _parse_movable(entry, i: int) -> Movable:
     field = f"movables[{i}]"
     if not isinstance(entry, dict):
-        raise ValueError(f"{field}: expected an object with 'pieces' or 'polygon', 'mass', ...")
+        raise ValueError(f"{field}: expected an object with 'pieces' or 'polygon', 'mass', ...; got "
+                         f"{_kind(entry)}.")
+    _check_keys(entry, _MOVABLE_KEYS, field)
+    name = _name(entry, f"m{i}", field)
     pieces = _pieces(entry, field)
     if "pose" in entry:  # pieces given in the body frame
         x, y, psi = _floats(entry["pose"], 3, f"{field}.pose", "[x, y, psi] (m, m, rad)")
@@ -285,7 +369,10 @@ def _parse_movable(entry, i: int) -> Movable:
     if friction < 0:
         raise ValueError(f"{field}.friction: must be >= 0; got {friction!r}.")
     shape = entry.get("shape")
-    return Movable(name=str(entry.get("name", f"m{i}")), pieces=pieces, pose=(x, y, psi), mass=mass,
+    if shape is not None and not isinstance(shape, dict):
+        raise ValueError(f"{field}.shape: expected an object such as {{\"kind\": \"cylinder\", \"radius\": "
+                         f"0.3}}, or null; got {_kind(shape)}.")
+    return Movable(name=name, pieces=pieces, pose=(x, y, psi), mass=mass,
                    inertia=inertia, friction=friction, shape=dict(shape) if shape else None)
 
 

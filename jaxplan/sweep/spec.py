@@ -101,10 +101,16 @@ def _scenes(spec: dict, base: Path | None) -> tuple:
         path = Path(name)
         if not path.is_absolute() and base is not None:
             path = base / path
-        if not path.is_file():
+        if path.is_dir():
+            _fail("scenes", f"{name!r} is a directory ({path}); give a .npz/.json scene file or a built-in "
+                  f"scene ({', '.join(BUILTIN_SCENES)}).")
+        if not path.exists():
             _fail("scenes", f"{name!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) nor an existing "
                   ".npz/.json scene file.")
-        out.append((name, Scene.load(path)))
+        try:
+            out.append((name, Scene.load(path)))
+        except ValueError as exc:  # Scene.load names the file and what is wrong with it
+            _fail("scenes", str(exc))
     rnd = spec.get("random_scenes")
     if rnd is not None:
         if not isinstance(rnd, dict):
@@ -142,6 +148,32 @@ def _grid(spec: dict, section: str, traced: tuple, static: tuple) -> tuple:
     return tuple(out)
 
 
+def _read_toml(path: Path) -> dict:
+    """The TOML table of the spec file ``path``; a one-line ValueError ``sweep spec: <path>: ...``
+    for a missing, unreadable, empty, binary or malformed file."""
+    if path.is_dir():
+        raise ValueError(f"sweep spec: {path}: is a directory; give the path of a TOML spec file.")
+    if not path.exists():
+        raise ValueError(f"sweep spec: no such file {str(path)!r}; give a TOML file or a dict.")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"sweep spec: {path}: could not be read ({exc.strerror or exc}); check the "
+                         "file's permissions.") from None
+    if not raw.strip():
+        raise ValueError(f"sweep spec: {path}: is empty; a spec lists at least its scenes, e.g. "
+                         "scenes = [\"default\"] (docs/sweeps.md).")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"sweep spec: {path}: is not UTF-8 text (byte {exc.start}: {exc.reason}); a spec "
+                         "is a TOML text file (docs/sweeps.md).") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"sweep spec: {path}: not valid TOML ({exc}).") from None
+
+
 def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
     """Validate a spec dict or read a TOML file; scene files are relative to the TOML file's folder.
 
@@ -150,12 +182,7 @@ def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
     base = None
     if not isinstance(spec, dict):
         path = Path(spec)
-        if not path.is_file():
-            raise ValueError(f"sweep spec: no such file {str(path)!r}; give a TOML file or a dict.")
-        try:
-            spec = tomllib.loads(path.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"sweep spec: {path}: not valid TOML ({exc}).") from None
+        spec = _read_toml(path)
         base = path.parent
     unknown = [k for k in spec if k not in _TOP_KEYS]
     if unknown:

@@ -14,6 +14,9 @@ from __future__ import annotations
 import functools
 import json
 import math
+import struct
+import zipfile
+import zlib
 from pathlib import Path
 
 import jax
@@ -26,9 +29,13 @@ from shapely.geometry import box as _shapely_box
 
 from jaxplan.core.compilation import grid_jit
 
-__all__ = ["FORMAT_VERSION", "Scene", "box", "circle", "stack_scenes"]
+__all__ = ["FORMAT_VERSION", "MAX_FILE_SIDE", "Scene", "box", "circle", "stack_scenes"]
 
 FORMAT_VERSION = 1
+
+# A scene file's grid has at most this many rows and columns (64 MiB of float32 counts): a bound on
+# what a file can make ``Scene.load`` allocate, checked before the counts are read.
+MAX_FILE_SIDE = 4096
 
 # A centre this close to the boundary (in cell sizes) is "on" it and therefore covered.
 _ON_BOUNDARY_EPS = 1e-9
@@ -478,6 +485,10 @@ class Scene:
         if self.target is None:
             raise ValueError("Scene.target: this scene has no shapely target (it was rebuilt from "
                              "pytree leaves, e.g. inside jit), so it cannot be saved.")
+        if max(self.shape) > MAX_FILE_SIDE:
+            raise ValueError(f"Scene.obj: the grid is {self.shape[0]} x {self.shape[1]}; a scene file "
+                             f"holds at most {MAX_FILE_SIDE} x {MAX_FILE_SIDE} cells (MAX_FILE_SIDE), so "
+                             "Scene.load could not read it back. Use a coarser cell_size.")
         obj = np.asarray(self.obj, np.float32)
         cell_size = float(np.asarray(self.cell_size))
         origin = [float(v) for v in np.asarray(self.origin)]
@@ -495,20 +506,22 @@ class Scene:
 
     @classmethod
     def load(cls, path) -> Scene:
-        """Read a scene written by :meth:`save` (``.npz`` or ``.json``) and re-validate it."""
+        """Read a scene written by :meth:`save` (``.npz`` or ``.json``) and re-validate it.
+
+        Every problem with the file -- unreadable, damaged, wrong keys or types, bad values -- raises
+        one ``ValueError("Scene file <path>: <what is wrong>; <fix>")``; the checks are listed in
+        docs/scene-format.md ("What is checked when a file is read").
+        """
         path = Path(path)
-        suffix = _format_of(path)
-        fields = _read_npz(path) if suffix == ".npz" else _read_json(path)
-        version = fields["format_version"]
-        if version != FORMAT_VERSION:
-            raise ValueError(f"Scene file {path}: format_version is {version!r}; this version of "
-                             f"jaxplan reads format_version {FORMAT_VERSION}.")
+        fields = _read_scene_file(path, _format_of(path))
         try:
-            target = shapely.from_wkt(fields["target"])
-        except Exception as exc:  # shapely raises its own GEOSException
-            raise ValueError(f"Scene.target: could not parse the WKT in {path} ({exc}).") from None
-        return cls.from_arrays(fields["obj"], target, cell_size=fields["cell_size"],
-                               origin=fields["origin"], name=fields["name"])
+            target = _parse_wkt(fields["target"])
+            return cls.from_arrays(fields["obj"], target, cell_size=fields["cell_size"],
+                                   origin=fields["origin"], name=fields["name"])
+        except ValueError as exc:
+            message = str(exc)
+            message = message[len("Scene."):] if message.startswith("Scene.") else message
+            raise ValueError(f"Scene file {path}: {message}") from None
 
 
 def _ring_wkt(ring) -> str:
@@ -537,36 +550,226 @@ def _format_of(path: Path) -> str:
     return suffix
 
 
+class _FileProblem(ValueError):
+    """What is wrong with a scene file, as ``"<what>; <fix>"``; :func:`_read_scene_file` adds the path."""
+
+
+# What a broken file makes the decoders raise (a truncated or corrupted zip, binary noise, a .npy
+# header that lies): each becomes one ValueError naming the file instead of a traceback.
+_DECODE_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, struct.error, UnicodeDecodeError, ValueError,
+                  KeyError, TypeError, IndexError, OverflowError, RecursionError, MemoryError,
+                  NotImplementedError)
+
+
+def _read_scene_file(path: Path, suffix: str) -> dict:
+    """The raw fields of a scene file (format_version checked, types checked, values not yet).
+
+    Returns ``{"obj": f64/f32[H, W], "cell_size": float, "origin": f64[2], "target": str (WKT),
+    "name": str | None}``. Raises ValueError ``"Scene file <path>: <what>; <fix>"``.
+    """
+    kind = "a NumPy .npz archive" if suffix == ".npz" else "JSON text (UTF-8)"
+    try:
+        if path.is_dir():
+            raise _FileProblem(f"is a directory; give the path of a {suffix} scene file")
+        if path.stat().st_size == 0:
+            raise _FileProblem(f"is empty (0 bytes); a scene file is {kind} written by Scene.save")
+        return _read_npz(path) if suffix == ".npz" else _read_json(path)
+    except _FileProblem as exc:
+        raise ValueError(f"Scene file {path}: {exc}.") from None
+    except FileNotFoundError:
+        raise ValueError(f"Scene file {path}: no such file; check the path.") from None
+    except OSError as exc:  # permissions, a device error, ...
+        raise ValueError(f"Scene file {path}: could not be read ({exc.strerror or exc}); check the "
+                         "file's permissions.") from None
+    except _DECODE_ERRORS as exc:
+        raise ValueError(f"Scene file {path}: is not {kind} or is damaged ({type(exc).__name__}: "
+                         f"{exc}); write scene files with Scene.save (docs/scene-format.md).") from None
+
+
+def _check_keys(keys, allowed: tuple, optional: tuple = ()) -> None:
+    """Refuse unknown keys (naming them and the allowed ones) and missing required keys."""
+    unknown = [k for k in keys if k not in allowed]
+    if unknown:
+        raise _FileProblem(f"unknown key(s) {', '.join(map(repr, unknown))}; a scene file has exactly the "
+                           f"keys {', '.join(allowed)} (docs/scene-format.md)")
+    missing = [k for k in allowed if k not in keys and k not in optional]
+    if missing:
+        raise _FileProblem(f"missing key(s) {', '.join(missing)}; see docs/scene-format.md")
+
+
+def _check_version(version) -> None:
+    if version != FORMAT_VERSION:
+        raise _FileProblem(f"format_version is {version!r}; this version of jaxplan reads format_version "
+                           f"{FORMAT_VERSION} only")
+
+
+def _check_grid_shape(shape) -> None:
+    """``obj``'s shape, checked before its data is read: 2-D and at most MAX_FILE_SIDE a side."""
+    if len(shape) != 2:
+        raise _FileProblem(f"obj: must be 2-D [H, W] (rows = y, columns = x); got shape {tuple(shape)}")
+    if max(shape) > MAX_FILE_SIDE:
+        raise _FileProblem(f"obj: the grid is {shape[0]} x {shape[1]}; a scene file holds at most "
+                           f"{MAX_FILE_SIDE} x {MAX_FILE_SIDE} cells. Use a coarser cell_size")
+
+
+# --------------------------------------------------------------------------------------------------
+# .npz
+# --------------------------------------------------------------------------------------------------
+
+_NPZ_KEYS = ("format_version", "obj", "cell_size", "origin", "target_wkt", "name")
+
+# key -> (allowed dtype kinds, allowed shapes (None: any), what the key must hold)
+_NPZ_FIELDS = {
+    "format_version": ("iu", ((),), f"an integer scalar ({FORMAT_VERSION})"),
+    "obj": ("iuf", None, "a 2-D array of numbers (float32 counts)"),
+    "cell_size": ("iuf", ((),), "a number scalar (world units per cell side)"),
+    "origin": ("iuf", ((2,),), "2 numbers (x, y)"),
+    "target_wkt": ("U", ((),), "a string scalar (WKT)"),
+    "name": ("U", ((), (0,)), "a string scalar, or an empty (0,) array for no name"),
+}
+
+
+def _npy_header(zf: zipfile.ZipFile, key: str):
+    """(shape, dtype) of the archive member ``<key>.npy``, read from its header only."""
+    with zf.open(f"{key}.npy") as fp:
+        version = np.lib.format.read_magic(fp)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fp)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fp)
+        else:
+            raise _FileProblem(f"{key}: .npy format version {version} is not supported; save with "
+                               "numpy.savez")
+    return shape, dtype
+
+
+def _npz_array(zf: zipfile.ZipFile, key: str) -> np.ndarray:
+    """The member ``<key>.npy``, its dtype and shape checked (from the header) before reading it."""
+    shape, dtype = _npy_header(zf, key)
+    kinds, shapes, what = _NPZ_FIELDS[key]
+    if dtype.hasobject:
+        raise _FileProblem(f"{key}: is an object (pickled) array, which is never loaded "
+                           f"(allow_pickle=False); store {what}")
+    if key == "obj":
+        _check_grid_shape(shape)
+    empty_name = key == "name" and shape == (0,)
+    if (dtype.kind not in kinds and not empty_name) or (shapes is not None and shape not in shapes):
+        raise _FileProblem(f"{key}: holds dtype {dtype} with shape {shape}; it must hold {what}")
+    with zf.open(f"{key}.npy") as fp:
+        return np.lib.format.read_array(fp, allow_pickle=False)
+
+
 def _read_npz(path: Path) -> dict:
-    with np.load(path, allow_pickle=False) as data:
-        missing = [k for k in ("format_version", "obj", "cell_size", "origin", "target_wkt", "name")
-                   if k not in data.files]
-        if missing:
-            raise ValueError(f"Scene file {path}: missing field(s) {missing}; see docs/scene-format.md.")
-        name = data["name"]
-        return {
-            "format_version": int(data["format_version"]),
-            "obj": np.array(data["obj"]),
-            "cell_size": float(data["cell_size"]),
-            "origin": np.array(data["origin"]),
-            "target": str(data["target_wkt"]),
-            "name": str(name) if name.ndim == 0 else None,
-        }
+    with zipfile.ZipFile(path) as zf:
+        members = zf.namelist()
+        odd = [m for m in members if not m.endswith(".npy")]
+        if odd:
+            raise _FileProblem(f"holds {odd[0]!r}, which is not a .npy array; a scene archive holds "
+                               f"only the arrays {', '.join(_NPZ_KEYS)}")
+        keys = [m[:-len(".npy")] for m in members]
+        if "format_version" in keys:  # first: another version may have other keys
+            _check_version(int(_npz_array(zf, "format_version")))
+        _check_keys(keys, _NPZ_KEYS)
+        arrays = {key: _npz_array(zf, key) for key in _NPZ_KEYS}
+    name = arrays["name"]
+    return {
+        "obj": arrays["obj"],
+        "cell_size": float(arrays["cell_size"]),
+        "origin": arrays["origin"].astype(np.float64),
+        "target": str(arrays["target_wkt"]),
+        "name": str(name) if name.ndim == 0 else None,
+    }
+
+
+# --------------------------------------------------------------------------------------------------
+# .json
+# --------------------------------------------------------------------------------------------------
+
+_JSON_KEYS = ("format_version", "name", "cell_size", "origin", "obj", "target")
+
+
+def _is_number(v) -> bool:
+    """A JSON number: int or float, not a bool (``True`` is an int in Python)."""
+    return type(v) in (int, float)
+
+
+def _json_type(v) -> str:
+    if v is None:
+        return "null"
+    kind = {bool: "a boolean", str: "a string", list: "a list", dict: "an object"}.get(type(v), "a number")
+    return f"{kind} ({json.dumps(v)[:40]})"
+
+
+def _json_obj(rows) -> np.ndarray:
+    """``obj`` from its JSON rows: f64[H, W]; names the first bad row or cell."""
+    if not isinstance(rows, list) or not rows:
+        raise _FileProblem(f"obj: must be a non-empty list of H rows, each a list of W numbers; got "
+                           f"{_json_type(rows)}")
+    width = len(rows[0]) if isinstance(rows[0], list) else 0
+    _check_grid_shape((len(rows), width))
+    for r, row in enumerate(rows):
+        if not isinstance(row, list):
+            raise _FileProblem(f"obj: row {r} is {_json_type(row)}, not a list of numbers")
+        if len(row) != width:
+            raise _FileProblem(f"obj: row {r} has {len(row)} value(s) but row 0 has {width}; every "
+                               "row needs the same length W")
+        if not all(map(_is_number, row)):
+            c = next(c for c, v in enumerate(row) if not _is_number(v))
+            hint = " (obj must be 2-D: one number per cell)" if isinstance(row[c], list) else ""
+            raise _FileProblem(f"obj: row {r}, column {c} is {_json_type(row[c])}; counts must be "
+                               f"numbers{hint}")
+    try:
+        return np.array(rows, np.float64)
+    except OverflowError:  # an integer beyond float64
+        raise _FileProblem("obj: holds an integer too large for a float; rescale the counts") from None
 
 
 def _read_json(path: Path) -> dict:
+    raw = path.read_bytes()
     try:
-        doc = json.loads(path.read_text())
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise _FileProblem(f"is not UTF-8 text (byte {exc.start}: {exc.reason}), so not a JSON scene "
+                           "file; a binary scene file must be named .npz") from None
+    try:
+        doc = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"Scene file {path}: not valid JSON ({exc}).") from None
+        raise _FileProblem(f"not valid JSON ({exc})") from None
     if not isinstance(doc, dict):
-        raise ValueError(f"Scene file {path}: the top level must be a JSON object.")
-    missing = [k for k in ("format_version", "obj", "cell_size", "origin", "target") if k not in doc]
-    if missing:
-        raise ValueError(f"Scene file {path}: missing field(s) {missing}; see docs/scene-format.md.")
-    if not isinstance(doc["target"], str):
-        raise ValueError(f"Scene.target: in {path} it must be a WKT string.")
-    return {**doc, "name": doc.get("name")}
+        raise _FileProblem(f"the top level must be a JSON object with the keys {', '.join(_JSON_KEYS)}; "
+                           f"got {_json_type(doc)}")
+    if "format_version" in doc:  # first: another version may have other keys
+        version = doc["format_version"]
+        if type(version) is not int:
+            raise _FileProblem(f"format_version: must be the integer {FORMAT_VERSION}; got "
+                               f"{_json_type(version)}")
+        _check_version(version)
+    _check_keys(list(doc), _JSON_KEYS, optional=("name",))
+    cell_size, origin, target, name = (doc.get(k) for k in ("cell_size", "origin", "target", "name"))
+    if not _is_number(cell_size):
+        raise _FileProblem(f"cell_size: must be a number (world units per cell side); got "
+                           f"{_json_type(cell_size)}")
+    if not (isinstance(origin, list) and len(origin) == 2 and all(map(_is_number, origin))):
+        raise _FileProblem(f"origin: must be a list of 2 numbers [x, y]; got {_json_type(origin)}")
+    if not isinstance(target, str):
+        raise _FileProblem(f"target: must be a WKT string (POLYGON or MULTIPOLYGON); got "
+                           f"{_json_type(target)}")
+    if name is not None and not isinstance(name, str):
+        raise _FileProblem(f"name: must be a string or null; got {_json_type(name)}")
+    return {"obj": _json_obj(doc["obj"]), "cell_size": float(cell_size),
+            "origin": np.asarray(origin, np.float64), "target": target, "name": name}
+
+
+def _parse_wkt(wkt: str):
+    """The shapely geometry of ``wkt``; ValueError naming ``target`` when it does not parse."""
+    try:
+        geom = shapely.from_wkt(wkt)
+    except Exception as exc:  # shapely raises its own GEOSException
+        raise ValueError(f"target: could not parse the WKT ({exc}); give a POLYGON or MULTIPOLYGON, "
+                         "e.g. 'POLYGON ((0 0, 1 0, 1 1, 0 1, 0 0))'.") from None
+    if geom is None:
+        raise ValueError("target: the WKT is empty; give a POLYGON or MULTIPOLYGON.")
+    return geom
 
 
 def stack_scenes(scenes) -> Scene:

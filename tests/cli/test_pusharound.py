@@ -135,13 +135,49 @@ def test_help_works(capsys):
     (json.dumps({**TINY, "movables": [{**TINY["movables"][0], "mass": -1}]}), "mass"),
     (json.dumps({**TINY, "movables": [{"name": "b"}]}), "pieces"),
     (None, "no such scene file"),
+    (b"", "is empty"),
+    (bytes(range(256)), "is not UTF-8 text"),
+    ("dir", "is a directory"),
+    (json.dumps({**TINY, "colour": 1}), "unknown key(s) 'colour'"),
+    (json.dumps({**TINY, "robots": [1, 2]}), "robots: expected an object"),
+    (json.dumps({**TINY, "fixed": 5}), "fixed: expected a list"),
+    (json.dumps({**TINY, "movables": [{**TINY["movables"][0], "shape": 5}]}), "movables[0].shape"),
 ])
 def test_bad_scene_file_is_a_clear_error(tmp_path, capsys, content, words):
     bad = tmp_path / "bad.json"
-    if content is not None:
+    if content == "dir":
+        bad.mkdir()
+    elif isinstance(content, bytes):
+        bad.write_bytes(content)
+    elif content is not None:
         bad.write_text(content)
     with pytest.raises(SystemExit) as exc:
         main(["pusharound", "--scene", str(bad), "--out", str(tmp_path / "o")])
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --scene") and words in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and "bad.json" in err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("content, words", [
+    (bytes(range(256)), "is not UTF-8 text"),
+    (b"", "is empty"),
+    (b"{", "not valid JSON"),
+    ("dir", "is a directory"),
+    ("no_folder", "does not exist"),
+])
+def test_bad_mode_table_is_a_clear_error(tmp_path, tiny_file, capsys, content, words):
+    table = tmp_path / "modes.json"
+    if content == "dir":
+        table.mkdir()
+    elif content == "no_folder":
+        table = tmp_path / "missing" / "modes.json"
+    else:
+        table.write_bytes(content)
+    with pytest.raises(SystemExit) as exc:
+        main(["pusharound", "--scene", str(tiny_file), "--mode-table", str(table), "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --mode-table: ") and words in err[0], err
+    assert not (tmp_path / "o").exists()

@@ -199,6 +199,40 @@ def test_bad_scene_file_content(tmp_path, capsys):
     assert not (tmp_path / "f.npz").exists()
 
 
+def _broken_scene_files(tmp_path) -> dict:
+    """Scene files that are broken as files, by kind: what ``--scene`` must refuse in one line."""
+    from jaxplan.transport.scene import box
+
+    valid = builtin_scene("default").save(tmp_path / "valid.npz")
+    data = valid.read_bytes()
+    crc = bytearray(data)
+    crc[data.index("POLYGON".encode("utf-32-le"))] ^= 0xFF  # inside target_wkt.npy's stored bytes
+    doc = {"format_version": 1, "cell_size": 1.0, "origin": [0, 0], "obj": [[0, 1], [2]],
+           "target": box(0, 0, 1, 1).wkt}
+    files = {"truncated.npz": data[:1001], "crc.npz": bytes(crc), "text.npz": b"not an archive",
+             "noise.json": bytes(range(256)), "empty.npz": b"", "ragged.json": json.dumps(doc).encode()}
+    for name, content in files.items():
+        (tmp_path / name).write_bytes(content)
+    (tmp_path / "folder.npz").mkdir()
+    return {"truncated.npz": "damaged", "crc.npz": "CRC", "text.npz": "not a NumPy .npz archive",
+            "noise.json": "not UTF-8", "empty.npz": "empty", "ragged.json": "row 1",
+            "folder.npz": "is a directory"}
+
+
+@pytest.mark.parametrize("command", [["fabric", "--out", "OUT/f.npz"], ["demo", "--out", "OUT"],
+                                     ["episode", "--out", "OUT"], ["rover", "--out", "OUT"]])
+def test_broken_scene_file_is_one_error_line(tmp_path, capsys, command):
+    """A truncated, corrupted, mislabelled, empty or ragged scene file, or a folder: exit 2, one
+    ``error: --scene: ...`` line naming the file and the problem, nothing written."""
+    out = tmp_path / "out"
+    for name, words in _broken_scene_files(tmp_path).items():
+        argv = [a.replace("OUT", str(out)) for a in command] + ["--scene", str(tmp_path / name)]
+        line = _bad_input(argv, capsys)
+        assert line.startswith("error: --scene: ") and name in line and words in line, line
+        assert "allow_pickle" not in line and "codec" not in line
+    assert not out.exists()
+
+
 def test_unparsable_angle_is_a_usage_error(capsys):
     with pytest.raises(SystemExit) as info:
         main(["fabric", "--scene", "default", "--theta-tol", "abc", "--out", "x.npz"])

@@ -288,7 +288,7 @@ def test_load_revalidates(tmp_path):
     doc = {"format_version": 1, "name": None, "cell_size": 1.0, "origin": [0, 0],
            "obj": [[1.0, -2.0], [0.0, 0.0]], "target": "POLYGON ((0 0, 2 0, 2 2, 0 2, 0 0))"}
     path.write_text(json.dumps(doc))
-    with pytest.raises(ValueError, match="Scene.obj.*negative"):
+    with pytest.raises(ValueError, match="^Scene file .*bad.json: obj: .*negative"):
         S.Scene.load(path)
     path.write_text(json.dumps({**doc, "obj": [[1.0, 2.0]], "format_version": 99}))
     with pytest.raises(ValueError, match="format_version"):

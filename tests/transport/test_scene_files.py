@@ -1,0 +1,207 @@
+"""Scene.load on broken files: every problem is one ValueError "Scene file <path>: ..." naming what is
+wrong (docs/scene-format.md, "What is checked when a file is read"), never a decoder's traceback."""
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from jaxplan.transport import scene as S
+
+WKT = "POLYGON ((2 0, 3 0, 3 2, 2 2, 2 0))"
+DOC = {"format_version": 1, "name": "t", "cell_size": 1.0, "origin": [0.0, 0.0],
+       "obj": [[0.0, 1.0, 2.0], [0.0, 0.0, 3.0], [1.0, 0.0, 0.0]], "target": WKT}
+
+
+def _arrays(**changes) -> dict:
+    arrays = {"format_version": np.int64(1), "obj": np.ones((3, 3), np.float32), "cell_size": np.float64(1.0),
+              "origin": np.zeros(2), "target_wkt": np.str_(WKT), "name": np.str_("t")}
+    arrays.update(changes)
+    return {k: v for k, v in arrays.items() if v is not None}
+
+
+def _load_error(path) -> str:
+    with pytest.raises(ValueError) as err:
+        S.Scene.load(path)
+    message = str(err.value)
+    assert message.startswith(f"Scene file {path}: "), message
+    assert "\n" not in message
+    return message
+
+
+# --------------------------------------------------------------------------------------------------
+# both formats: the file itself
+# --------------------------------------------------------------------------------------------------
+
+def test_valid_files_load(tmp_path):
+    (tmp_path / "s.json").write_text(json.dumps(DOC))
+    np.savez(tmp_path / "s.npz", **_arrays())
+    assert S.Scene.load(tmp_path / "s.json").shape == (3, 3)
+    assert S.Scene.load(tmp_path / "s.npz").name == "t"
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".json"])
+def test_empty_missing_and_directory(tmp_path, suffix):
+    empty = tmp_path / f"empty{suffix}"
+    empty.write_bytes(b"")
+    assert "is empty" in _load_error(empty)
+    assert "no such file" in _load_error(tmp_path / f"missing{suffix}")
+    folder = tmp_path / f"folder{suffix}"
+    folder.mkdir()
+    assert "is a directory" in _load_error(folder)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".json"])
+def test_unreadable_file(tmp_path, monkeypatch, suffix):
+    path = tmp_path / f"s{suffix}"
+    path.write_bytes(b"x")
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(zipfile.ZipFile, "__init__", refuse)
+    monkeypatch.setattr(type(path), "read_bytes", refuse)
+    assert "Permission denied" in _load_error(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# .npz
+# --------------------------------------------------------------------------------------------------
+
+def test_truncated_npz(tmp_path):
+    np.savez(tmp_path / "valid.npz", **_arrays())
+    path = tmp_path / "trunc.npz"
+    path.write_bytes((tmp_path / "valid.npz").read_bytes()[:1001])
+    assert "damaged" in _load_error(path)
+
+
+def test_crc_corrupted_npz(tmp_path):
+    path = tmp_path / "crc.npz"
+    np.savez(path, **_arrays())
+    data = bytearray(path.read_bytes())
+    at = data.index("POLYGON".encode("utf-32-le"))  # inside target_wkt.npy's stored bytes
+    data[at] ^= 0xFF
+    path.write_bytes(bytes(data))
+    assert "CRC" in _load_error(path)
+
+
+@pytest.mark.parametrize("content", [b"hello, not an archive", bytes(range(256)) * 4])
+def test_text_or_noise_named_npz(tmp_path, content):
+    path = tmp_path / "s.npz"
+    path.write_bytes(content)
+    message = _load_error(path)
+    assert "not a NumPy .npz archive" in message and "allow_pickle" not in message
+
+
+def test_object_array_is_never_unpickled(tmp_path):
+    path = tmp_path / "s.npz"
+    np.savez(path, **_arrays(obj=np.array([[1, "a"]], dtype=object)))
+    assert "obj: is an object (pickled) array" in _load_error(path)
+
+
+@pytest.mark.parametrize("changes, words", [
+    ({"obj": np.zeros((3, 3, 3), np.float32)}, "obj: must be 2-D"),
+    ({"obj": np.ones((3, 3), bool)}, "obj: holds dtype bool"),
+    ({"obj": np.array([["a", "b"]])}, "obj: holds dtype <U1"),
+    ({"obj": np.zeros((1, S.MAX_FILE_SIDE + 1), np.float32)}, "at most 4096 x 4096"),
+    ({"format_version": np.str_("1")}, "format_version: holds dtype <U1"),
+    ({"format_version": np.int64(2)}, "reads format_version 1"),
+    ({"cell_size": np.array([1.0, 2.0])}, "cell_size: holds dtype float64 with shape (2,)"),
+    ({"origin": np.array(["a", "b"])}, "origin: holds dtype <U1"),
+    ({"target_wkt": np.float64(1.0)}, "target_wkt: holds dtype float64"),
+    ({"target_wkt": np.str_("POLYGON ((0 0, 1")}, "target: could not parse the WKT"),
+    ({"name": np.float64(1.0)}, "name: holds dtype float64"),
+    ({"cell_size": np.float64(np.nan)}, "cell_size: must be finite"),
+    ({"obj": -np.ones((3, 3), np.float32)}, "obj: counts must be finite and >= 0"),
+    ({"colour": np.int64(1)}, "unknown key(s) 'colour'"),
+    ({"origin": None}, "missing key(s) origin"),
+])
+def test_bad_npz_fields(tmp_path, changes, words):
+    path = tmp_path / "s.npz"
+    np.savez(path, **_arrays(**changes))
+    assert words in _load_error(path)
+
+
+def test_huge_shape_in_the_header_is_refused_before_reading(tmp_path):
+    """A header claiming 100000 x 100000 floats (40 GB) over a few bytes: refused, nothing allocated."""
+    path = tmp_path / "huge.npz"
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f4", "fortran_order": False,
+                                                  "shape": (100_000, 100_000)})
+    with zipfile.ZipFile(path, "w") as zf:
+        for key, value in _arrays(obj=None).items():
+            buf = io.BytesIO()
+            np.save(buf, value)
+            zf.writestr(f"{key}.npy", buf.getvalue())
+        zf.writestr("obj.npy", header.getvalue() + b"\0" * 16)
+    assert "100000 x 100000" in _load_error(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# .json
+# --------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("content, words", [
+    (bytes(range(256)), "is not UTF-8 text"),
+    (b'{"format_version": 1, "obj": [[0', "not valid JSON"),
+    (b"[1, 2]", "the top level must be a JSON object"),
+    (b"[" * 100_000, "damaged"),
+])
+def test_bad_json_text(tmp_path, content, words):
+    path = tmp_path / "s.json"
+    path.write_bytes(content)
+    assert words in _load_error(path)
+
+
+@pytest.mark.parametrize("changes, words", [
+    ({"obj": [[0, 1, 2], [0, 1]]}, "obj: row 1 has 2 value(s) but row 0 has 3"),
+    ({"obj": [[0, "a", 2]]}, "obj: row 0, column 1 is a string"),
+    ({"obj": [[0, True, 2]]}, "obj: row 0, column 1 is a boolean"),
+    ({"obj": [[[0], [1]], [[2], [3]]]}, "obj must be 2-D"),
+    ({"obj": {"a": 1}}, "obj: must be a non-empty list of H rows"),
+    ({"obj": []}, "obj: must be a non-empty list of H rows"),
+    ({"obj": [[0.0]] * (S.MAX_FILE_SIDE + 1)}, "at most 4096 x 4096"),
+    ({"obj": [[0, float("nan"), 2]]}, "NaN"),
+    ({"obj": [[0, float("inf"), 2]]}, "infinite"),
+    ({"obj": [[0, -1, 2]]}, "negative"),
+    ({"cell_size": "1"}, "cell_size: must be a number"),
+    ({"cell_size": True}, "cell_size: must be a number"),
+    ({"cell_size": -1.0}, "cell_size: must be finite and > 0"),
+    ({"origin": [0, 0, 0]}, "origin: must be a list of 2 numbers"),
+    ({"origin": "0,0"}, "origin: must be a list of 2 numbers"),
+    ({"origin": [True, False]}, "origin: must be a list of 2 numbers"),
+    ({"target": 5}, "target: must be a WKT string"),
+    ({"target": "POLYGON ((0 0, 1"}, "target: could not parse the WKT"),
+    ({"target": "POINT (1 1)"}, "target: must be a shapely Polygon or MultiPolygon"),
+    ({"target": "POLYGON ((0 0, 2 2, 2 0, 0 2, 0 0))"}, "target: the geometry is invalid"),
+    ({"format_version": "1"}, "format_version: must be the integer 1"),
+    ({"format_version": 1.0}, "format_version: must be the integer 1"),
+    ({"format_version": 2}, "reads format_version 1"),
+    ({"name": 5}, "name: must be a string or null"),
+    ({"colour": "red"}, "unknown key(s) 'colour'; a scene file has exactly the keys format_version, name"),
+    ({"cell_size": None}, "cell_size: must be a number"),
+])
+def test_bad_json_fields(tmp_path, changes, words):
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({**DOC, **changes}))
+    assert words in _load_error(path)
+
+
+@pytest.mark.parametrize("key", ["format_version", "obj", "cell_size", "origin", "target"])
+def test_missing_json_key(tmp_path, key):
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({k: v for k, v in DOC.items() if k != key}))
+    assert f"missing key(s) {key}" in _load_error(path)
+
+
+def test_save_refuses_a_grid_load_could_not_read(tmp_path, monkeypatch):
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(DOC))
+    scene = S.Scene.load(path)
+    monkeypatch.setattr(S, "MAX_FILE_SIDE", 2)
+    with pytest.raises(ValueError, match="at most 2 x 2"):
+        scene.save(tmp_path / "big.npz")
+    assert not (tmp_path / "big.npz").exists()
