@@ -1,0 +1,18 @@
+"""The CLI fuzzer (experiments/fuzz_cli.py) on a tiny run: its worker process runs the cases, the results are
+written and every case is counted once."""
+import json
+
+from experiments import fuzz_cli
+
+
+def test_a_tiny_run_counts_every_case_and_writes_the_tables(tmp_path):
+    argv = ["--cases", "4", "--seed", "1", "--kinds", "scene.json", "--results-dir", str(tmp_path), "--no-progress"]
+    assert fuzz_cli.main(argv) == 0
+    result = json.loads((tmp_path / "fuzz_cli.json").read_text())
+    assert result["cases"] == 4 and result["outcomes"]["total"] == 4
+    assert sum(result["outcomes"][o] for o in fuzz_cli.OUTCOMES) == 4
+    assert set(result["kinds"]) == {"scene.json"}
+    for finding in result["findings"]:
+        assert finding["outcome"] not in fuzz_cli.PASSING and finding["count"] == len(finding["cases"])
+        assert finding["example"]["replay"].startswith("python experiments/fuzz_cli.py --seed 1 --replay ")
+    assert "| scene.json |" in (tmp_path / "fuzz_cli.md").read_text()
