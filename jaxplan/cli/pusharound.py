@@ -9,9 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.cli.common import CLIError, atomic_write, output_dir, wrap, write_json
+from jaxplan.cli.common import FPS, SEED, CLIError, atomic_write, check_out_dir, output_dir, ranged, wrap, write_json
 
 PUSHAROUND_RESULT_FORMAT = "jaxplan.pusharound.result"
+MAX_TIME_LIMIT = 86_400.0   # s: a day; the search's result does not improve much after minutes
+MAX_REPLANS = 100           # each replan searches again for up to max(5, time_limit / 2) s
+MAX_FRAMES = 10_000         # rendered one by one (about 0.1 s each) into one GIF
 
 
 def _pusharound_scene(args):
@@ -36,6 +39,32 @@ def _pusharound_scene(args):
     except (KeyError, TypeError, IndexError, AttributeError) as exc:  # a malformed entry the parser did not name
         raise CLIError(f"--scene: {args.scene}: malformed scene ({type(exc).__name__}: {exc}); "
                        "see docs/pusharound.md for the format.") from None
+
+
+def _check_feasible(args, scene) -> None:
+    """Geometry no push can change (``jaxplan.pusharound.check_feasible``), before any work."""
+    from jaxplan.pusharound import check_feasible
+
+    try:
+        check_feasible(scene)
+    except ValueError as exc:
+        where = f"--scene: {args.scene}" if args.scene is not None else f"--seed: nominal_scene({args.seed})"
+        raise CLIError(f"{where}: {exc}") from None
+
+
+def _check_mode_table(path) -> None:
+    """``--mode-table``: an existing file is read now; a new one must be creatable (it is written after
+    planning, so a bad path would otherwise fail only then)."""
+    if path is None:
+        return
+    target = Path(path)
+    if target.exists() and not target.is_file():
+        raise CLIError(f"--mode-table: {path!r} exists and is not a file; give a JSON file path.")
+    if not target.exists():
+        if not target.absolute().parent.is_dir():
+            raise CLIError(f"--mode-table: the folder of {path!r} does not exist (the table is saved there after "
+                           "planning); create it or give another path.")
+        check_out_dir(str(target.absolute().parent), "--mode-table")
 
 
 def _xy(a) -> list:
@@ -142,13 +171,9 @@ def _cmd_pusharound(args) -> int:
     from jaxplan.pusharound.modetable import ModeTable
     from jaxplan.pusharound.search import SearchConfig, plan_pushes
 
-    if not args.time_limit > 0:
-        raise CLIError(f"--time-limit: must be > 0 seconds; got {args.time_limit}.")
-    if args.max_replans < 0:
-        raise CLIError(f"--max-replans: must be an int >= 0; got {args.max_replans}.")
-    if args.max_frames < 2:
-        raise CLIError(f"--max-frames: must be an int >= 2; got {args.max_frames}.")
     scene, source = _pusharound_scene(args)
+    _check_feasible(args, scene)
+    _check_mode_table(args.mode_table)
     table = None
     if args.mode_table is not None and Path(args.mode_table).is_file():
         try:
@@ -306,21 +331,24 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
     p.add_argument("--scene", default=None, metavar="FILE.json",
                    help="a PushAround scene (JSON, docs/pusharound.md); default: the nominal scene of --seed")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
-    p.add_argument("--seed", type=int, default=0, metavar="N",
-                   help="seed of the nominal scene and of the search's gap sampling; default 0")
+    p.add_argument("--seed", type=SEED, default=0, metavar="N",
+                   help="seed of the nominal scene and of the search's gap sampling, an int in [0, 2^32 - 1]; "
+                        "default 0")
     p.add_argument("--backend", default="auto", choices=("auto", "c", "mjx"),
                    help="physics engine: c (MuJoCo C, fast on CPU), mjx (JAX, for GPUs) or auto "
                         "(mjx with a GPU, else c); default auto")
-    p.add_argument("--time-limit", type=float, default=60.0, metavar="S",
-                   help="planning time limit in seconds, > 0; default 60")
+    p.add_argument("--time-limit", type=ranged(float, 0.0, MAX_TIME_LIMIT, lo_open=True, unit="s"), default=60.0,
+                   metavar="S", help=f"planning time limit in seconds, in (0, {MAX_TIME_LIMIT:g}]; default 60")
     p.add_argument("--no-execute", action="store_true",
                    help="plan only: the outputs show the planned states (no physics execution)")
     p.add_argument("--mode-table", default=None, metavar="FILE",
                    help="ModeTable JSON: validated push modes are read from it (if it exists) and "
                         "saved back after planning")
-    p.add_argument("--max-replans", type=int, default=3, metavar="N",
-                   help="online replans at most when a push fails in execution; default 3")
-    p.add_argument("--fps", type=int, default=10, metavar="N", help="animation frames per second; default 10")
-    p.add_argument("--max-frames", type=int, default=120, metavar="N",
-                   help="animation frames at most (evenly subsampled), >= 2; default 120")
+    p.add_argument("--max-replans", type=ranged(int, 0, MAX_REPLANS, why="each replan searches again"), default=3,
+                   metavar="N", help=f"online replans at most when a push fails in execution, an int in "
+                                     f"[0, {MAX_REPLANS}]; default 3")
+    p.add_argument("--fps", type=FPS, default=10, metavar="N",
+                   help="animation frames per second, an int in [1, 50]; default 10")
+    p.add_argument("--max-frames", type=ranged(int, 2, MAX_FRAMES), default=120, metavar="N",
+                   help=f"animation frames at most (evenly subsampled), an int in [2, {MAX_FRAMES}]; default 120")
     p.set_defaults(func=_cmd_pusharound)

@@ -4,8 +4,10 @@
 - ``compilation``: ``grid_jit`` (jit with grid-size-aware XLA options), ``single_cpu``,
   ``limit_malloc_arenas``.
 - ``timing``: wall-clock timing of JAX calls.
+- ``memory``: ``available_memory_bytes``, the room a cost estimate is checked against.
 """
 from jaxplan.core.compilation import grid_jit, limit_malloc_arenas, single_cpu, traced
+from jaxplan.core.memory import available_memory_bytes
 from jaxplan.core.timing import timed
 
-__all__ = ["grid_jit", "limit_malloc_arenas", "single_cpu", "timed", "traced"]
+__all__ = ["available_memory_bytes", "grid_jit", "limit_malloc_arenas", "single_cpu", "timed", "traced"]
