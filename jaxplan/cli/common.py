@@ -1,7 +1,9 @@
-"""What every subcommand shares: the error type, scene loading, parameter dicts, atomic files."""
+"""What every subcommand shares: the error type, the parser, checked argument types, scene loading,
+parameter dicts, atomic files."""
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import textwrap
 from pathlib import Path
@@ -17,6 +19,65 @@ EXIT_INTERRUPTED = 130   # 128 + SIGINT, as shells report a Ctrl-C
 
 class CLIError(Exception):
     """Bad command-line input; the message is printed as ``error: <message>``."""
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line, as every other CLI error:
+    ``error: --fps: must be an int in [1, 50] ...; got 0; see 'jaxplan demo --help'`` on stderr, exit
+    code 2, without argparse's usage block. Subparsers inherit the class."""
+
+    def error(self, message):
+        text = " ".join(str(message).split())
+        if text.startswith("argument "):     # argparse's "argument --fps: ..." -> "--fps: ..."
+            text = text[len("argument "):]
+        self.exit(EXIT_BAD_INPUT, f"error: {text}; see '{self.prog} --help'\n")
+
+
+def _num(x) -> str:
+    return str(x) if isinstance(x, int) else f"{x:g}"
+
+
+def _range_text(kind, lo, hi, lo_open: bool, hi_open: bool, inf_ok: bool, unit: str) -> str:
+    noun = "an int" if kind is int else "a number"
+    if math.isinf(hi):
+        text = f"{noun} {'>' if lo_open else '>='} {_num(lo)}" + (" (inf allowed)" if inf_ok else "")
+    else:
+        text = f"{noun} in {'(' if lo_open else '['}{_num(lo)}, {_num(hi)}{')' if hi_open else ']'}"
+    return text + (f" {unit}" if unit else "")
+
+
+def ranged(kind, lo, hi=math.inf, *, lo_open: bool = False, hi_open: bool = False, inf_ok: bool = False,
+           unit: str = "", why: str = ""):
+    """An argparse ``type=`` that parses ``kind`` (``int`` or ``float``) and requires it in the range
+    ``lo``..``hi`` (``lo_open`` / ``hi_open``: exclude the end). NaN is always refused, and so is
+    infinity unless ``inf_ok`` (with ``hi`` = inf). A refusal reads ``--flag: must be a number in
+    (0, 180) degrees; <why>; got nan``; ``Parser`` prints it as one line, exit code 2, before any work."""
+    what = _range_text(kind, lo, hi, lo_open, hi_open, inf_ok, unit)
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except (TypeError, ValueError):
+            value = None
+        if value is not None and kind is float:
+            if math.isnan(value) or (math.isinf(value) and not (inf_ok and value > 0)):
+                value = None
+        if value is not None and not math.isinf(value):
+            too_low = value <= lo if lo_open else value < lo
+            too_high = value >= hi if hi_open else value > hi
+            if too_low or too_high:
+                value = None
+        if value is None:
+            raise argparse.ArgumentTypeError(f"must be {what}{'; ' + why if why else ''}; got {text}")
+        return value
+
+    parse.__name__ = kind.__name__   # argparse names the type in some messages
+    return parse
+
+
+# shared flags
+FPS = ranged(int, 1, 50, why="GIF frame delays are whole 1/100 s and viewers slow delays under 0.02 s down")
+SEED = ranged(int, 0, 2**32 - 1, why="a 32-bit unsigned seed")
 
 
 def load_scene(spec: str):
@@ -43,6 +104,50 @@ def load_scene(spec: str):
         raise CLIError(f"--scene: no such scene file {spec!r}.")
     raise CLIError(f"--scene: {spec!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) "
                    "nor an existing .npz/.json scene file.")
+
+
+def check_fabric_memory(args, scene, params) -> None:
+    """Refuse, before any work, a fabric whose estimated build memory
+    (``jaxplan.transport.fabric.estimate_build_bytes``) exceeds the memory available; the message
+    names ``--k`` where the command has it, else ``--scene`` (the grid is what is too large)."""
+    from jaxplan.transport.fabric import check_build_memory
+
+    try:
+        check_build_memory(scene.shape, params)
+    except ValueError as exc:
+        text = str(exc).removeprefix("FabricParams.k: ")
+        raise CLIError(f"{'--k' if hasattr(args, 'k') else '--scene'}: {text}") from None
+
+
+def check_out_dir(path: str, flag: str = "--out") -> None:
+    """Refuse a folder that neither exists nor can be created (an existing file, a file on the way,
+    no write permission), without creating anything: commands check this before any work."""
+    target = Path(path)
+    if target.exists():
+        if not target.is_dir():
+            raise CLIError(f"{flag}: {path!r} exists and is not a folder; give a folder path.")
+        if not os.access(target, os.W_OK | os.X_OK):
+            raise CLIError(f"{flag}: {path!r} is not writable; give a folder you can write to.")
+        return
+    _check_creatable(path, flag, "create")
+
+
+def check_out_file(path: str, flag: str = "--out") -> None:
+    """Refuse an output file path that is a folder or whose folder cannot be created (nothing is created)."""
+    if Path(path).is_dir():
+        raise CLIError(f"{flag}: {path!r} is a folder; give a file path.")
+    _check_creatable(path, flag, "write")
+
+
+def _check_creatable(path: str, flag: str, verb: str) -> None:
+    """The nearest existing folder above ``path`` must be a writable folder (not a file)."""
+    parent = Path(path).absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise CLIError(f"{flag}: cannot {verb} {path!r}: {str(parent)!r} is a file, not a folder.")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise CLIError(f"{flag}: cannot {verb} {path!r}: {str(parent)!r} is not writable.")
 
 
 def fabric_params(args):
@@ -95,11 +200,8 @@ def csv_text(columns: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def angle(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an angle in degrees, got {text!r}") from None
+angle = ranged(float, 0.0, 180.0, lo_open=True, hi_open=True, unit="degrees",
+               why="the cone half-angle of the visibility rule (Eq. 1)")
 
 
 def wrap(text: str) -> str:

@@ -2,7 +2,10 @@
 ``sweep`` and ``scenes``.
 
 Every subcommand has ``--help`` with an example. Bad input (a missing scene file, an unknown built-in
-name, an out-of-range parameter) prints one ``error: ...`` line to stderr and exits with code 2.
+name, an out-of-range parameter) prints one ``error: --flag: ...`` line to stderr and exits with code
+2, before any work starts and before any output is written: flag values are checked as they are
+parsed (``common.ranged``, ``common.Parser``), the rest (scene files, parameter combinations,
+estimated memory) by each command before it starts.
 """
 from __future__ import annotations
 
@@ -10,7 +13,7 @@ import argparse
 import sys
 
 from jaxplan.cli import pusharound, rover, sweep, teams, transport
-from jaxplan.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CLIError, wrap
+from jaxplan.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CLIError, Parser, wrap
 from jaxplan.transport.scenes import BUILTIN_SCENES
 
 __all__ = ["main"]
@@ -20,7 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     fmt = argparse.RawDescriptionHelpFormatter
     scene_help = (f"a built-in scene name ({', '.join(BUILTIN_SCENES)}) or a scene file "
                   "(.npz or .json, see docs/scene-format.md)")
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="jaxplan", formatter_class=fmt,
         description=wrap("Plan how robots move bulk material and clear paths on a construction "
                          "site: environment-first aggregate transport (fabric, demo, episode, rover, "
@@ -46,9 +49,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Run the CLI with ``argv`` (default ``sys.argv[1:]``); returns 0 on success.
 
-    Bad input raises ``SystemExit(2)`` after printing ``error: <message>`` to stderr (argparse's
-    own usage errors exit with 2 as well). Ctrl-C raises ``SystemExit(130)`` after printing
-    ``interrupted: <where the partial output is>``; the output folder's run.json says "interrupted".
+    Bad input raises ``SystemExit(2)`` after printing one ``error: <message>`` line to stderr
+    (argparse's own usage errors too, through ``common.Parser``). Ctrl-C raises ``SystemExit(130)``
+    after printing ``interrupted: <where the partial output is>``; the output folder's run.json says
+    "interrupted".
     """
     parser = build_parser()
     args = parser.parse_args(argv)

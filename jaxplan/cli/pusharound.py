@@ -8,10 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.cli.common import CLIError, run_folder, wrap
+from jaxplan.cli.common import FPS, SEED, CLIError, check_out_dir, ranged, run_folder, wrap
 from jaxplan.core.outputs import atomic_write
 
 PUSHAROUND_RESULT_FORMAT = "jaxplan.pusharound.result"
+MAX_TIME_LIMIT = 86_400.0   # s: a day; the search's result does not improve much after minutes
+MAX_REPLANS = 100           # each replan searches again for up to max(5, time_limit / 2) s
+MAX_FRAMES = 10_000         # rendered one by one (about 0.1 s each) into one GIF
 
 
 def _pusharound_scene(args):
@@ -44,14 +47,26 @@ def _mode_table(name):
         raise CLIError(f"--mode-table: {name!r} is a directory; give a .json file (read if it exists, "
                        "saved after the run).")
     if not path.exists():
-        if not path.parent.is_dir():
+        if not path.absolute().parent.is_dir():
             raise CLIError(f"--mode-table: the folder {str(path.parent)!r} does not exist; create it or "
                            "pick another path for the table.")
+        check_out_dir(str(path.absolute().parent), "--mode-table")   # it is saved there after planning
         return ModeTable()
     try:
         return ModeTable.load(path)
     except ValueError as exc:  # ModeTable.load names the file and what is wrong with it
         raise CLIError(f"--mode-table: {exc}") from None
+
+
+def _check_feasible(args, scene) -> None:
+    """Geometry no push can change (``jaxplan.pusharound.check_feasible``), before any work."""
+    from jaxplan.pusharound import check_feasible
+
+    try:
+        check_feasible(scene)
+    except ValueError as exc:
+        where = f"--scene: {args.scene}" if args.scene is not None else f"--seed: nominal_scene({args.seed})"
+        raise CLIError(f"{where}: {exc}") from None
 
 
 def _xy(a) -> list:
@@ -148,13 +163,8 @@ def _cmd_pusharound(args) -> int:
 
     matplotlib.use("Agg")
 
-    if not args.time_limit > 0:
-        raise CLIError(f"--time-limit: must be > 0 seconds; got {args.time_limit}.")
-    if args.max_replans < 0:
-        raise CLIError(f"--max-replans: must be an int >= 0; got {args.max_replans}.")
-    if args.max_frames < 2:
-        raise CLIError(f"--max-frames: must be an int >= 2; got {args.max_frames}.")
     scene, source = _pusharound_scene(args)
+    _check_feasible(args, scene)
     table = _mode_table(args.mode_table)
     with run_folder(args, PUSHAROUND_OUTPUTS) as run:
         plan, execution, success, path = _plan_execute_write(args, scene, source, table, run)
@@ -317,21 +327,24 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
     p.add_argument("--scene", default=None, metavar="FILE.json",
                    help="a PushAround scene (JSON, docs/pusharound.md); default: the nominal scene of --seed")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
-    p.add_argument("--seed", type=int, default=0, metavar="N",
-                   help="seed of the nominal scene and of the search's gap sampling; default 0")
+    p.add_argument("--seed", type=SEED, default=0, metavar="N",
+                   help="seed of the nominal scene and of the search's gap sampling, an int in [0, 2^32 - 1]; "
+                        "default 0")
     p.add_argument("--backend", default="auto", choices=("auto", "c", "mjx"),
                    help="physics engine: c (MuJoCo C, fast on CPU), mjx (JAX, for GPUs) or auto "
                         "(mjx with a GPU, else c); default auto")
-    p.add_argument("--time-limit", type=float, default=60.0, metavar="S",
-                   help="planning time limit in seconds, > 0; default 60")
+    p.add_argument("--time-limit", type=ranged(float, 0.0, MAX_TIME_LIMIT, lo_open=True, unit="s"), default=60.0,
+                   metavar="S", help=f"planning time limit in seconds, in (0, {MAX_TIME_LIMIT:g}]; default 60")
     p.add_argument("--no-execute", action="store_true",
                    help="plan only: the outputs show the planned states (no physics execution)")
     p.add_argument("--mode-table", default=None, metavar="FILE",
                    help="ModeTable JSON: validated push modes are read from it (if it exists) and "
                         "saved back after planning")
-    p.add_argument("--max-replans", type=int, default=3, metavar="N",
-                   help="online replans at most when a push fails in execution; default 3")
-    p.add_argument("--fps", type=int, default=10, metavar="N", help="animation frames per second; default 10")
-    p.add_argument("--max-frames", type=int, default=120, metavar="N",
-                   help="animation frames at most (evenly subsampled), >= 2; default 120")
+    p.add_argument("--max-replans", type=ranged(int, 0, MAX_REPLANS, why="each replan searches again"), default=3,
+                   metavar="N", help=f"online replans at most when a push fails in execution, an int in "
+                                     f"[0, {MAX_REPLANS}]; default 3")
+    p.add_argument("--fps", type=FPS, default=10, metavar="N",
+                   help="animation frames per second, an int in [1, 50]; default 10")
+    p.add_argument("--max-frames", type=ranged(int, 2, MAX_FRAMES), default=120, metavar="N",
+                   help=f"animation frames at most (evenly subsampled), an int in [2, {MAX_FRAMES}]; default 120")
     p.set_defaults(func=_cmd_pusharound)

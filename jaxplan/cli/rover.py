@@ -1,16 +1,28 @@
 """The ``rover`` subcommand: planned routes driven by a shovel rover in MuJoCo."""
 from __future__ import annotations
 
-import math
 import os
 import sys
 import time
 
 import numpy as np
 
-from jaxplan.cli.common import CLIError, add_theta_option, fabric_params, load_scene, run_folder, wrap
+from jaxplan.cli.common import (
+    CLIError,
+    add_theta_option,
+    check_fabric_memory,
+    fabric_params,
+    load_scene,
+    ranged,
+    run_folder,
+    wrap,
+)
 from jaxplan.cli.transport import add_spill_options, spill_dict, spill_params
 from jaxplan.transport.scenes import DEFAULT_SCENE
+
+MAX_ROUTES = 64          # routes per batch: each is a MuJoCo world with its own gravel particles
+MIN_SPEED, MAX_SPEED = 0.05, 2.0   # cells/s: the wheel limit is 2 cells/s (rover.model); ticks grow as 1/speed
+MAX_FRICTION = 5.0       # far above any floor, gravel or steel contact
 
 
 def _cmd_rover(args) -> int:
@@ -19,18 +31,13 @@ def _cmd_rover(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    if args.routes < 1:
-        raise CLIError(f"--routes: must be an int >= 1; got {args.routes}.")
-    if not args.speed > 0:
-        raise CLIError(f"--speed: must be > 0 cells/s; got {args.speed}.")
-    if args.friction is not None and not (math.isfinite(args.friction) and args.friction > 0):
-        raise CLIError(f"--friction: must be a positive number; got {args.friction}.")
     from jaxplan.transport.spillage.capacity import ROVER_FIT
 
     # the prediction the physics is compared with: the model fitted to this rover unless asked otherwise
     spill = spill_params(args, default=ROVER_FIT)
     params = fabric_params(args)
     scene = load_scene(args.scene)
+    check_fabric_memory(args, scene, params)
     with run_folder(args, ROVER_OUTPUTS) as run:
         summary = _check_and_write(args, scene, params, spill, run)
     print(summary["table"], end="")
@@ -143,14 +150,22 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                    help=scene_help + f"; default {DEFAULT_SCENE!r}")
     p.add_argument("--out", default="out/rover", metavar="DIR",
                    help="output directory (created if missing); default out/rover")
-    p.add_argument("--routes", type=int, default=4, metavar="N", help="routes to check, >= 1; default 4")
+    p.add_argument("--routes", type=ranged(int, 1, MAX_ROUTES, why="each route is one MuJoCo world with its "
+                                                                 "gravel, all in one batch"),
+                   default=4, metavar="N", help=f"routes to check, an int in [1, {MAX_ROUTES}]; default 4")
     p.add_argument("--backend", default="auto", choices=("auto", "c", "mjx"),
                    help="physics engine: c (MuJoCo C, fast on CPU), mjx (JAX, for GPUs) or auto "
                         "(mjx with a GPU, else c); default auto")
-    p.add_argument("--speed", type=float, default=0.8, metavar="CELLS_PER_S",
-                   help="blade speed along the route, cells/s > 0; default 0.8")
-    p.add_argument("--friction", type=float, default=None, metavar="MU",
-                   help="sliding friction of floor, gravel and shovel, > 0; default: the rover model's (0.6)")
+    p.add_argument("--speed", type=ranged(float, MIN_SPEED, MAX_SPEED, unit="cells/s",
+                                          why="the rover's wheels top out at 2 cells/s, and the simulated "
+                                              "horizon grows as 1/speed"),
+                   default=0.8, metavar="CELLS_PER_S",
+                   help=f"blade speed along the route, cells/s in [{MIN_SPEED:g}, {MAX_SPEED:g}]; default 0.8")
+    p.add_argument("--friction", type=ranged(float, 0.0, MAX_FRICTION, lo_open=True,
+                                             why="MuJoCo's sliding friction coefficient"),
+                   default=None, metavar="MU",
+                   help=f"sliding friction of floor, gravel and shovel, in (0, {MAX_FRICTION:g}]; default: the "
+                        "rover model's (0.6)")
     p.add_argument("--solver", default="CG", choices=("CG", "Newton"),
                    help="MuJoCo's constraint solver on either engine; default CG (faster on a CPU); MJX on a "
                         "GPU runs faster with Newton (docs/physics.md)")

@@ -1,13 +1,17 @@
 """The ``sweep`` subcommand: a parameter sweep spec evaluated into a CSV."""
 from __future__ import annotations
 
-from jaxplan.cli.common import wrap
+from jaxplan.cli.common import CLIError, check_out_file, ranged, wrap
+from jaxplan.sweep.run import MAX_BUDGET_MB
 
 
 def _cmd_sweep(args) -> int:
     from jaxplan.core.outputs import RunInterrupted
     from jaxplan.sweep import run_sweep
 
+    if args.address is not None and args.backend != "ray":
+        raise CLIError(f"--address: {args.address!r} is only used with --backend ray; add --backend ray or drop it.")
+    check_out_file(args.out)
     try:
         out = run_sweep(args.spec, args.out, backend=args.backend, address=args.address,
                         memory_budget_mb=args.memory_budget_mb, progress=not args.no_progress)
@@ -48,7 +52,9 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                    help="local (this process, default) or ray (one Ray task per chunk)")
     p.add_argument("--address", default=None, metavar="ADDR",
                    help="Ray cluster address (with --backend ray); default: a local Ray instance")
-    p.add_argument("--memory-budget-mb", type=float, default=256.0, metavar="N",
-                   help="working memory for one vmapped chunk, MB (sets the chunk size); default 256")
+    p.add_argument("--memory-budget-mb", type=ranged(float, 0.0, MAX_BUDGET_MB, lo_open=True, unit="MB"),
+                   default=256.0, metavar="N",
+                   help=f"working memory for one vmapped chunk, MB in (0, {MAX_BUDGET_MB}] (sets the chunk size); "
+                        "default 256")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_sweep)

@@ -1,8 +1,11 @@
 """The ``teams`` subcommand: the team-organization scenario of Endo et al."""
 from __future__ import annotations
 
-from jaxplan.cli.common import run_folder, wrap
+from jaxplan.cli.common import SEED, check_out_dir, ranged, run_folder, wrap
+from jaxplan.teams.params import STRATEGIES
 
+MAX_V_AFTER = 50.0    # m/s (180 km/h): far above any dump truck; the spec speed is 4 m/s
+MAX_SECONDS = 86_400  # s: a day of 1 s steps; the trace is recorded every step
 TEAMS_OUTPUTS = ("fig6.png", "summary.json")
 
 
@@ -13,6 +16,7 @@ def _cmd_teams(args) -> int:
     from jaxplan.teams.report import check_paper_options, run_paper
 
     check_paper_options(args.strategy, args.v_after, args.deadline, args.seed, args.steps)
+    check_out_dir(args.out)
     with run_folder(args, TEAMS_OUTPUTS) as run:
         summary = run_paper(run.path, strategy=args.strategy, seed=args.seed, v_after=args.v_after,
                             deadline=args.deadline, steps=args.steps, write=run.write)
@@ -43,16 +47,18 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                "  jaxplan teams --strategy even --v-after 1.5 --out out/teams_even")
     p.add_argument("--out", default="out/teams", metavar="DIR",
                    help="output directory (created if missing); default out/teams")
-    p.add_argument("--strategy", default="performance", metavar="NAME",
+    p.add_argument("--strategy", default="performance", choices=STRATEGIES, metavar="NAME",
                    help="performance (the paper's coordinators), even, largest (fixed shares) or "
                         "oracle (knows future velocities); default performance")
-    p.add_argument("--v-after", type=float, default=1.2, metavar="M_PER_S",
-                   help="truck velocity after the drop at t = 400 s, m/s > 0; default 1.2 "
-                        "(before it: 3.0, spec 4.0)")
-    p.add_argument("--deadline", type=float, default=900.0, metavar="S",
-                   help="deadline T_DL in seconds, > 0; default 900")
-    p.add_argument("--seed", type=int, default=0, metavar="N",
-                   help="seed of the load-mass noise, >= 0; default 0")
-    p.add_argument("--steps", type=int, default=1200, metavar="N",
-                   help="simulated steps of 1 s, >= 1; default 1200")
+    p.add_argument("--v-after", type=ranged(float, 0.0, MAX_V_AFTER, lo_open=True, unit="m/s"), default=1.2,
+                   metavar="M_PER_S", help=f"truck velocity after the drop at t = 400 s, m/s in (0, {MAX_V_AFTER:g}]; "
+                                           "default 1.2 (before it: 3.0, spec 4.0)")
+    p.add_argument("--deadline", type=ranged(float, 0.0, MAX_SECONDS, lo_open=True, unit="s"), default=900.0,
+                   metavar="S", help=f"deadline T_DL in seconds, in (0, {MAX_SECONDS}]; default 900")
+    p.add_argument("--seed", type=SEED, default=0, metavar="N",
+                   help="seed of the load-mass noise, an int in [0, 2^32 - 1]; default 0")
+    p.add_argument("--steps", type=ranged(int, 1, MAX_SECONDS, why="a day of 1 s steps; the trace is recorded "
+                                                                  "every step"),
+                   default=1200, metavar="N",
+                   help=f"simulated steps of 1 s, an int in [1, {MAX_SECONDS}]; default 1200")
     p.set_defaults(func=_cmd_teams)

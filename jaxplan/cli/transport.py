@@ -11,17 +11,23 @@ from pathlib import Path
 import numpy as np
 
 from jaxplan.cli.common import (
+    FPS,
     CLIError,
     add_theta_option,
+    check_fabric_memory,
+    check_out_file,
     csv_text,
     fabric_params,
     load_scene,
     params_dict,
+    ranged,
     run_folder,
     wrap,
 )
 from jaxplan.core.outputs import atomic_write
 from jaxplan.core.timing import timed
+from jaxplan.transport.episode import MAX_PUSHES
+from jaxplan.transport.params import K_MAX
 from jaxplan.transport.scenes import BUILTIN_SCENES, DEFAULT_SCENE
 
 FABRIC_ARRAYS = ("value", "length", "first_hop", "heading", "psi", "heat", "highways", "fallback",
@@ -45,8 +51,10 @@ def _cmd_fabric(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".npz":
         raise CLIError(f"--out: the output file must end in '.npz'; got {args.out!r}.")
+    check_out_file(args.out)
     params = fabric_params(args)
     scene = load_scene(args.scene)
+    check_fabric_memory(args, scene, params)
     fabric = jax.block_until_ready(build_fabric(scene, params))
     arrays = {
         "value": fabric.value, "length": fabric.length, "first_hop": fabric.first_hop,
@@ -88,6 +96,7 @@ def _cmd_demo(args) -> int:
 
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
     scene = load_scene(args.scene)  # bad input fails here, before the progress bar starts
+    check_fabric_memory(args, scene, params)
     with run_folder(args, DEMO_OUTPUTS) as run:
         stages = ["build fabric (first call compiles)", "warm builds", "plan connectors", "plot"]
         with tqdm(total=len(stages), desc="jaxplan demo", unit="stage", file=sys.stderr,
@@ -325,6 +334,7 @@ def _cmd_episode(args) -> int:
     matplotlib.use("Agg")
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
     scene = load_scene(args.scene)
+    check_fabric_memory(args, scene, params)
     with run_folder(args, EPISODE_OUTPUTS) as run:
         episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
         summary = _episode_summary(scene, args.scene, params, spill, ep, episode)
@@ -356,34 +366,36 @@ def _cmd_scenes(args) -> int:
 
 
 def add_spill_options(p) -> None:
-    p.add_argument("--lam", type=float, default=None, metavar="X",
+    p.add_argument("--lam", type=ranged(float, 0.0), default=None, metavar="X",
                    help="spill model lambda: fraction of the load spilled per radian of turning, >= 0; "
                         "default 0.05 (0 = no spillage)")
-    p.add_argument("--spill-threshold", type=float, default=_DEFAULT_SPILL_THRESHOLD, metavar="OBJ",
+    p.add_argument("--spill-threshold", type=ranged(float, 0.0), default=_DEFAULT_SPILL_THRESHOLD, metavar="OBJ",
                    help="per-sample spills below this many objects are ignored, >= 0; default 0.001")
-    p.add_argument("--capacity", type=float, default=None, metavar="OBJ",
+    p.add_argument("--capacity", type=ranged(float, 0.0, lo_open=True), default=None, metavar="OBJ",
                    help="use the capacity-aware spill model (jaxplan.transport.spillage.capacity): the blade carries "
                         "at most this many objects, > 0; default: the curvature model (no capacity)")
-    p.add_argument("--mu", type=float, default=None, metavar="X",
+    p.add_argument("--mu", type=ranged(float, 0.0), default=None, metavar="X",
                    help="capacity-aware model: fraction of the load lost per world unit driven, >= 0 "
                         "(implies the capacity-aware model, uncapped unless --capacity is given); "
                         "experiments/bench_rover.py fits lam, mu and capacity to the rover's physics")
-    p.add_argument("--miss", type=float, default=None, metavar="X",
+    p.add_argument("--miss", type=ranged(float, 0.0), default=None, metavar="X",
                    help="capacity-aware model: fraction of a cell's objects the blade leaves behind per radian "
                         "of turning at that cell, >= 0 (implies the capacity-aware model); default 0")
-    p.add_argument("--turn-saturation", type=float, default=None, metavar="OBJ",
+    p.add_argument("--turn-saturation", type=ranged(float, 0.0, lo_open=True, inf_ok=True), default=None,
+                   metavar="OBJ",
                    help="capacity-aware model: load at which the turning spill is half of lam x load per radian, "
                         "> 0 (implies the capacity-aware model); default: none (proportional to the load)")
 
 
 def _add_episode_options(p) -> None:
     add_spill_options(p)
-    p.add_argument("--max-pushes", type=int, default=200, metavar="N",
-                   help="push budget, >= 0; default 200")
-    p.add_argument("--rearrange-margin", type=float, default=0.1, metavar="X",
+    p.add_argument("--max-pushes", type=ranged(int, 0, MAX_PUSHES, why="the tick counter is an int32 in the "
+                                                                     "compiled step; 10^6 pushes take hours"),
+                   default=200, metavar="N", help=f"push budget, an int in [0, {MAX_PUSHES}]; default 200")
+    p.add_argument("--rearrange-margin", type=ranged(float, 0.0, inf_ok=True), default=0.1, metavar="X",
                    help="choose Rearrange (connector + highway) when it collects more than (1 + X) "
                         "times the direct route; >= 0, 'inf' never rearranges; default 0.1")
-    p.add_argument("--stop-fraction", type=float, default=0.02, metavar="X",
+    p.add_argument("--stop-fraction", type=ranged(float, 0.0, 1.0, hi_open=True), default=0.02, metavar="X",
                    help="stop when the mass outside the target is at most X of its initial value, "
                         "in [0, 1); default 0.02")
     p.add_argument("--source-rule", default="max_value", choices=("max_value", "nearest"),
@@ -399,7 +411,8 @@ def _add_episode_options(p) -> None:
                         "(recompute only the cells a push can change), full (build from scratch), or auto "
                         "(default: full on a GPU and on CPU grids under 2,500 cells, where it is as fast or "
                         "faster; selective otherwise)")
-    p.add_argument("--fps", type=int, default=4, metavar="N", help="animation frames per second; default 4")
+    p.add_argument("--fps", type=FPS, default=4, metavar="N",
+                   help="animation frames per second, an int in [1, 50]; default 4")
     p.add_argument("--no-animation", action="store_true", help="skip the GIF (faster)")
 
 
@@ -416,10 +429,14 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                "  python -c \"import numpy as np; print(np.load('out/fabric.npz')['value'].max())\"")
     p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help)
     add_theta_option(p)
-    p.add_argument("--tau-h", type=float, default=0.5, metavar="X",
-                   help="highway threshold (Eq. 11), a fraction of max heat; default 0.5")
-    p.add_argument("--k", type=int, default=4, metavar="K",
-                   help="depth of the continuation table (K best paths per cell); default 4")
+    p.add_argument("--tau-h", type=ranged(float, 0.0, 1.0, why="a fraction of the largest heat value"), default=0.5,
+                   metavar="X", help="highway threshold (Eq. 11), a fraction of max heat in [0, 1]; default 0.5")
+    p.add_argument("--k", type=ranged(int, 1, K_MAX, why="the K-best merge is compiled unrolled; its compile "
+                                                         "memory grows about as K^5, about 7 GB at K = 16"),
+                   default=4, metavar="K",
+                   help=f"depth of the continuation table (K best paths per cell), an int in [1, {K_MAX}]; "
+                        "refused when its estimated build memory (estimate_build_bytes: about 0.3 GB at 8, "
+                        "1.8 GB at 12, 7 GB at 16) exceeds the memory available; default 4")
     p.add_argument("--no-monotone", action="store_true",
                    help="drop the strict monotone rule (hop-capped DP; see docs/conventions.md)")
     p.add_argument("--out", required=True, metavar="OUT.npz", help="output file (.npz)")

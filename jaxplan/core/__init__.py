@@ -5,10 +5,12 @@
   ``limit_malloc_arenas``.
 - ``timing``: wall-clock timing of JAX calls.
 - ``outputs``: files written atomically and output folders with a ``run.json`` manifest (``RunFolder``).
+- ``memory``: ``available_memory_bytes``, the room a cost estimate is checked against.
 """
 from jaxplan.core.compilation import grid_jit, limit_malloc_arenas, single_cpu, traced
+from jaxplan.core.memory import available_memory_bytes
 from jaxplan.core.outputs import RunFolder, RunInterrupted, atomic_write, read_manifest
 from jaxplan.core.timing import timed
 
-__all__ = ["RunFolder", "RunInterrupted", "atomic_write", "grid_jit", "limit_malloc_arenas", "read_manifest",
-           "single_cpu", "timed", "traced"]
+__all__ = ["RunFolder", "RunInterrupted", "atomic_write", "available_memory_bytes", "grid_jit",
+           "limit_malloc_arenas", "read_manifest", "single_cpu", "timed", "traced"]

@@ -37,13 +37,22 @@ from jaxplan.pusharound.scenarios import corridor_scene, dense_scene, density_sc
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene
 from jaxplan.pusharound.search import ScheduledPush, SearchConfig, SearchResult, SearchStats, plan_pushes
 from jaxplan.pusharound.viz import plot_wccg
-from jaxplan.pusharound.wccg import WCCG, Connectivity, build_wccg, clearance, connectivity, w_clear_path
+from jaxplan.pusharound.wccg import (
+    WCCG,
+    Connectivity,
+    build_wccg,
+    check_feasible,
+    clearance,
+    connectivity,
+    w_clear_path,
+)
 
 __all__ = ["BASELINES", "Execution", "ExecutionConfig", "ModeTable", "ScheduledPush", "SearchConfig", "SearchResult",
            "SearchStats", "animate_execution", "corridor_scene", "dense_scene", "density_scene", "execute_schedule",
            "load_schedule", "plan_pushes", "plot_state", "WCCG", "Connectivity", "Fixed", "Gap", "Movable",
            "PushOutcome", "PushPhysicsConfig", "PushScene",
            "PushTask", "PushWorld", "QuickPass", "Ranking", "RankingParams", "build_push_world", "build_wccg",
+           "check_feasible",
            "clearance", "connectivity", "direction_tasks", "face_contacts", "gap_costs", "make_push_simulator",
            "nominal_scene",
            "plot_wccg", "push_cost", "quick_pass", "rank_gaps", "simulate_pushes", "stack_tasks", "w_clear_path"]

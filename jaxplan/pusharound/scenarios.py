@@ -32,7 +32,8 @@ from shapely.geometry import box as _box
 from jaxplan.pusharound import shapes
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene, validate_scene
 
-__all__ = ["nominal_scene", "dense_scene", "density_scene", "corridor_scene", "random_shape", "NOMINAL", "DENSITY"]
+__all__ = ["nominal_scene", "dense_scene", "density_scene", "corridor_scene", "random_shape", "check_seed",
+           "NOMINAL", "DENSITY"]
 
 NOMINAL = dict(workspace=(0.0, 0.0, 8.0, 5.0), width=0.8, start=(1.0, 4.0), goal=(7.0, 2.0),
                bars=((2.6, 0.0, 2.8, 3.3), (5.2, 1.7, 5.4, 5.0)),
@@ -104,6 +105,12 @@ def _fixed_and_reserved(layout: dict, width: float):
     return fixed, reserved
 
 
+def check_seed(seed) -> None:
+    """Raise ``ValueError`` unless ``seed`` is an int >= 0 (what numpy's ``default_rng`` accepts)."""
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed: must be an int >= 0; got {seed!r}.")
+
+
 def nominal_scene(seed: int, n_movables: int | None = None, width: float = NOMINAL["width"],
                   min_sep: float = 0.15, require_blocked: bool = True, max_draws: int = 50) -> PushScene:
     """The nominal scenario of Section IV-A, seeded (see the module docstring).
@@ -113,6 +120,7 @@ def nominal_scene(seed: int, n_movables: int | None = None, width: float = NOMIN
     """
     from jaxplan.pusharound.wccg import build_wccg, connectivity  # noqa: PLC0415 (cycle-free import)
 
+    check_seed(seed)
     rng = np.random.default_rng(seed)
     n = int(rng.integers(10, 16)) if n_movables is None else int(n_movables)
     ws = NOMINAL["workspace"]
@@ -183,6 +191,7 @@ def dense_scene(seed: int, n_movables: int = 30, width: float = NOMINAL["width"]
     """The 30-movable scalability scene (Section IV-A.3, Fig. 9): the nominal 8 x 5 m layout with
     exactly ``n_movables`` movables (``min_sep`` 0.1 m: 30 shapes with the nominal 0.15 m leave too
     little room), redrawn (seed stream ``[seed, draw]``) until Eq. 7 fails."""
+    check_seed(seed)
     if not isinstance(n_movables, (int, np.integer)) or n_movables < 1:
         raise ValueError(f"n_movables: must be a positive int; got {n_movables!r}.")
     for d in range(max_draws):
@@ -198,6 +207,7 @@ def density_scene(seed: int, n_movables: int, width: float = DENSITY["width"], m
     ``n_movables`` movables (the paper sweeps 15-45). Nested in ``n_movables`` for one seed (module
     docstring): the draw ``[seed, d]`` is the first whose ``min(base, n_movables)``-movable prefix is
     blocked (Eq. 7 fails), hence blocked at every larger count."""
+    check_seed(seed)
     if not isinstance(n_movables, (int, np.integer)) or n_movables < 1:
         raise ValueError(f"n_movables: must be a positive int; got {n_movables!r}.")
     n0 = min(int(base), int(n_movables))
@@ -216,6 +226,7 @@ def corridor_scene(seed: int = 0, width: float = 0.8) -> PushScene:
     one box (0.4 x 0.5 m, mass U[5, 15] kg) in the opening (centre jittered by up to 5 cm), start
     (0.6, 1.2), goal (5.4, 1.2), robots (0.4, 0.4) and (0.4, 0.9). Pushing the box about 1.1 m along
     +x (or -x) opens the corridor; pushing it along y runs it into the wall."""
+    check_seed(seed)
     rng = np.random.default_rng(seed)
     wall = tuple(Fixed(name=f"wall{k}", pieces=(shapely.orient_polygons(_box(*b), exterior_cw=False),))
                  for k, b in enumerate(((2.9, 0.0, 3.1, 0.7), (2.9, 1.7, 3.1, 2.4))))

@@ -52,7 +52,7 @@ from jaxplan.pusharound.faces import (
 from jaxplan.pusharound.kernels import aabb_gaps, pack_polygons, pair_distances, point_distances
 from jaxplan.pusharound.scene import PushScene
 
-__all__ = ["MOVABLE", "FIXED", "WALL", "WCCG", "Connectivity", "Frontier", "build_wccg",
+__all__ = ["MOVABLE", "FIXED", "WALL", "WCCG", "Connectivity", "Frontier", "build_wccg", "check_feasible",
            "clearance", "connectivity", "frontier_bridges", "w_clear_path"]
 
 MOVABLE, FIXED, WALL = 0, 1, 2
@@ -422,3 +422,61 @@ def _inflated_walk(g: WCCG, s: np.ndarray, gl: np.ndarray, rho: float,
     path = np.asarray(pts)
     keep = np.concatenate([[True], np.linalg.norm(np.diff(path, axis=0), axis=1) > 1e-12])
     return path[keep]
+
+
+# ---------------------------------------------------------------------------------------------------
+# Feasibility: what no pushing can change
+# ---------------------------------------------------------------------------------------------------
+
+def check_feasible(scene: PushScene) -> None:
+    """Raise ``ValueError`` naming the scene field and the fix when no pushing schedule can open a
+    W-clear corridor (Eq. 7) from ``start`` to ``goal``; ``plan_pushes`` and the CLI call it before
+    any search. Only what pushing cannot change is checked (workspace walls and fixed obstacles never
+    move), in this order:
+
+    - ``vehicle_width``: W below the workspace's narrow side;
+    - ``robots.radius``: a robot disk fits across the workspace;
+    - ``start`` / ``goal``: at least W/2 from every workspace wall and from every fixed obstacle (Eq. 7
+      needs the disk ``B(s, W/2)`` free);
+    - ``fixed``: start and goal connected for the vehicle with every movable removed (the WCCG of the
+      fixed obstacles and walls alone; ``connectivity``).
+
+    Milliseconds on scenes of a few fixed obstacles (one WCCG of the fixed pieces and the walls).
+    """
+    x0, y0, x1, y1 = (float(v) for v in scene.workspace)
+    w, r = float(scene.width), 0.5 * float(scene.width)
+    narrow = min(x1 - x0, y1 - y0)
+    if not w < narrow:
+        raise ValueError(f"vehicle_width: {w:g} m is not narrower than the workspace's narrow side ({narrow:g} m "
+                         f"of {scene.workspace}), so no W-clear path fits; use a width below {narrow:g} m or "
+                         "enlarge the workspace.")
+    if not 2.0 * float(scene.robot_radius) < narrow:
+        raise ValueError(f"robots.radius: a robot of radius {float(scene.robot_radius):g} m does not fit across "
+                         f"the workspace's narrow side ({narrow:g} m); use a radius below {narrow / 2:g} m.")
+    for name, pt in (("start", scene.start), ("goal", scene.goal)):
+        _check_endpoint(scene, name, (float(pt[0]), float(pt[1])), r, (x0, y0, x1, y1))
+    fixed_only = scene.replace(movables=())
+    if not connectivity(build_wccg(fixed_only), scene.start, scene.goal).connected:
+        raise ValueError(f"fixed: the fixed obstacles and walls alone leave no W-clear corridor from start to goal "
+                         f"for W = {w:g} m (even with every movable pushed away); widen the openings between "
+                         "fixed obstacles, move the start or goal, or use a smaller vehicle_width.")
+
+
+def _check_endpoint(scene: PushScene, name: str, pt: tuple, r: float, ws: tuple) -> None:
+    """``start`` / ``goal`` at ``pt``: inside the workspace, its W/2 disk clear of the walls and fixed obstacles."""
+    x0, y0, x1, y1 = ws
+    x, y = pt
+    to_wall = min(x - x0, x1 - x, y - y0, y1 - y)
+    if to_wall < 0:
+        raise ValueError(f"{name}: {pt} is outside the workspace {scene.workspace}; give a point at least "
+                         f"W/2 = {r:g} m inside it.")
+    if to_wall < r:
+        raise ValueError(f"{name}: {pt} is {to_wall:g} m from a workspace wall, closer than W/2 = {r:g} m, so the "
+                         f"vehicle does not fit there; move the {name} at least {r:g} m inside the workspace or "
+                         "use a smaller vehicle_width.")
+    p = Point(pt)
+    for i, f in enumerate(scene.fixed):
+        d = float(f.polygon.distance(p))
+        if d < r:
+            raise ValueError(f"{name}: {pt} is {d:g} m from fixed[{i}] ({f.name}), closer than W/2 = {r:g} m, and "
+                             f"fixed obstacles are never pushed; move the {name} or use a smaller vehicle_width.")

@@ -19,7 +19,7 @@ list of values; static configuration is fixed for the whole sweep::
     top_sources = 4                             # Eq. 6 delivered mass of the best N sources (0 = off)
 
 Settings are ordered scene-major, then by the ``[fabric]`` fields that change the DP table (all but
-``tau_h``, ``slack_tau``, ``anchor_lambda``), then the other ``[fabric]`` fields, then ``[spill]``, each
+``tau_h`` and ``slack_tau``), then the other ``[fabric]`` fields, then ``[spill]``, each
 group in the order given, the last varying fastest; ``setting`` (0-based) is the row's position in that
 order. So the settings sharing one DP table (same scene and table fields) are contiguous: a chunk holds
 U such tables, runs ``build_fabric`` once per table and evaluates the M settings of each table with a
@@ -48,6 +48,8 @@ import numpy as np
 
 from jaxplan.sweep.chunks import Chunk, chunk_size_for, evaluate_chunk
 from jaxplan.sweep.spec import METRICS, SweepSpec, columns_of, load_spec, settings_of, tables_of
+from jaxplan.transport.fabric import check_build_memory
+from jaxplan.transport.params import FabricParams
 
 
 def _fmt(v) -> str:
@@ -61,7 +63,9 @@ def _fmt(v) -> str:
         return str(np.float32(v))   # shortest text that reads back as the same float32
     return repr(float(v))
 
-__all__ = ["plan_chunks", "run_sweep"]
+__all__ = ["MAX_BUDGET_MB", "plan_chunks", "run_sweep"]
+
+MAX_BUDGET_MB = 2 ** 20   # 1 TB: a chunk's working memory; its table count must stay a finite int
 
 
 def _setting_fields(spec: SweepSpec, setting) -> list[str]:
@@ -181,11 +185,14 @@ def run_sweep(spec, out, *, backend: str = "local", address: str | None = None, 
     if backend not in ("local", "ray"):
         raise ValueError(f"backend: must be 'local' or 'ray'; got {backend!r}.")
     if isinstance(memory_budget_mb, bool) or not isinstance(memory_budget_mb, (int, float)) \
-            or not memory_budget_mb > 0:
-        raise ValueError(f"memory_budget_mb: must be a number > 0 (MB per chunk); got {memory_budget_mb!r}.")
+            or not 0 < memory_budget_mb <= MAX_BUDGET_MB:
+        raise ValueError(f"memory_budget_mb: must be a number in (0, {MAX_BUDGET_MB}] (MB per chunk); "
+                         f"got {memory_budget_mb!r}.")
     if address is not None and backend != "ray":
         raise ValueError("address: only used with backend='ray'; drop it or add backend='ray'.")
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
+    for shape in sorted({scene.shape for _, scene in spec.scenes}):   # before the output is touched
+        check_build_memory(shape, FabricParams(**spec.fabric_static))
     out = Path(out)
     if out.parent and not out.parent.exists():
         out.parent.mkdir(parents=True, exist_ok=True)

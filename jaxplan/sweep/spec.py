@@ -11,17 +11,26 @@ from typing import NamedTuple
 
 import jax
 
-from jaxplan.transport import params as _params
 from jaxplan.transport.params import FabricParams, validate_params
 from jaxplan.transport.scene import Scene
 from jaxplan.transport.scenes import BUILTIN_SCENES, builtin_scene, random_scene
 from jaxplan.transport.spillage import SpillParams, validate_spill_params
 
-__all__ = ["METRICS", "SweepSpec", "columns_of", "load_spec", "settings_of", "tables_of"]
+__all__ = ["METRICS", "REFUSED", "SweepSpec", "columns_of", "load_spec", "settings_of", "tables_of"]
 
-# Traced fields read from the parameter classes, so a field added there is sweepable at once.
-FABRIC_TRACED = tuple(_params.TRACED_FIELDS)
-FABRIC_STATIC = tuple(_params.STATIC_FIELDS)
+# Every field a spec accepts changes some metric; the others are refused with the reason (REFUSED), so
+# that no swept column is silently ignored. FabricParams fields are listed explicitly: a field added
+# there is refused as unknown until it is listed here (tests/sweep holds every field to one of the two).
+FABRIC_TRACED = ("theta_tol_deg", "tau_h", "slack_tau")
+FABRIC_STATIC = ("monotone", "k", "max_hops", "highway_relative", "highway_smoothing", "highway_nms", "solver")
+REFUSED = {
+    "temperature": "sweeps build the hard fabric (their metrics read its continuation table); a temperature > 0 "
+                   "builds the soft fabric, a relaxation for gradients: tune it with jaxplan.tune (fit_fabric)",
+    "anchor_lambda": "it only weighs connectors (Eq. 12), which a sweep does not compute, so every row would be "
+                     "equal; compare it with jaxplan.plan_connectors or in episodes (jaxplan episode)",
+    "soft_rounds": "it only sets the soft fabric's rounds, and sweeps build the hard fabric",
+}
+# the spill model's fields, all read by the route metrics (top_delivered)
 SPILL_TRACED = tuple(p[0].name for p, _ in jax.tree_util.tree_flatten_with_path(SpillParams())[0])
 SPILL_STATIC = tuple(f.name for f in dataclasses.fields(SpillParams) if f.name not in SPILL_TRACED)
 _TOP_KEYS = ("scenes", "random_scenes", "fabric", "spill", "static", "metrics")
@@ -41,9 +50,9 @@ METRICS = {
     "routes_truncated": "a selected route of those sources is longer than max_steps (its numbers are partial)",
 }
 # Fabric fields that do not enter the DP table: tau_h only thresholds the heatmap into highways,
-# slack_tau only widens the route candidate set, anchor_lambda only weighs connectors (not computed
-# here). Settings differing only in these (and in spill parameters) share one build_fabric.
-AFTER_TABLE = ("tau_h", "slack_tau", "anchor_lambda")
+# slack_tau only widens the route candidate set. Settings differing only in these (and in spill
+# parameters) share one build_fabric.
+AFTER_TABLE = ("tau_h", "slack_tau")
 PAD = "__pad__"
 
 
@@ -140,10 +149,12 @@ def _grid(spec: dict, section: str, traced: tuple, static: tuple) -> tuple:
         _fail(section, f"expected a table of field = value or [values]; got {table!r}.")
     out = []
     for key, raw in table.items():
+        if key in REFUSED and section == "fabric":
+            _fail(f"{section}.{key}", f"not sweepable: {REFUSED[key]}.")
         if key in static:
             _fail(f"{section}.{key}", "a static field (it changes the compiled program); put it under [static].")
         if key not in traced:
-            _fail(f"{section}.{key}", f"unknown field; the traced fields are {', '.join(traced)}.")
+            _fail(f"{section}.{key}", f"unknown field; the sweepable fields are {', '.join(traced)}.")
         out.append((key, _values(f"{section}.{key}", raw)))
     return tuple(out)
 
@@ -195,6 +206,8 @@ def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
     if not isinstance(static, dict):
         _fail("static", "expected a table of static fields, e.g. k = 4.")
     for key in static:
+        if key in REFUSED:
+            _fail(f"static.{key}", f"not sweepable: {REFUSED[key]}.")
         if key in FABRIC_TRACED or key in SPILL_TRACED:
             _fail(f"static.{key}", "a traced field; put it under [fabric] or [spill] (a value or a list).")
         if key not in FABRIC_STATIC and key not in SPILL_STATIC:
@@ -219,7 +232,25 @@ def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
     max_steps = metrics.get("max_steps")
     if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1):
         _fail("metrics.max_steps", f"expected an int >= 1 (route walk length); got {max_steps!r}.")
+    _check_routes_read(fabric_grid, spill_grid, spill_static, top)
     return SweepSpec(_scenes(spec, base), fabric_grid, spill_grid, fabric_static, spill_static, top, max_steps)
+
+
+def _check_routes_read(fabric_grid, spill_grid, spill_static: dict, top: int) -> None:
+    """Refuse route-selection fields that the route metrics would not read: every spill field and
+    slack_tau with ``metrics.top_sources = 0`` (no route metric), and the spill model's fields and
+    slack_tau with ``static.enabled = false`` (routes by raw count, Eq. 5: no spill, entry 0)."""
+    named = [f"spill.{k}" for k, _ in spill_grid] + [f"static.{k}" for k in spill_static]
+    named += [f"fabric.{k}" for k, _ in fabric_grid if k == "slack_tau"]
+    if top == 0 and named:
+        _fail(named[0], "metrics.top_sources = 0 turns the route metrics off, and only they read the route "
+              "selection (slack_tau) and the spill model, so every row would be equal; set "
+              "metrics.top_sources >= 1 or drop the field.")
+    if spill_static.get("enabled", True) is False:
+        ignored = [n for n in named if n != "static.enabled"]
+        if ignored:
+            _fail(ignored[0], "static.enabled = false selects routes by raw count (Eq. 5, entry 0) without a "
+                  "spill model, so every row would be equal; drop the field or enabled = false.")
 
 
 def settings_of(spec: SweepSpec) -> list[tuple]:

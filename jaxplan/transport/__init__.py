@@ -11,7 +11,15 @@ draws fabrics and episodes.
 from jaxplan.transport.connectors import Connectors, plan_connectors
 from jaxplan.transport.episode import Episode, EpisodeParams, EpisodeState, StepRecord, reset, run_episode, step
 from jaxplan.transport.execute import Push, Route
-from jaxplan.transport.fabric import Fabric, Paths, Table, build_fabric, extract_paths
+from jaxplan.transport.fabric import (
+    Fabric,
+    Paths,
+    Table,
+    build_fabric,
+    check_build_memory,
+    estimate_build_bytes,
+    extract_paths,
+)
 from jaxplan.transport.params import FabricParams
 from jaxplan.transport.rebuild import Affected, refresh_connectors, selective_rebuild
 from jaxplan.transport.scene import Scene, box, circle
@@ -22,6 +30,7 @@ from jaxplan.transport.spillage import SpillParams
 
 __all__ = ["BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState",
            "Fabric", "FabricParams", "Paths", "Push", "Route", "Scene", "Selection", "SoftFabric", "SpillParams",
-           "StepRecord", "Table", "box", "build_fabric", "builtin_scene", "circle", "extract_paths",
+           "StepRecord", "Table", "box", "build_fabric", "builtin_scene", "check_build_memory", "circle",
+           "estimate_build_bytes", "extract_paths",
            "plan_connectors", "random_scene", "refresh_connectors", "reselect", "reset", "run_episode",
            "select_routes", "selective_rebuild", "step"]

@@ -56,6 +56,9 @@ REBUILD_MODES = ("auto", "selective", "full")
 # whole build. Table 2 and the whole-episode benchmark (experiments/rebuild_modes.py,
 # docs/benchmarks.md) put the crossover near 50 cells a side.
 SELECTIVE_MIN_CELLS = 2_500
+# The push budget is compared with the tick counter, an int32, inside the compiled step; an episode
+# of a million pushes already runs for hours.
+MAX_PUSHES = 1_000_000
 
 
 def _check_rebuild(rebuild) -> None:
@@ -85,8 +88,8 @@ class EpisodeParams:
     """Parameters of ``run_episode``.
 
     Traced: rearrange_margin: f32[] (>= 0), see the choice rule; stop_fraction: f32[] in [0, 1).
-    Static: max_pushes (push budget, >= 0); source_rule ("max_value" or "nearest"); rebuild
-    ("auto", "selective" or "full": how the fabric is refreshed after a push; all give the same
+    Static: max_pushes (push budget, an int in [0, ``MAX_PUSHES``] = 10^6); source_rule ("max_value" or
+    "nearest"); rebuild ("auto", "selective" or "full": how the fabric is refreshed after a push; all give the same
     fabric, only the time differs; "auto" picks by ``rebuild_mode``);
     reselect (apply Eq. 6 to every source before planning, module docstring; off by default: it
     costs a spill evaluation of every candidate route of every source with two or more per tick).
@@ -117,13 +120,30 @@ def validate_episode_params(ep: EpisodeParams) -> None:
     frac = float(ep.stop_fraction)
     if not 0 <= frac < 1:
         raise ValueError(f"EpisodeParams.stop_fraction: must lie in [0, 1); got {frac!r}.")
-    if not isinstance(ep.max_pushes, (int, np.integer)) or ep.max_pushes < 0:
-        raise ValueError(f"EpisodeParams.max_pushes: must be an int >= 0; got {ep.max_pushes!r}.")
+    if (isinstance(ep.max_pushes, (bool, np.bool_)) or not isinstance(ep.max_pushes, (int, np.integer))
+            or not 0 <= ep.max_pushes <= MAX_PUSHES):
+        raise ValueError(f"EpisodeParams.max_pushes: must be an int in [0, {MAX_PUSHES}] (the tick counter "
+                         f"is an int32 in the compiled step; 10^6 pushes take hours); got {ep.max_pushes!r}.")
     if ep.source_rule not in SOURCE_RULES:
         raise ValueError(f"EpisodeParams.source_rule: must be one of {SOURCE_RULES}; got {ep.source_rule!r}.")
     _check_rebuild(ep.rebuild)
     if not isinstance(ep.reselect, (bool, np.bool_)):
         raise ValueError(f"EpisodeParams.reselect: must be a bool; got {ep.reselect!r}.")
+
+
+def require_hard(params: FabricParams, where: str = "run_episode") -> None:
+    """Raise ``ValueError`` for a soft ``FabricParams`` (``temperature`` set and not a concrete 0).
+
+    An episode reads the hard fabric's continuation table to pick and walk routes; the soft fabric
+    (``jaxplan.transport.soft``) is a relaxation for gradients (``jaxplan.tune``) and has no table.
+    Structural, so it also works on traced parameters (a traced temperature is soft).
+    """
+    if isinstance(params, FabricParams) and params.is_soft:
+        t = params.temperature
+        shown = "a traced value" if isinstance(t, jax.core.Tracer) else repr(t)
+        raise ValueError(f"FabricParams.temperature: {shown}; {where} pushes on the hard fabric (its "
+                         "continuation table), and a temperature > 0 builds the soft fabric, a relaxation for "
+                         "gradients (jaxplan.tune) without one. Use temperature=None (or 0) for episodes.")
 
 
 # ------------------------------------------------------------------------------------------ one tick
@@ -416,6 +436,7 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
     jittable (``vmap`` it over scenes of one shape). spill is not read; it keeps the signature of
     ``step``. Concrete parameters are not validated here (``run_episode`` does)."""
     params = FabricParams() if params is None else params
+    require_hard(params, "reset")
     ep = EpisodeParams() if episode is None else episode
     del spill
     scene = scene.with_obj(execute.quantize(scene.obj))
@@ -480,6 +501,7 @@ def act(state: EpisodeState, params: FabricParams, spill: spillage.SpillParams, 
     source, no route, a route longer than ``walk_cap``), is returned unchanged but for the stop code,
     with an invalid record. walk_cap: static walk length (default ``default_walk_cap``).
     """
+    require_hard(params, "act")
     shape = state.scene.obj.shape
     cap = default_walk_cap(shape) if walk_cap is None else int(walk_cap)
     plan, _ = _plan(state.scene, params, episode, spill, state.fabric, cap, evaluator)
@@ -500,6 +522,8 @@ def step(state: EpisodeState, params: FabricParams, spill: spillage.SpillParams,
     of ``run_episode(rebuild="full")``, except that a route longer than ``walk_cap`` ends the episode
     (stop reason "walk_cap") where ``run_episode`` walks again with a longer cap.
     """
+    require_hard(params, "step")
+
     def live(state):
         new, record, _ = act(state, params, spill, episode, walk_cap=walk_cap, evaluator=evaluator)
         fabric = jax.lax.cond(record.valid, lambda s: build_fabric(s, params), lambda s: state.fabric, new.scene)
@@ -512,6 +536,7 @@ def rollout(state: EpisodeState, params: FabricParams, spill: spillage.SpillPara
             n_steps: int, *, walk_cap: int | None = None, evaluator: spillage.Evaluator = spillage.curvature_spill):
     """``n_steps`` (static) ticks of ``step`` in one ``jax.lax.scan``: ``(state, StepRecord)`` with the
     records stacked along a leading axis of n_steps (rows after the episode stopped are invalid)."""
+    require_hard(params, "rollout")
     return jax.lax.scan(lambda s, _: step(s, params, spill, episode, walk_cap=walk_cap, evaluator=evaluator),
                         state, None, length=n_steps)
 
@@ -524,6 +549,8 @@ def rollout_scenes(scenes, params: FabricParams, spill: spillage.SpillParams, ep
     scenes: one Scene whose leaves are stacked along a leading axis B
     (``jaxplan.transport.scene.stack_scenes``); params, spill, episode are shared. Jitted as ``rollout_scenes_jit``.
     """
+    require_hard(params, "rollout_scenes")
+
     def one(scene):
         start = reset(scene, params, spill, episode)
         final, records = rollout(start, params, spill, episode, n_steps, walk_cap=walk_cap, evaluator=evaluator)
@@ -576,6 +603,9 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     spill = spillage.SpillParams() if spill is None else spill
     ep = EpisodeParams() if episode is None else episode
     validate_params(params)
+    require_hard(params)
+    if params.temperature is not None:   # a concrete 0 is the hard fabric; None keeps it so under jit
+        params = params.replace(temperature=None)
     spillage.validate_spill_params(spill)
     validate_episode_params(ep)
 

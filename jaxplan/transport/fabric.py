@@ -19,7 +19,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.core import lattice
-from jaxplan.core.compilation import grid_jit, traced
+from jaxplan.core.compilation import SMALL_GRID_CELLS, grid_jit, traced
+from jaxplan.core.memory import available_memory_bytes
 from jaxplan.transport import heatmap, kbest, visibility
 from jaxplan.transport.params import FabricParams, validate_params
 
@@ -289,6 +290,67 @@ def build_fabric(scene, params: FabricParams | None = None) -> Fabric:
             return soft.build_soft_fabric(scene, params)
         params = params.replace(temperature=None)   # a concrete 0: the exact hard kernels
     return _build_jit(scene, params)
+
+
+# ----------------------------------------------------------------------------------------------
+# What a build costs
+
+# Peak memory of a first (compiling) build_fabric call over an idle process that imported jaxplan
+# (~230 MB), measured with /usr/bin/time -v on the CPU backend (policy solver, 8x8 to 32x32 grids):
+#   K      1    2    4    6    8    10    12    16
+#   MiB   23   34   63  131  304   725  1670  6770
+# Grid size hardly matters there: the compile dominates, and it grows with K because the K-best
+# merge is unrolled (kbest.kbest_levels: O(K^2) merges of O(K)-entry lists). Least squares on the
+# relative error gives COMPILE_MIB below, within 2% at every point. Grids above SMALL_GRID_CELLS
+# compile with XLA's newer emitters, which took 110-300 MiB more at K = 1-8 on 70x70 (LARGE_GRID_MIB).
+# The run itself (XLA's memory_analysis: temporaries ~7 K^2 + 16 K + 100 bytes per cell, outputs
+# 16 K + 48, at K = 1-8) is counted twice, for the host copies of the outputs. The wavefront solver
+# (monotone=False) measured below the policy solver (K = 8: 250 vs 304 MiB), so one estimate covers both.
+_MIB = 2 ** 20
+
+
+def _compile_mib(k: int, cells: int) -> float:
+    mib = 11.4 * (1 + k) + 0.00616 * k ** 5
+    return mib + (110.0 + 30.0 * k if cells > SMALL_GRID_CELLS else 0.0)
+
+
+def estimate_build_bytes(shape, params: FabricParams | None = None) -> int:
+    """Estimated peak memory, bytes, that a first ``build_fabric`` call on an ``(H, W)`` grid adds to
+    the process (compiling it, then running it), above the ~230 MB of Python, JAX and jaxplan.
+
+    Fitted to measurements on the CPU backend (comment above): the compile term is
+    ``11.4 (1 + K) + 0.00616 K^5`` MiB (+ ``110 + 30 K`` MiB above 65x65 cells, XLA's newer emitters),
+    the run term ``2 (7 K^2 + 32 K + 160)`` bytes per cell. About 0.3 GB at K = 8, 1.8 GB at K = 12,
+    7 GB at K = 16 on the 25x25 default scene; the compile time grows alike (15 s, 45 s, 140 s).
+    params: only ``k`` is read (default ``FabricParams()``).
+    """
+    params = FabricParams() if params is None else params
+    h, w = (int(n) for n in shape)
+    k = int(params.k)
+    run = 2 * (7 * k * k + 32 * k + 160) * h * w
+    return int(_compile_mib(k, h * w) * _MIB) + run
+
+
+def check_build_memory(shape, params: FabricParams | None = None, available: int | None = None) -> int:
+    """Raise ``ValueError`` naming ``FabricParams.k`` when ``estimate_build_bytes(shape, params)``
+    exceeds ``available`` bytes (default ``jaxplan.core.available_memory_bytes()``; no check when that
+    is unknown). Returns the estimate. The message names the largest K that fits."""
+    params = FabricParams() if params is None else params
+    need = estimate_build_bytes(shape, params)
+    room = available_memory_bytes() if available is None else int(available)
+    if room is None or need <= room:
+        return need
+    h, w = (int(n) for n in shape)
+    fits = [k for k in range(1, int(params.k)) if estimate_build_bytes(shape, params.replace(k=k)) <= room]
+    fix = (f"use k <= {fits[-1]} (about {_gb(estimate_build_bytes(shape, params.replace(k=fits[-1])))}) or "
+           "free memory" if fits else "free memory or use a smaller grid")
+    raise ValueError(f"FabricParams.k: K = {params.k} needs about {_gb(need)} to compile and build a {h}x{w} "
+                     f"fabric (jaxplan.transport.fabric.estimate_build_bytes), more than the {_gb(room)} of "
+                     f"memory available; {fix}.")
+
+
+def _gb(n: int) -> str:
+    return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{n / 1e6:.0f} MB"
 
 
 # ----------------------------------------------------------------------------------------------

@@ -17,6 +17,13 @@ TRACED_FIELDS = ("theta_tol_deg", "tau_h", "anchor_lambda", "slack_tau", "temper
 STATIC_FIELDS = ("monotone", "k", "max_hops", "highway_relative", "highway_smoothing", "highway_nms",
            "solver", "soft_rounds")
 
+K_MAX = 24
+"""The deepest continuation table ``FabricParams.k`` may ask for. The K-best merge
+(``jaxplan.transport.kbest``) is unrolled into the compiled program, so compiling it takes memory and
+time growing about as K^5 (``jaxplan.transport.fabric.estimate_build_bytes``, measured on the CPU
+backend): about 0.3 GB and 15 s at K = 8, 7 GB and 140 s at K = 16, 50 GB at K = 24, 200 GB at 32.
+Routes are chosen among the entries within ``slack_tau`` of the best, so a few entries suffice."""
+
 
 @dataclasses.dataclass(frozen=True)
 class FabricParams:
@@ -33,7 +40,7 @@ class FabricParams:
         batches are unchanged; any float (or tracer) shares one soft trace (no recompile per value).
     Static:
       monotone: the strict monotone rule (Eq. 2, strict); off gives the hop-capped walk DP.
-      k: continuation-table depth K (>= 1).
+      k: continuation-table depth K, an int in [1, ``K_MAX``] (24; its compile cost grows about as K^5).
       max_hops: DP round cap; None = H*W + 1 with the monotone rule, 2*(H+W) without.
       highway_relative, highway_smoothing, highway_nms: highway extraction options (Eq. 11).
       solver: "auto" (policy iteration with the monotone rule, wavefront without), "policy" or
@@ -118,8 +125,13 @@ def validate_params(params: FabricParams) -> None:
                  "Use a non-negative distance weight.")
     _check_range("slack_tau", params.slack_tau, 0.0, math.inf, False, True,
                  "Use a non-negative slack in object units.")
-    if not isinstance(params.k, (int, np.integer)) or params.k < 1:
-        raise ValueError(f"FabricParams.k: the continuation-table depth must be an int >= 1; got {params.k!r}.")
+    if (isinstance(params.k, (bool, np.bool_)) or not isinstance(params.k, (int, np.integer))
+            or not 1 <= params.k <= K_MAX):
+        raise ValueError(f"FabricParams.k: {params.k!r} is out of range; K must be an int in [1, {K_MAX}]: the "
+                         "K-best merge is compiled unrolled and its compile memory grows about as K^5 (about "
+                         "7 GB at K = 16, 50 GB at K = 24; jaxplan.transport.fabric.estimate_build_bytes). Use "
+                         "a small K such as 4 (the default): routes are chosen among the entries within "
+                         "slack_tau of the best.")
     if params.max_hops is not None and (not isinstance(params.max_hops, (int, np.integer)) or params.max_hops < 1):
         raise ValueError(f"FabricParams.max_hops: must be None or an int >= 1; got {params.max_hops!r}.")
     if params.solver not in ("auto", "policy", "wavefront"):

@@ -103,10 +103,9 @@ def test_schedule_loads_back_from_result_json(run):
 
 
 def test_failed_planning_still_writes_the_result(tmp_path):
-    # A fixed stub under the box leaves at most 0.75 m < W below the wall, wherever the box goes: no
-    # schedule exists, so planning fails whatever the search's speed.
-    blocked = {**TINY, "fixed": TINY["fixed"] + [{"name": "stub", "pieces": [[[1.9, 0.0], [2.1, 0.0], [2.1, 0.25],
-                                                                             [1.9, 0.25]]]}]}
+    # A box of 10^6 kg: the robots cannot move it, and the 0.01 s budget ends the search anyway, so
+    # planning fails whatever the search's speed (the geometry itself is feasible).
+    blocked = {**TINY, "movables": [{**TINY["movables"][0], "mass": 1e6}]}
     scene_file = tmp_path / "blocked.json"
     scene_file.write_text(json.dumps(blocked))
     rc = main(["pusharound", "--scene", str(scene_file), "--out", str(tmp_path), "--time-limit", "0.01",
@@ -115,7 +114,7 @@ def test_failed_planning_still_writes_the_result(tmp_path):
     res = json.loads((tmp_path / "result.json").read_text())
     assert res["success"] is False and res["reason"] and res["w_clear_path"] is None
     assert res["execution"] is None and res["planning"]["success"] is False
-    assert len(res["obstacles"]) == 3
+    assert len(res["obstacles"]) == 2
     for name in OUTPUTS:
         assert (tmp_path / name).exists(), name
 
@@ -180,4 +179,32 @@ def test_bad_mode_table_is_a_clear_error(tmp_path, tiny_file, capsys, content, w
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: --mode-table: ") and words in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"vehicle_width": 10.0}, "vehicle_width: 10 m is not narrower than the workspace's narrow side (3 m"),
+    ({"start": [0.2, 2.2]}, "start: (0.2, 2.2) is 0.2 m from a workspace wall"),
+    # a fixed stub under the box leaves at most 0.75 m < W below the wall, wherever the box goes
+    ({"fixed": TINY["fixed"] + [{"name": "stub", "pieces": [[[1.9, 0.0], [2.1, 0.0], [2.1, 0.25], [1.9, 0.25]]]}]},
+     "fixed: the fixed obstacles and walls alone leave no W-clear corridor"),
+])
+def test_infeasible_scene_is_refused_before_planning(tmp_path, capsys, change, words):
+    scene_file = tmp_path / "wide.json"
+    scene_file.write_text(json.dumps({**TINY, **change}))
+    with pytest.raises(SystemExit) as exc:
+        main(["pusharound", "--scene", str(scene_file), "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: --scene: {scene_file}: ") and words in lines[0], lines
+    assert not (tmp_path / "o").exists()
+
+
+def test_unusable_mode_table_is_refused_before_planning(tmp_path, capsys):
+    (tmp_path / "blocker").write_text("a file")
+    for table in (tmp_path, tmp_path / "blocker" / "modes.json", tmp_path / "missing" / "modes.json"):
+        with pytest.raises(SystemExit) as exc:
+            main(["pusharound", "--out", str(tmp_path / "o"), "--mode-table", str(table)])
+        assert exc.value.code == 2
+        assert capsys.readouterr().err.startswith("error: --mode-table: ")
     assert not (tmp_path / "o").exists()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+import re
 
 import matplotlib
 
@@ -356,3 +357,48 @@ def test_deepcopy_free_geometry_is_immutable():
     assert scene.movables[0].pose != moved.movables[0].pose
     assert copy.deepcopy(scene).to_dict() == scene.to_dict()
     assert math.isclose(moved.movables[0].pose[1] - scene.movables[0].pose[1], 0.3)
+
+
+# --------------------------------------------------------------------------------------------------
+# Feasibility: geometry no push can change
+# --------------------------------------------------------------------------------------------------
+
+def _walled_off() -> PushScene:
+    """The bar scene with a fixed wall across the whole room instead of the bars: no push can help."""
+    d = _bar_scene(0.8)
+    d["fixed"][0]["pieces"] = [_box(2.8, 0, 3.2, 4)]
+    del d["movables"][0]
+    return PushScene.from_dict(d)
+
+
+@pytest.mark.parametrize("change, field, words", [
+    ({"width": 10.0}, "vehicle_width", "10 m is not narrower than the workspace's narrow side (4 m"),
+    ({"width": 4.0}, "vehicle_width", "use a width below 4 m"),
+    ({"start": (0.3, 2.0)}, "start", "0.3 m from a workspace wall, closer than W/2 = 0.5 m"),
+    ({"goal": (5.0, 3.8)}, "goal", "closer than W/2 = 0.5 m"),
+    ({"goal": (2.6, 0.5)}, "goal", "from fixed[0] (low), closer than W/2"),
+    ({"robot_radius": 2.5}, "robots.radius", "does not fit across"),
+    (None, "fixed", "the fixed obstacles and walls alone leave no W-clear corridor"),
+])
+def test_check_feasible_names_the_field_and_the_fix(change, field, words):
+    from jaxplan.pusharound import check_feasible
+
+    base = PushScene.from_dict(_bar_scene(0.8))
+    check_feasible(base)               # blocked by the movable bar only: pushing can open it
+    scene = _walled_off() if change is None else base.replace(**change)
+    with pytest.raises(ValueError, match=rf"^{re.escape(field)}: ") as info:
+        check_feasible(scene)
+    assert words in str(info.value)
+
+
+def test_nominal_scenes_are_feasible():
+    from jaxplan.pusharound import check_feasible
+
+    for seed in (0, 1):
+        check_feasible(nominal_scene(seed))
+    with pytest.raises(ValueError, match="vehicle_width"):
+        check_feasible(nominal_scene(0).replace(width=10.0))
+    with pytest.raises(ValueError, match="^fixed: "):    # the bars' openings are 1.7 m wide
+        check_feasible(nominal_scene(0).replace(width=1.8))
+    with pytest.raises(ValueError, match=r"seed: must be an int >= 0; got -1"):
+        nominal_scene(-1)

@@ -239,5 +239,20 @@ def test_bad_inputs_raise(one_world):
 def test_no_movables():
     clear = plan_pushes(_scene([]), FAST)                      # a 1 m opening: nothing to push
     assert clear.success and clear.schedule == []
-    blocked = plan_pushes(_scene([], lo=1.2, hi=1.8), FAST)    # 0.6 m: nothing can open it
-    assert not blocked.success and blocked.reason == "exhausted" and blocked.path is None
+    with pytest.raises(ValueError, match="^fixed: "):           # 0.6 m: nothing can open it, so no search
+        plan_pushes(_scene([], lo=1.2, hi=1.8), FAST)
+
+
+def test_infeasible_geometry_is_refused_before_the_search(monkeypatch):
+    from jaxplan.pusharound.search import loop
+
+    def no_search(*args, **kwargs):
+        raise AssertionError("searched")
+
+    monkeypatch.setattr(loop, "new_context", no_search)
+    with pytest.raises(ValueError, match="^vehicle_width: 10 m is not narrower"):
+        plan_pushes(ONE.replace(width=10.0), FAST)
+    with pytest.raises(ValueError, match="^goal: "):
+        plan_pushes(ONE.replace(goal=(4.9, 1.5)), FAST)
+    with pytest.raises(ValueError, match="SearchConfig.seed: must be an int >= 0"):
+        FAST.replace(seed=-1)

@@ -179,17 +179,87 @@ def test_cli_sweep_help_and_bad_spec(tmp_path, capsys):
     ({"random_scenes": {"seeds": [1], "shape": [5]}}, "random_scenes.shape"),
     ({"random_scenes": {"seeds": [1], "density": 2.0}}, "random_scenes.density"),
     ({"scenes": ["default"], "metrics": {"top_sources": -1}}, "metrics.top_sources"),
+    # accepted once, but ignored: every row was equal
+    ({"scenes": ["default"], "fabric": {"temperature": [0.0, 0.5]}},
+     "fabric.temperature: not sweepable: sweeps build the hard fabric"),
+    ({"scenes": ["default"], "fabric": {"anchor_lambda": [0.5, 2.0]}},
+     "fabric.anchor_lambda: not sweepable: it only weighs connectors"),
+    ({"scenes": ["default"], "static": {"temperature": 0.5}}, "static.temperature: not sweepable"),
+    ({"scenes": ["default"], "static": {"soft_rounds": 8}}, "static.soft_rounds: not sweepable"),
+    ({"scenes": ["default"], "spill": {"lam": [0.0, 0.1]}, "metrics": {"top_sources": 0}},
+     "spill.lam: metrics.top_sources = 0 turns the route metrics off"),
+    ({"scenes": ["default"], "fabric": {"slack_tau": [0.0, 1.0]}, "metrics": {"top_sources": 0}},
+     "fabric.slack_tau: metrics.top_sources = 0"),
+    ({"scenes": ["default"], "static": {"samples_per_step": 4}, "metrics": {"top_sources": 0}},
+     "static.samples_per_step: metrics.top_sources = 0"),
+    ({"scenes": ["default"], "spill": {"threshold": [0.0, 1.0]}, "static": {"enabled": False}},
+     "spill.threshold: static.enabled = false"),
+    ({"scenes": ["default"], "fabric": {"slack_tau": [0.0, 1.0]}, "static": {"enabled": False}},
+     "fabric.slack_tau: static.enabled = false"),
+    ({"scenes": ["default"], "static": {"k": 25}}, r"FabricParams.k: 25 is out of range"),
 ])
 def test_bad_spec_names_the_key(spec, match):
     with pytest.raises(ValueError, match=match):
         sweep.load_spec(spec)
 
 
+def test_unknown_field_lists_only_the_sweepable_ones():
+    with pytest.raises(ValueError, match="sweepable fields are theta_tol_deg, tau_h, slack_tau.$") as info:
+        sweep.load_spec({"scenes": ["default"], "fabric": {"temprature": [0.5]}})
+    assert "anchor_lambda" not in str(info.value) and "temperature" not in str(info.value)
+
+
+def test_every_params_field_is_sweepable_or_refused():
+    """A field added to FabricParams must be listed as sweepable or refused with a reason."""
+    import dataclasses
+
+    from jaxplan.sweep import spec
+
+    fields = {f.name for f in dataclasses.fields(FabricParams)}
+    listed = set(spec.FABRIC_TRACED) | set(spec.FABRIC_STATIC) | set(spec.REFUSED)
+    assert fields == listed
+    assert not set(spec.REFUSED) & (set(spec.FABRIC_TRACED) | set(spec.FABRIC_STATIC))
+
+
+def test_every_sweepable_traced_field_changes_a_metric(tmp_path):
+    """Two values of each accepted [fabric] / [spill] field give rows that differ in some metric."""
+    grid = {"fabric": {"theta_tol_deg": [20.0, 80.0], "tau_h": [0.05, 0.95], "slack_tau": [0.0, 30.0]},
+            "spill": {"lam": [0.0, 0.5], "threshold": [0.0, 0.5], "temperature": [0.0, 2.0]}}
+    assert {k for k, _ in grid["fabric"].items()} == set(sweep.spec.FABRIC_TRACED)
+    assert set(grid["spill"]) == set(sweep.spec.SPILL_TRACED)
+    out = tmp_path / "all.csv"
+    sweep.run_sweep({"random_scenes": {"seeds": [5], "shape": [7, 7], "density": 0.8}, **grid,
+                     "metrics": {"top_sources": 6}}, out, progress=False)
+    header, rows = _rows(out.read_text())
+    swept = [k for k in header[2:] if k not in sweep.METRICS]
+    for field in swept:
+        j = header.index(field)
+        others = [i for i, k in enumerate(header) if k in swept and k != field]
+        differs = False
+        for r in rows:
+            for q in rows:
+                if r[j] < q[j] and all(r[i] == q[i] for i in others):
+                    differs |= r[-len(sweep.METRICS):] != q[-len(sweep.METRICS):]
+        assert differs, f"{field} changes no metric"
+
+
+def test_cli_refuses_an_ignored_field_in_one_line(tmp_path, capsys):
+    spec = tmp_path / "t.toml"
+    spec.write_text('scenes = ["default"]\n[fabric]\ntemperature = [0.0, 0.5]\n')
+    with pytest.raises(SystemExit) as info:
+        main(["sweep", str(spec), "--out", str(tmp_path / "o.csv")])
+    assert info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: sweep spec: fabric.temperature: not sweepable")
+    assert not (tmp_path / "o.csv").exists()
+
+
 def test_bad_arguments_and_foreign_files(tmp_path, budget):
     with pytest.raises(ValueError, match="backend"):
         sweep.run_sweep(SPEC, tmp_path / "a.csv", backend="spark")
-    with pytest.raises(ValueError, match="memory_budget_mb"):
-        sweep.run_sweep(SPEC, tmp_path / "a.csv", memory_budget_mb=0)
+    for bad in (0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="memory_budget_mb"):
+            sweep.run_sweep(SPEC, tmp_path / "a.csv", memory_budget_mb=bad)
     other = tmp_path / "other.csv"
     other.write_text("a,b\n1,2\n")
     with pytest.raises(ValueError, match="another sweep"):
@@ -217,3 +287,13 @@ def test_ray_backend_without_ray_says_how_to_install(tmp_path, monkeypatch, budg
     monkeypatch.setitem(sys.modules, "ray", None)   # import ray -> ImportError
     with pytest.raises(ValueError, match=r"jaxplan\[distributed\]"):
         sweep.run_sweep(SPEC, tmp_path / "r.csv", backend="ray", memory_budget_mb=budget, progress=False)
+
+
+def test_a_table_too_deep_for_memory_is_refused_before_the_file(tmp_path, monkeypatch):
+    from jaxplan.transport import fabric
+
+    monkeypatch.setattr(fabric, "available_memory_bytes", lambda: 10**9)
+    out = tmp_path / "deep.csv"
+    with pytest.raises(ValueError, match=r"FabricParams.k: K = 16 needs about 7.0 GB .* use k <= 10"):
+        sweep.run_sweep({"scenes": ["default"], "static": {"k": 16}}, out, progress=False)
+    assert not out.exists()

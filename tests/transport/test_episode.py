@@ -132,6 +132,37 @@ def test_bad_episode_params_name_the_field(site):
         run_episode(site, episode=EpisodeParams(source_rule="random"))
     with pytest.raises(ValueError, match="EpisodeParams.rebuild"):
         run_episode(site, episode=EpisodeParams(rebuild="sometimes"))
+    for pushes in (10**12, True, -1):   # 10^12 overflowed the compiled int32 tick counter
+        with pytest.raises(ValueError, match=r"EpisodeParams.max_pushes: must be an int in \[0, 1000000\]"):
+            run_episode(site, episode=EpisodeParams(max_pushes=pushes))
+
+
+def test_soft_params_are_refused_before_anything_compiles(site, monkeypatch):
+    """A soft FabricParams (temperature > 0) builds a SoftFabric without a continuation table; the
+    episode reads the table, so it used to fail deep inside jitted code (AttributeError)."""
+    from jaxplan.transport import episode as episode_mod
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("compiled or ran")
+
+    monkeypatch.setattr(episode_mod, "build_fabric", no_work)
+    soft = FabricParams(temperature=0.5)
+    with pytest.raises(ValueError, match=r"FabricParams.temperature: 0.5; run_episode pushes on the hard fabric"):
+        run_episode(site, soft)
+    with pytest.raises(ValueError, match="FabricParams.temperature: 0.5; reset"):
+        episode_mod.reset(site, soft)
+    with pytest.raises(ValueError, match="FabricParams.temperature: a traced value; step"):
+        jax.jit(lambda t: episode_mod.step(None, FabricParams(temperature=t), sp.SpillParams(), EpisodeParams()))(0.5)
+    with pytest.raises(ValueError, match="FabricParams.temperature: 0.5; rollout"):
+        episode_mod.rollout(None, soft, sp.SpillParams(), EpisodeParams(), 3)
+
+
+def test_a_concrete_zero_temperature_is_the_hard_episode(site):
+    params = EpisodeParams(max_pushes=2, rebuild="full")
+    hard = run_episode(site, FabricParams(), sp.SpillParams(lam=0.1), params)
+    zero = run_episode(site, FabricParams(temperature=0.0), sp.SpillParams(lam=0.1), params)
+    assert zero.n_pushes == hard.n_pushes == 2
+    np.testing.assert_array_equal(zero.collected, hard.collected)
 
 
 # --------------------------------------------------------------------------------- Eq. 6 selection

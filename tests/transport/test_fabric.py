@@ -227,8 +227,44 @@ def test_target_outside_the_grid_is_rejected():
 @pytest.mark.parametrize("field, value", [
     ("theta_tol_deg", 0.0), ("theta_tol_deg", 180.0), ("theta_tol_deg", -10.0),
     ("theta_tol_deg", float("nan")), ("tau_h", -1.0), ("anchor_lambda", -0.5), ("k", 0),
-    ("max_hops", 0),
+    ("k", 25), ("k", 1000), ("k", True), ("k", 4.0), ("max_hops", 0),
 ])
 def test_bad_params_name_the_field(small_scene, field, value):
     with pytest.raises(ValueError, match=field):
         build_fabric(small_scene, FabricParams(**{field: value}))
+
+
+# ---------------------------------------------------------------------------------- what a build costs
+
+def test_k_range_names_the_bound_and_the_reason():
+    from jaxplan.transport.params import K_MAX, validate_params
+
+    validate_params(FabricParams(k=1))
+    validate_params(FabricParams(k=K_MAX))
+    with pytest.raises(ValueError, match=r"FabricParams\.k: 1000 is out of range; K must be an int in \[1, 24\]"):
+        validate_params(FabricParams(k=1000))
+
+
+@pytest.mark.parametrize("k, measured_gib", [(8, 0.30), (10, 0.71), (12, 1.63), (16, 6.61)])
+def test_build_estimate_follows_the_measured_cost(k, measured_gib):
+    """Peak RSS over an idle process of a first `jaxplan fabric` (estimate_build_bytes' comment)."""
+    est = fabric_module.estimate_build_bytes((25, 25), FabricParams(k=k)) / 2**30
+    assert est == pytest.approx(measured_gib, rel=0.1)
+
+
+def test_build_estimate_grows_with_k_and_grid():
+    est = fabric_module.estimate_build_bytes
+    by_k = [est((25, 25), FabricParams(k=k)) for k in range(1, 25)]
+    assert all(a < b for a, b in zip(by_k, by_k[1:]))
+    assert est((25, 25)) < est((100, 100)) < est((1000, 1000))
+    assert est((25, 25)) == est((25, 25), FabricParams(k=4))
+
+
+def test_check_build_memory_refuses_what_does_not_fit():
+    shape = (25, 25)
+    need = fabric_module.estimate_build_bytes(shape, FabricParams(k=16))
+    assert fabric_module.check_build_memory(shape, FabricParams(k=16), available=need) == need
+    with pytest.raises(ValueError, match=r"FabricParams\.k: K = 16 needs about 7\.0 GB .* use k <= 14"):
+        fabric_module.check_build_memory(shape, FabricParams(k=16), available=5 * 10**9)
+    with pytest.raises(ValueError, match="free memory or use a smaller grid"):
+        fabric_module.check_build_memory(shape, FabricParams(k=2), available=1)

@@ -12,6 +12,7 @@ from jaxplan.pusharound.physics import PushWorld
 from jaxplan.pusharound.push import MAX_BATCH
 from jaxplan.pusharound.ranking import RankingParams, validate_ranking_params
 from jaxplan.pusharound.scene import PushScene
+from jaxplan.pusharound.wccg import check_feasible
 
 __all__ = ["SEARCH_RANKING", "SearchConfig", "check_inputs"]
 
@@ -103,8 +104,9 @@ class SearchConfig:
             raise ValueError(f"SearchConfig.presearch_mode: expected 'graph' or 'beam'; got {self.presearch_mode!r}.")
         if self.backend not in ("c", "mjx", "auto"):
             raise ValueError(f"SearchConfig.backend: expected 'c', 'mjx' or 'auto'; got {self.backend!r}.")
-        if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool):
-            raise ValueError(f"SearchConfig.seed: must be an int; got {self.seed!r}.")
+        if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
+            raise ValueError(f"SearchConfig.seed: must be an int >= 0 (it seeds numpy's default_rng); "
+                             f"got {self.seed!r}.")
         if not self.speeds or any(not (isinstance(s, (int, float)) and 0 <= s <= 0.8) for s in self.speeds):
             raise ValueError("SearchConfig.speeds: need speeds in [0, 0.8] m/s (0: just opening); "
                              f"got {self.speeds!r}.")
@@ -136,3 +138,4 @@ def check_inputs(scene, config, ranking, mode_table, world, sim) -> None:
                              "use build_push_world(scene).")
     if sim is not None and world is not None and sim.model is not world.model:
         raise ValueError("sim: built for another world; use make_push_simulator(world).")
+    check_feasible(scene)   # geometry no push can change (W vs workspace, endpoints, fixed obstacles)
