@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxplan.core.files import path_kind
 from jaxplan.core.outputs import RunFolder
 from jaxplan.transport.scenes import BUILTIN_SCENES
 
@@ -92,10 +93,11 @@ def load_scene(spec: str):
     if spec in BUILTIN_SCENES:
         return builtin_scene(spec)
     path = Path(spec)
-    if path.is_dir():
+    kind = cli_path_kind(spec, "--scene")
+    if kind == "dir":
         raise CLIError(f"--scene: {spec!r} is a directory; give a .npz/.json scene file or a built-in "
                        f"scene ({', '.join(BUILTIN_SCENES)}).")
-    if path.exists():
+    if kind != "missing":
         try:
             return Scene.load(path)
         except ValueError as exc:
@@ -104,6 +106,15 @@ def load_scene(spec: str):
         raise CLIError(f"--scene: no such scene file {spec!r}.")
     raise CLIError(f"--scene: {spec!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) "
                    "nor an existing .npz/.json scene file.")
+
+
+def cli_path_kind(path, flag: str) -> str:
+    """``jaxplan.core.files.path_kind`` of a flag's path; a path the system cannot look up is a
+    ``CLIError`` naming the flag."""
+    try:
+        return path_kind(path)
+    except ValueError as exc:
+        raise CLIError(f"{flag}: {exc}") from None
 
 
 def check_fabric_memory(args, scene, params) -> None:
@@ -123,8 +134,9 @@ def check_out_dir(path: str, flag: str = "--out") -> None:
     """Refuse a folder that neither exists nor can be created (an existing file, a file on the way,
     no write permission), without creating anything: commands check this before any work."""
     target = Path(path)
-    if target.exists():
-        if not target.is_dir():
+    kind = cli_path_kind(path, flag)
+    if kind != "missing":
+        if kind != "dir":
             raise CLIError(f"{flag}: {path!r} exists and is not a folder; give a folder path.")
         if not os.access(target, os.W_OK | os.X_OK):
             raise CLIError(f"{flag}: {path!r} is not writable; give a folder you can write to.")
@@ -134,7 +146,7 @@ def check_out_dir(path: str, flag: str = "--out") -> None:
 
 def check_out_file(path: str, flag: str = "--out") -> None:
     """Refuse an output file path that is a folder or whose folder cannot be created (nothing is created)."""
-    if Path(path).is_dir():
+    if cli_path_kind(path, flag) == "dir":
         raise CLIError(f"{flag}: {path!r} is a folder; give a file path.")
     _check_creatable(path, flag, "write")
 
@@ -142,7 +154,7 @@ def check_out_file(path: str, flag: str = "--out") -> None:
 def _check_creatable(path: str, flag: str, verb: str) -> None:
     """The nearest existing folder above ``path`` must be a writable folder (not a file)."""
     parent = Path(path).absolute().parent
-    while not parent.exists():
+    while cli_path_kind(parent, flag) == "missing":
         parent = parent.parent
     if not parent.is_dir():
         raise CLIError(f"{flag}: cannot {verb} {path!r}: {str(parent)!r} is a file, not a folder.")

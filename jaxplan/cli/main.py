@@ -14,6 +14,7 @@ import sys
 
 from jaxplan.cli import pusharound, rover, sweep, teams, transport
 from jaxplan.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CLIError, Parser, wrap
+from jaxplan.core.files import shown_path
 from jaxplan.transport.scenes import BUILTIN_SCENES
 
 __all__ = ["main"]
@@ -72,6 +73,10 @@ def main(argv=None) -> int:
     except (CLIError, ValueError) as exc:
         message = " ".join(str(exc).split()) or type(exc).__name__
         print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(EXIT_BAD_INPUT) from None
+    except OSError as exc:   # the file system refused a path the checks could not foresee (a full disk)
+        where = shown_path(exc.filename) + ": " if exc.filename else ""
+        print(f"error: {where}{exc.strerror or exc}; check the path and the free space.", file=sys.stderr)
         raise SystemExit(EXIT_BAD_INPUT) from None
     except KeyboardInterrupt as exc:   # RunInterrupted says where the partial output is
         detail = " ".join(str(exc).split())

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.cli.common import FPS, SEED, CLIError, check_out_dir, ranged, run_folder, wrap
+from jaxplan.cli.common import FPS, SEED, CLIError, check_out_dir, cli_path_kind, ranged, run_folder, wrap
 from jaxplan.core.outputs import atomic_write
 
 PUSHAROUND_RESULT_FORMAT = "jaxplan.pusharound.result"
@@ -24,7 +24,7 @@ def _pusharound_scene(args):
     if args.scene is None:
         return nominal_scene(args.seed), f"nominal_scene(seed={args.seed})"
     path = Path(args.scene)
-    if not path.exists():
+    if cli_path_kind(path, "--scene") == "missing":
         raise CLIError(f"--scene: no such scene file {args.scene!r} (a PushAround scene .json, see "
                        "docs/pusharound.md; leave --scene out for the built-in nominal scene).")
     try:
@@ -43,11 +43,12 @@ def _mode_table(name):
     if name is None:
         return None
     path = Path(name)
-    if path.is_dir():
+    kind = cli_path_kind(path, "--mode-table")
+    if kind == "dir":
         raise CLIError(f"--mode-table: {name!r} is a directory; give a .json file (read if it exists, "
                        "saved after the run).")
-    if not path.exists():
-        if not path.absolute().parent.is_dir():
+    if kind == "missing":
+        if cli_path_kind(path.absolute().parent, "--mode-table") != "dir":
             raise CLIError(f"--mode-table: the folder {str(path.parent)!r} does not exist; create it or "
                            "pick another path for the table.")
         check_out_dir(str(path.absolute().parent), "--mode-table")   # it is saved there after planning

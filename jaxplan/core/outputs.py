@@ -25,6 +25,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import BinaryIO
 
+from jaxplan.core.files import path_kind, shown_path
+
 __all__ = ["MANIFEST", "RunFolder", "RunInterrupted", "atomic_write", "read_manifest", "write_json"]
 
 MANIFEST = "run.json"
@@ -114,8 +116,9 @@ class RunFolder:
 
     # ---------------------------------------------------------------------------------------------
     def __enter__(self) -> RunFolder:
-        if self.path.exists() and not self.path.is_dir():
-            raise ValueError(f"output folder {str(self.path)!r} exists and is not a directory; "
+        kind = path_kind(self.path)   # a ValueError naming the path when it cannot be looked up
+        if kind not in ("dir", "missing"):
+            raise ValueError(f"output folder {shown_path(self.path)} exists and is not a directory; "
                              "give a folder path.")
         try:
             self.path.mkdir(parents=True, exist_ok=True)

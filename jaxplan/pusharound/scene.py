@@ -22,6 +22,7 @@ from shapely import affinity
 from shapely.geometry import Point, Polygon
 from shapely.geometry import box as _box
 
+from jaxplan.core.files import path_kind
 from jaxplan.pusharound.shapes import convex_decomposition, is_convex, polygon_inertia
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "Fixed", "Movable", "PushScene"]
@@ -31,6 +32,11 @@ FORMAT_VERSION = 1
 
 # Two obstacles overlap when their intersection has more area than this [m^2]; touching is allowed.
 _OVERLAP_AREA = 1e-9
+# Largest workspace side and coordinate magnitude [m]: a construction site fits well inside, and the
+# physics (MuJoCo, float64 geometry but float32 rendering and contact margins in mm) loses its
+# precision far beyond it.
+MAX_WORKSPACE_SIDE = 1000.0
+MAX_COORDINATE = 10_000.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,7 +213,11 @@ _MOVABLE_KEYS = ("name", "pieces", "polygon", "pose", "mass", "inertia", "fricti
 
 def _read_json_file(path: Path):
     """The JSON document in ``path``; ValueError saying what is wrong with the file itself."""
-    if path.is_dir():
+    try:
+        kind = path_kind(path)
+    except ValueError:
+        raise ValueError("is not a usable path (the system cannot look it up); check it.") from None
+    if kind == "dir":
         raise ValueError("is a directory; give the path of a scene .json file.")
     try:
         raw = path.read_bytes()
@@ -390,6 +400,12 @@ def validate_scene(scene: PushScene) -> None:
     x0, y0, x1, y1 = scene.workspace
     if not (x0 < x1 and y0 < y1):
         raise ValueError(f"workspace: need x0 < x1 and y0 < y1; got {scene.workspace!r}.")
+    if max(abs(v) for v in scene.workspace) > MAX_COORDINATE:
+        raise ValueError(f"workspace: coordinates must lie within +-{MAX_COORDINATE:g} m; got {scene.workspace!r}. "
+                         "Shift the scene's origin near the workspace.")
+    if max(x1 - x0, y1 - y0) > MAX_WORKSPACE_SIDE:
+        raise ValueError(f"workspace: sides of at most {MAX_WORKSPACE_SIDE:g} m; got {x1 - x0:g} x {y1 - y0:g} m. "
+                         "Split the site into workspaces around each corridor.")
     if not scene.width > 0:
         raise ValueError(f"vehicle_width: must be > 0 m; got {scene.width!r}.")
     if not scene.robot_radius > 0:

@@ -11,8 +11,9 @@ from typing import NamedTuple
 
 import jax
 
+from jaxplan.core.files import path_kind
 from jaxplan.transport.params import FabricParams, validate_params
-from jaxplan.transport.scene import Scene
+from jaxplan.transport.scene import MAX_FILE_SIDE, Scene
 from jaxplan.transport.scenes import BUILTIN_SCENES, builtin_scene, random_scene
 from jaxplan.transport.spillage import SpillParams, validate_spill_params
 
@@ -110,10 +111,14 @@ def _scenes(spec: dict, base: Path | None) -> tuple:
         path = Path(name)
         if not path.is_absolute() and base is not None:
             path = base / path
-        if path.is_dir():
+        try:
+            kind = path_kind(path)
+        except ValueError as exc:
+            _fail("scenes", str(exc))
+        if kind == "dir":
             _fail("scenes", f"{name!r} is a directory ({path}); give a .npz/.json scene file or a built-in "
                   f"scene ({', '.join(BUILTIN_SCENES)}).")
-        if not path.exists():
+        if kind == "missing":
             _fail("scenes", f"{name!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) nor an existing "
                   ".npz/.json scene file.")
         try:
@@ -132,8 +137,9 @@ def _scenes(spec: dict, base: Path | None) -> tuple:
             _fail("random_scenes.seeds", f"expected a non-empty list of ints >= 0; got {seeds!r}.")
         shape = rnd.get("shape", [25, 25])
         if (not isinstance(shape, list) or len(shape) != 2
-                or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 3 for s in shape)):
-            _fail("random_scenes.shape", f"expected [H, W] with ints >= 3; got {shape!r}.")
+                or not all(isinstance(s, int) and not isinstance(s, bool) and 3 <= s <= MAX_FILE_SIDE for s in shape)):
+            _fail("random_scenes.shape", f"expected [H, W] with ints in [3, {MAX_FILE_SIDE}] (the largest grid a "
+                  f"scene file holds); got {shape!r}.")
         density = rnd.get("density", 0.4)
         if isinstance(density, bool) or not isinstance(density, (int, float)) or not 0 < density <= 1:
             _fail("random_scenes.density", f"expected a fraction in (0, 1]; got {density!r}.")
@@ -162,9 +168,13 @@ def _grid(spec: dict, section: str, traced: tuple, static: tuple) -> tuple:
 def _read_toml(path: Path) -> dict:
     """The TOML table of the spec file ``path``; a one-line ValueError ``sweep spec: <path>: ...``
     for a missing, unreadable, empty, binary or malformed file."""
-    if path.is_dir():
+    try:
+        kind = path_kind(path)
+    except ValueError as exc:
+        raise ValueError(f"sweep spec: {exc}") from None
+    if kind == "dir":
         raise ValueError(f"sweep spec: {path}: is a directory; give the path of a TOML spec file.")
-    if not path.exists():
+    if kind == "missing":
         raise ValueError(f"sweep spec: no such file {str(path)!r}; give a TOML file or a dict.")
     try:
         raw = path.read_bytes()

@@ -9,17 +9,10 @@ case's description already says what was mutated). ``python experiments/fuzz_cli
 """
 from __future__ import annotations
 
-import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from experiments import fuzz_cli
-
-# Only a failed check (AssertionError) is expected; an error of the harness itself still fails the test.
-KNOWN_FINDINGS = pytest.mark.xfail(
-    strict=False, raises=AssertionError,
-    reason="the fuzzer finds tracebacks, unnamed errors and created --out folders on malformed input files "
-           "(issue 33); remove this mark once the input validation fixes are merged")
 
 
 def _fuzz(max_examples: int):
@@ -37,28 +30,24 @@ def _check(kind: str, rng, tmp_path_factory) -> None:
         f"traceback: {run['exception']} (in {run['where']})\nstderr: {run['stderr'][-1500:]}")
 
 
-@KNOWN_FINDINGS
 @_fuzz(40)
 @given(rng=st.randoms(use_true_random=False))
 def test_mutated_npz_scene_is_read_or_rejected_cleanly(rng, tmp_path_factory):
     _check("scene.npz", rng, tmp_path_factory)
 
 
-@KNOWN_FINDINGS
 @_fuzz(40)
 @given(rng=st.randoms(use_true_random=False))
 def test_mutated_json_scene_is_read_or_rejected_cleanly(rng, tmp_path_factory):
     _check("scene.json", rng, tmp_path_factory)
 
 
-@KNOWN_FINDINGS
 @_fuzz(25)
 @given(rng=st.randoms(use_true_random=False))
 def test_mutated_sweep_spec_is_read_or_rejected_cleanly(rng, tmp_path_factory):
     _check("sweep.toml", rng, tmp_path_factory)
 
 
-@KNOWN_FINDINGS
 @_fuzz(15)
 @given(rng=st.randoms(use_true_random=False))
 def test_mutated_pusharound_scene_is_read_or_rejected_cleanly(rng, tmp_path_factory):

@@ -150,3 +150,20 @@ def test_interrupted_sweep_says_how_many_rows_are_kept(tmp_path, monkeypatch, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"interrupted: {str(out)!r} keeps the 2 complete row(s) written so far; run the same "
                    "command again to resume."]
+
+
+@pytest.mark.parametrize("argv", [
+    ["fabric", "--scene", "x" * 300 + ".npz", "--out", "f.npz"],
+    ["episode", "--scene", "default", "--out", "x" * 300],
+    ["pusharound", "--scene", "x" * 300 + ".json", "--out", "o"],
+    ["pusharound", "--mode-table", "x" * 300 + ".json", "--out", "o"],
+    ["sweep", "x" * 300 + ".toml", "--out", "s.csv"],
+])
+def test_paths_the_system_cannot_look_up_are_one_line(argv, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "is not a usable path" in err[0], err
+    assert list(tmp_path.iterdir()) == []

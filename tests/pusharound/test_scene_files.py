@@ -68,6 +68,8 @@ def test_directory_and_missing_file(tmp_path):
     (lambda d: d.pop("workspace"), "workspace: missing"),
     (lambda d: d.update(workspace="0064"), "workspace: expected [x0, y0, x1, y1]"),
     (lambda d: d.update(workspace=[False, 0, 6, 4]), "workspace: expected [x0, y0, x1, y1]"),
+    (lambda d: d.update(workspace=[0, 0, 6, 2**64]), "workspace: coordinates must lie within"),
+    (lambda d: d.update(workspace=[0, 0, 2000, 4]), "workspace: sides of at most 1000 m"),
     (lambda d: d.update(vehicle_width="1.0"), "vehicle_width: expected a number"),
     (lambda d: d.update(vehicle_width=float("nan")), "vehicle_width: must be finite"),
     (lambda d: d.update(vehicle_width=-1.0), "vehicle_width: must be > 0"),

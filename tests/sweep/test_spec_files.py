@@ -56,3 +56,14 @@ def test_cli_broken_spec_is_one_error_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: sweep spec: {spec}: is not UTF-8 text"), err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("spec, words", [
+    ({"random_scenes": {"seeds": [0], "shape": [2**64, 5]}},
+     "random_scenes.shape: expected [H, W] with ints in [3, 4096]"),
+    ({"scenes": ["x" * 300]}, "scenes: 'xxx"),
+])
+def test_absurd_sizes_and_names_are_named(spec, words):
+    with pytest.raises(ValueError) as info:
+        sweep.load_spec(spec)
+    assert str(info.value).startswith("sweep spec: ") and words in str(info.value), str(info.value)
