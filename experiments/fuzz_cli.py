@@ -371,8 +371,12 @@ def _op_retype_number(doc, rng, toml):
     if path is None:
         return _op_wrong_type(doc, rng, toml)
     old = _get(doc, path)
-    new = rng.choice((str(old), float(old) + 0.5 if math.isfinite(float(old)) else 0.5, bool(old),
-                      int(old) if isinstance(old, float) and math.isfinite(old) else float(old)))
+    try:
+        as_float = float(old)
+    except OverflowError:   # an int beyond float range, put there by an earlier mutation
+        as_float = math.inf
+    new = rng.choice((str(old), as_float + 0.5 if math.isfinite(as_float) else 0.5, bool(old),
+                      int(old) if isinstance(old, float) and math.isfinite(old) else as_float))
     _set(doc, path, new)
     return f"{label(path)} {old!r} -> {new!r}"
 

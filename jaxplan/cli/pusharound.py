@@ -207,7 +207,7 @@ def _plan_execute_write(args, scene, source, table, run):
             raise CLIError(f"--out: could not write into {str(run.path)!r} ({exc.strerror or exc}).") from None
 
     config = SearchConfig(time_limit_s=float(args.time_limit), backend=args.backend, seed=int(args.seed))
-    world = build_push_world(scene)
+    world = build_push_world(scene) if scene.movables else None   # nothing to push: no physics
     bar = tqdm(total=round(float(args.time_limit), 1), desc="planning", unit="s", file=sys.stderr, leave=False,
                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.0f} s of the time limit{postfix}")
 
@@ -253,7 +253,7 @@ def _plan_execute_write(args, scene, source, table, run):
     success = bool(plan.success and path is not None)
     reason = plan.reason or ("planned" if success else "no W-clear path after the plan")
     write_result(plan=plan, final=final, path=path, connected=connected, success=success, reason=reason)
-    if plan.success and not args.no_execute:
+    if plan.success and plan.schedule and not args.no_execute:
         def replan(now):
             return plan_pushes(now, config.replace(time_limit_s=max(5.0, 0.5 * float(args.time_limit))),
                                mode_table=table)

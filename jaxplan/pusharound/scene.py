@@ -276,10 +276,17 @@ def _name(entry: dict, default: str, field: str) -> str:
     return name
 
 
+def _to_float(v) -> float:
+    try:
+        return float(v)
+    except OverflowError:   # an int beyond float range
+        return math.inf if v > 0 else -math.inf
+
+
 def _scalar(v, field: str) -> float:
     if not _is_number(v):
         raise ValueError(f"{field}: expected a number; got {_kind(v)}.")
-    out = float(v)
+    out = _to_float(v)
     if not math.isfinite(out):
         raise ValueError(f"{field}: must be finite; got {v!r}.")
     return out
@@ -288,9 +295,12 @@ def _scalar(v, field: str) -> float:
 def _floats(v, n: int, field: str, what: str) -> list:
     if not isinstance(v, (list, tuple, np.ndarray)) or not all(_is_number(x) for x in v):
         raise ValueError(f"{field}: expected {what}; got {_kind(v)}.")
-    out = [float(x) for x in v]
+    out = [_to_float(x) for x in v]
     if len(out) != n or not all(math.isfinite(x) for x in out):
         raise ValueError(f"{field}: expected {what} ({n} finite numbers); got {v!r}.")
+    if any(abs(x) > MAX_COORDINATE for x in out):
+        raise ValueError(f"{field}: values must lie within +-{MAX_COORDINATE:g} m; got {v!r}. Shift the scene's "
+                         "origin near the workspace.")
     return out
 
 

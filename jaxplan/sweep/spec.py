@@ -83,14 +83,26 @@ def _fail(key: str, message: str):
     raise ValueError(f"sweep spec: {key}: {message}")
 
 
+def _finite(v) -> bool:
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:   # an int beyond float range
+        return False
+
+
+def _short(v) -> str:
+    text = repr(v)
+    return text if len(text) <= 40 else f"{text[:20]}... ({len(text)} characters)"
+
+
 def _values(key: str, raw) -> tuple:
     vals = raw if isinstance(raw, (list, tuple)) else [raw]
     if not vals:
         _fail(key, "an empty list; give at least one value, e.g. [45.0, 60.0].")
     out = []
     for v in vals:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-            _fail(key, f"expected a finite number or a list of them; got {v!r}.")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+            _fail(key, f"expected a finite number or a list of them; got {_short(v)}.")
         out.append(float(v))
     return tuple(out)
 

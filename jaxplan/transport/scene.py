@@ -15,6 +15,7 @@ import functools
 import json
 import math
 import struct
+import tokenize
 import zipfile
 import zlib
 from pathlib import Path
@@ -558,7 +559,7 @@ class _FileProblem(ValueError):
 # header that lies): each becomes one ValueError naming the file instead of a traceback.
 _DECODE_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, struct.error, UnicodeDecodeError, ValueError,
                   KeyError, TypeError, IndexError, OverflowError, RecursionError, MemoryError,
-                  NotImplementedError)
+                  NotImplementedError, SyntaxError, tokenize.TokenError)   # the last two: a damaged .npy header
 
 
 def _read_scene_file(path: Path, suffix: str) -> dict:

@@ -119,6 +119,19 @@ def test_failed_planning_still_writes_the_result(tmp_path):
         assert (tmp_path / name).exists(), name
 
 
+def test_scene_without_movables_is_already_clear(tmp_path, capsys):
+    """Nothing to push (found by experiments/fuzz_cli.py): no physics world is built, the empty plan is a
+    success and every output is written."""
+    scene_file = tmp_path / "empty.json"
+    scene_file.write_text(json.dumps({**TINY, "movables": []}))
+    out = tmp_path / "o"
+    assert main(["pusharound", "--scene", str(scene_file), "--out", str(out), "--time-limit", "1",
+                 "--max-frames", "2", "--backend", "c"]) == 0
+    res = json.loads((out / "result.json").read_text())
+    assert res["success"] is True and res["schedule"] == [] and res["execution"] is None
+    assert json.loads((out / "run.json").read_text())["status"] == "complete"
+
+
 def test_help_works(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["pusharound", "--help"])

@@ -62,6 +62,7 @@ def test_cli_broken_spec_is_one_error_line(tmp_path, capsys):
     ({"random_scenes": {"seeds": [0], "shape": [2**64, 5]}},
      "random_scenes.shape: expected [H, W] with ints in [3, 4096]"),
     ({"scenes": ["x" * 300]}, "scenes: 'xxx"),
+    ({"scenes": ["default"], "spill": {"lam": [0.0, 10**400]}}, "spill.lam: expected a finite number"),
 ])
 def test_absurd_sizes_and_names_are_named(spec, words):
     with pytest.raises(ValueError) as info:

@@ -140,6 +140,21 @@ def test_huge_shape_in_the_header_is_refused_before_reading(tmp_path):
     assert "100000 x 100000" in _load_error(path)
 
 
+@pytest.mark.parametrize("garbage", [b"{'descr': '<f4', (((", b"\xff\xfe not python", b"{" * 200])
+def test_damaged_npy_header_is_named(tmp_path, garbage):
+    """A header that is not the dict literal numpy writes (found by experiments/fuzz_cli.py)."""
+    path = tmp_path / "bad_header.npz"
+    magic = np.lib.format.magic(1, 0)
+    body = garbage.ljust(118) + b"\n"
+    with zipfile.ZipFile(path, "w") as zf:
+        for key, value in _arrays().items():
+            buf = io.BytesIO()
+            np.save(buf, value)
+            zf.writestr(f"{key}.npy", buf.getvalue())
+        zf.writestr("target_wkt.npy", magic + len(body).to_bytes(2, "little") + body)
+    assert "is damaged" in _load_error(path) or "target_wkt" in _load_error(path)
+
+
 # --------------------------------------------------------------------------------------------------
 # .json
 # --------------------------------------------------------------------------------------------------
