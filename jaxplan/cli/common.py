@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 import textwrap
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from jaxplan.core.outputs import RunFolder
 from jaxplan.transport.scenes import BUILTIN_SCENES
 
 EXIT_BAD_INPUT = 2
+_WARN_BUILD_BYTES = 10**9   # a fabric build estimated above this gets a warning line
 EXIT_INTERRUPTED = 130   # 128 + SIGINT, as shells report a Ctrl-C
 
 
@@ -123,11 +125,16 @@ def check_fabric_memory(args, scene, params) -> None:
     names ``--k`` where the command has it, else ``--scene`` (the grid is what is too large)."""
     from jaxplan.transport.fabric import check_build_memory
 
+    flag = "--k" if hasattr(args, "k") else "--scene"
     try:
-        check_build_memory(scene.shape, params)
+        need = check_build_memory(scene.shape, params)
     except ValueError as exc:
         text = str(exc).removeprefix("FabricParams.k: ")
-        raise CLIError(f"{'--k' if hasattr(args, 'k') else '--scene'}: {text}") from None
+        raise CLIError(f"{flag}: {text}") from None
+    if need >= _WARN_BUILD_BYTES:   # it fits, but the user should know what is coming
+        print(f"warning: {flag}: K = {params.k} needs about {need / 1e9:.1f} GB for the first build, whose "
+              "compilation takes minutes (about 45 s at K = 12, 140 s at K = 16 on 2 cores); K = 4 to 8 "
+              "covers most scenes.", file=sys.stderr)
 
 
 def check_out_dir(path: str, flag: str = "--out") -> None:

@@ -207,7 +207,8 @@ def _plan_execute_write(args, scene, source, table, run):
             raise CLIError(f"--out: could not write into {str(run.path)!r} ({exc.strerror or exc}).") from None
 
     config = SearchConfig(time_limit_s=float(args.time_limit), backend=args.backend, seed=int(args.seed))
-    world = build_push_world(scene) if scene.movables else None   # nothing to push: no physics
+    can_push = bool(scene.movables) and np.asarray(scene.robots).size > 0
+    world = build_push_world(scene) if can_push else None   # nothing to push (check_feasible): no physics
     bar = tqdm(total=round(float(args.time_limit), 1), desc="planning", unit="s", file=sys.stderr, leave=False,
                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.0f} s of the time limit{postfix}")
 

@@ -439,7 +439,8 @@ def check_feasible(scene: PushScene) -> None:
     - ``start`` / ``goal``: at least W/2 from every workspace wall and from every fixed obstacle (Eq. 7
       needs the disk ``B(s, W/2)`` free);
     - ``fixed``: start and goal connected for the vehicle with every movable removed (the WCCG of the
-      fixed obstacles and walls alone; ``connectivity``).
+      fixed obstacles and walls alone; ``connectivity``);
+    - ``robots``: a scene without robots must already hold a W-clear corridor (nothing can push).
 
     Milliseconds on scenes of a few fixed obstacles (one WCCG of the fixed pieces and the walls).
     """
@@ -460,6 +461,10 @@ def check_feasible(scene: PushScene) -> None:
         raise ValueError(f"fixed: the fixed obstacles and walls alone leave no W-clear corridor from start to goal "
                          f"for W = {w:g} m (even with every movable pushed away); widen the openings between "
                          "fixed obstacles, move the start or goal, or use a smaller vehicle_width.")
+    no_robots = np.asarray(scene.robots).reshape(-1, 2).shape[0] == 0
+    if no_robots and scene.movables and not connectivity(build_wccg(scene), scene.start, scene.goal).connected:
+        raise ValueError("robots: the scene has no robot, and its movables block every W-clear corridor from "
+                         "start to goal; add robots (robots.positions) to push them.")
 
 
 def _check_endpoint(scene: PushScene, name: str, pt: tuple, r: float, ws: tuple) -> None:

@@ -166,3 +166,17 @@ def test_sweep_address_needs_the_ray_backend(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     line = _one_error_line(["sweep", "s.toml", "--out", "s.csv", "--address", "10.0.0.5:6379"], capsys)
     assert line.startswith("error: --address: ") and "--backend ray" in line
+
+
+def test_a_large_k_that_fits_gets_a_warning_line(monkeypatch, capsys):
+    from argparse import Namespace
+
+    from jaxplan import FabricParams, builtin_scene
+    from jaxplan.cli.common import check_fabric_memory
+
+    monkeypatch.setattr(fabric_mod, "available_memory_bytes", lambda: 100 * 10 ** 9)
+    check_fabric_memory(Namespace(k=12), builtin_scene("default"), FabricParams(k=12))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("warning: --k: K = 12 needs about 1.") and "minutes" in err[0]
+    check_fabric_memory(Namespace(k=4), builtin_scene("default"), FabricParams(k=4))
+    assert capsys.readouterr().err == ""

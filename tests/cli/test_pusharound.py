@@ -201,10 +201,11 @@ def test_bad_mode_table_is_a_clear_error(tmp_path, tiny_file, capsys, content, w
     # a fixed stub under the box leaves at most 0.75 m < W below the wall, wherever the box goes
     ({"fixed": TINY["fixed"] + [{"name": "stub", "pieces": [[[1.9, 0.0], [2.1, 0.0], [2.1, 0.25], [1.9, 0.25]]]}]},
      "fixed: the fixed obstacles and walls alone leave no W-clear corridor"),
+    ({"robots": None}, "robots: the scene has no robot, and its movables block every W-clear corridor"),
 ])
 def test_infeasible_scene_is_refused_before_planning(tmp_path, capsys, change, words):
     scene_file = tmp_path / "wide.json"
-    scene_file.write_text(json.dumps({**TINY, **change}))
+    scene_file.write_text(json.dumps({k: v for k, v in {**TINY, **change}.items() if v is not None}))
     with pytest.raises(SystemExit) as exc:
         main(["pusharound", "--scene", str(scene_file), "--out", str(tmp_path / "o")])
     assert exc.value.code == 2
