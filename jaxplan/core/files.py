@@ -5,7 +5,7 @@ import errno
 import os
 import stat
 
-__all__ = ["path_kind", "shown_path"]
+__all__ = ["path_kind", "read_text", "shown_path"]
 
 _SHOWN_CHARS = 80
 
@@ -26,16 +26,55 @@ def path_kind(path) -> str:
     a loop of symbolic links, no permission to search a folder on the way).
     """
     try:
+        return _kind(path)
+    except _Unusable as exc:
+        raise ValueError(f"{shown_path(path)} is not a usable path ({exc}); check it.") from None
+
+
+class _Unusable(Exception):
+    """The system cannot look the path up; the message is the reason."""
+
+
+def _kind(path) -> str:
+    try:
         mode = os.stat(path).st_mode
     except (FileNotFoundError, NotADirectoryError):
         return "missing"
     except OSError as exc:
-        reason = exc.strerror or errno.errorcode.get(exc.errno, str(exc))
-        raise ValueError(f"{shown_path(path)} is not a usable path ({reason}); check it.") from None
+        raise _Unusable(exc.strerror or errno.errorcode.get(exc.errno, str(exc))) from None
     except ValueError:   # an embedded NUL byte
-        raise ValueError(f"{shown_path(path)} is not a usable path (it holds a NUL byte); check it.") from None
+        raise _Unusable("it holds a NUL byte") from None
     if stat.S_ISREG(mode):
         return "file"
     if stat.S_ISDIR(mode):
         return "dir"
     return "other"
+
+
+def read_text(path, what: str) -> str:
+    """The UTF-8 text of the user's file ``path``; ``what`` names the kind of file for messages
+    (``"a TOML spec file"``).
+
+    Raises ``ValueError`` with what is wrong and the fix, without the path (callers prefix their own
+    context): a path the system cannot look up, a folder, a missing, unreadable, empty (blank) or
+    non-UTF-8 file.
+    """
+    try:
+        kind = _kind(path)
+    except _Unusable as exc:
+        raise ValueError(f"is not a usable path ({exc}); check it.") from None
+    if kind == "dir":
+        raise ValueError(f"is a directory; give the path of {what}.")
+    if kind == "missing":
+        raise ValueError("no such file; check the path.")
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    except OSError as exc:
+        raise ValueError(f"could not be read ({exc.strerror or exc}); check the file's permissions.") from None
+    if not raw.strip():
+        raise ValueError(f"is empty; expected {what}.")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"is not UTF-8 text (byte {exc.start}: {exc.reason}), so not {what}.") from None

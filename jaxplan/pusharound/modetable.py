@@ -27,6 +27,8 @@ from typing import NamedTuple
 import numpy as np
 import shapely
 
+from jaxplan.core.files import read_text
+
 __all__ = ["ModeKey", "ModeRecord", "ModeTable", "shape_signature"]
 
 _FORMAT = "jaxplan.pusharound.modetable"
@@ -223,19 +225,7 @@ class ModeTable:
         ...")``."""
         path = Path(path)
         try:
-            if path.is_dir():
-                raise ValueError("is a directory; give the path of a ModeTable .json file.")
-            raw = path.read_bytes()
-            if not raw.strip():
-                raise ValueError("is empty; a ModeTable file is one JSON object (ModeTable.save).")
-            return cls.from_dict(json.loads(raw.decode("utf-8")))
-        except FileNotFoundError:
-            raise ValueError(f"ModeTable file {path}: no such file; check the path.") from None
-        except OSError as exc:
-            raise ValueError(f"ModeTable file {path}: could not be read ({exc.strerror or exc}).") from None
-        except UnicodeDecodeError as exc:
-            raise ValueError(f"ModeTable file {path}: is not UTF-8 text (byte {exc.start}: {exc.reason}), so "
-                             "not a ModeTable JSON file.") from None
+            return cls.from_dict(json.loads(read_text(path, "a ModeTable .json file (ModeTable.save)")))
         except json.JSONDecodeError as exc:
             raise ValueError(f"ModeTable file {path}: not valid JSON ({exc}).") from None
         except RecursionError:

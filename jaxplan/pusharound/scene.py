@@ -22,7 +22,7 @@ from shapely import affinity
 from shapely.geometry import Point, Polygon
 from shapely.geometry import box as _box
 
-from jaxplan.core.files import path_kind
+from jaxplan.core.files import read_text
 from jaxplan.pusharound.shapes import convex_decomposition, is_convex, polygon_inertia
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "Fixed", "Movable", "PushScene"]
@@ -213,25 +213,7 @@ _MOVABLE_KEYS = ("name", "pieces", "polygon", "pose", "mass", "inertia", "fricti
 
 def _read_json_file(path: Path):
     """The JSON document in ``path``; ValueError saying what is wrong with the file itself."""
-    try:
-        kind = path_kind(path)
-    except ValueError:
-        raise ValueError("is not a usable path (the system cannot look it up); check it.") from None
-    if kind == "dir":
-        raise ValueError("is a directory; give the path of a scene .json file.")
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise ValueError("no such file; check the path.") from None
-    except OSError as exc:
-        raise ValueError(f"could not be read ({exc.strerror or exc}); check the file's permissions.") from None
-    if not raw.strip():
-        raise ValueError("is empty; a scene file is one JSON object (docs/pusharound.md).")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"is not UTF-8 text (byte {exc.start}: {exc.reason}), so not a JSON scene file "
-                         "(docs/pusharound.md).") from None
+    text = read_text(path, "a PushAround scene .json file (docs/pusharound.md)")
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:

@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import jax
 
-from jaxplan.core.files import path_kind
+from jaxplan.core.files import path_kind, read_text
 from jaxplan.transport.params import FabricParams, validate_params
 from jaxplan.transport.scene import MAX_FILE_SIDE, Scene
 from jaxplan.transport.scenes import BUILTIN_SCENES, builtin_scene, random_scene
@@ -181,26 +181,9 @@ def _read_toml(path: Path) -> dict:
     """The TOML table of the spec file ``path``; a one-line ValueError ``sweep spec: <path>: ...``
     for a missing, unreadable, empty, binary or malformed file."""
     try:
-        kind = path_kind(path)
+        text = read_text(path, 'a TOML spec file, e.g. scenes = ["default"] (docs/sweeps.md)')
     except ValueError as exc:
-        raise ValueError(f"sweep spec: {exc}") from None
-    if kind == "dir":
-        raise ValueError(f"sweep spec: {path}: is a directory; give the path of a TOML spec file.")
-    if kind == "missing":
-        raise ValueError(f"sweep spec: no such file {str(path)!r}; give a TOML file or a dict.")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ValueError(f"sweep spec: {path}: could not be read ({exc.strerror or exc}); check the "
-                         "file's permissions.") from None
-    if not raw.strip():
-        raise ValueError(f"sweep spec: {path}: is empty; a spec lists at least its scenes, e.g. "
-                         "scenes = [\"default\"] (docs/sweeps.md).")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"sweep spec: {path}: is not UTF-8 text (byte {exc.start}: {exc.reason}); a spec "
-                         "is a TOML text file (docs/sweeps.md).") from None
+        raise ValueError(f"sweep spec: {path}: {exc}") from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
