@@ -13,6 +13,10 @@ flags cut a fabric compile about 4x for code that runs a few times slower. The v
 the default build up to float rounding (on a 30 x 30 fabric: integer fields identical, floats
 within 1e-5, from operations contracted or ordered differently). Benchmarks and users get XLA's
 defaults; ``JAXPLAN_TEST_XLA_DEFAULTS=1`` runs the suite with them too.
+
+Property tests draw the same examples on every run (hypothesis profile "suite", derandomized), so a
+red suite means a change broke something, not that the search got lucky; ``HYPOTHESIS_PROFILE=explore``
+draws fresh examples each run to look for new counterexamples.
 """
 from __future__ import annotations
 
@@ -20,6 +24,12 @@ import os
 import shutil
 import sys
 import tempfile
+
+from hypothesis import settings
+
+settings.register_profile("suite", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "suite"))
 
 _CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
 _MIN_COMPILE_SECS = "0.3"   # smaller programs compile faster than they load

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from shapely.geometry import Polygon
 
 from jaxplan import Fabric, FabricParams, Scene, box, build_fabric, circle
 from jaxplan.core.lattice import cell_centers
@@ -58,6 +59,41 @@ def test_soft_kernels_equal_serial_reference(scene, theta, t, tau, lam):
         scale = 1.0 + float(np.max(np.abs(want), initial=0.0))
         np.testing.assert_allclose(np.asarray(getattr(got, name), np.float64), want, rtol=2e-4,
                                    atol=2e-4 * scale, err_msg=name)
+
+
+# A 5 x 5 scene (found by a fresh hypothesis search) where the kernel's heat at (1, 0) is 21.40 and the
+# float64 reference's 20.43 at t = 1, every other field and cell agreeing. The soft kernels are to be
+# redesigned for faithfulness at working temperatures; until then the case is kept here, expected to fail.
+_HEAT_MISMATCH_OBJ = [[4.051, 0.906, 1.093, 1.644, 1.474], [2.189, 0.0, 0.0, 0.0, 4.639],
+                      [4.856, 1.194, 3.31, 0.0, 2.754], [4.978, 4.163, 3.97, 0.0, 1.324],
+                      [0.0, 4.312, 4.468, 3.146, 0.0]]
+_HEAT_MISMATCH_TARGET = [
+    (2.3707965791868295, 0.6732122090721602),
+    (2.238225693796282, 0.9932666385578293),
+    (1.9932666385578293, 1.2382256937962821),
+    (1.6732122090721602, 1.3707965791868297),
+    (1.32678779092784, 1.3707965791868297),
+    (1.006733361442171, 1.2382256937962823),
+    (0.7617743062037177, 0.9932666385578293),
+    (0.6292034208131703, 0.6732122090721604),
+    (0.6292034208131703, 0.3267877909278398),
+    (0.7617743062037177, 0.006733361442171),
+    (1.0067333614421707, -0.2382256937962822),
+    (1.3267877909278396, -0.3707965791868296),
+    (1.6732122090721602, -0.3707965791868297),
+    (1.993266638557829, -0.2382256937962823),
+    (2.238225693796282, 0.0067333614421708),
+    (2.3707965791868295, 0.3267877909278395),
+]
+
+
+@pytest.mark.xfail(strict=True, reason="soft heat differs from the serial reference at t = 1 on this scene")
+def test_soft_heat_known_mismatch():
+    scene = Scene.from_arrays(np.asarray(_HEAT_MISMATCH_OBJ, np.float32), Polygon(_HEAT_MISMATCH_TARGET))
+    params = FabricParams(theta_tol_deg=30.0, tau_h=0.2, anchor_lambda=0.0, temperature=1.0)
+    got = np.asarray(build_fabric(scene, params).heat, np.float64)
+    want = _reference(scene, params)["heat"]
+    np.testing.assert_allclose(got, want, rtol=2e-4, atol=2e-4 * (1.0 + np.max(np.abs(want))))
 
 
 def test_jitted_and_unjitted_soft_fabric_agree():
