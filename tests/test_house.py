@@ -72,7 +72,8 @@ ALLOWED = {
     "teams": set(),
     "tune": {"transport"},
     "sweep": {"transport"},
-    "cli": {"transport", "pusharound", "teams", "physics", "sweep", "tune"},
+    "fleet": {"transport"},
+    "cli": {"transport", "pusharound", "teams", "physics", "sweep", "tune", "fleet"},
 }
 
 

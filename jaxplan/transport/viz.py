@@ -21,7 +21,7 @@ import numpy as np
 
 from jaxplan.core.animation import save_animation
 
-__all__ = ["animate_episode", "plot_episode", "plot_fabric"]
+__all__ = ["PALETTE", "animate_episode", "cell_edges", "plot_episode", "plot_fabric", "polygon_rings"]
 
 # Above this many cells per side, counts are drawn as dots instead of numbers.
 _TEXT_MAX_SIDE = 30
@@ -33,9 +33,11 @@ _ORANGE = "#f97316"
 _HIGHWAY = "#22d3ee"
 _TARGET = "#3b82f6"
 _PATH_COLORS = ("#a855f7", "#ec4899", "#14b8a6", "#eab308", "#6366f1", "#84cc16")
+# The colours above by role, for other systems' plots that draw the same things the same way.
+PALETTE = {"heading": _GREEN, "connector": _ORANGE, "highway": _HIGHWAY, "target": _TARGET, "paths": _PATH_COLORS}
 
 
-def _cell_edges(mask: np.ndarray, x0: float, y0: float, s: float) -> np.ndarray:
+def cell_edges(mask: np.ndarray, x0: float, y0: float, s: float) -> np.ndarray:
     """Segments ``f[N, 2, 2]`` (world units) of the outline of the cells where ``mask`` is True."""
     h, w = mask.shape
     padded = np.pad(mask, 1, constant_values=False)
@@ -54,7 +56,7 @@ def _cell_edges(mask: np.ndarray, x0: float, y0: float, s: float) -> np.ndarray:
     return out.reshape(-1, 2, 2).astype(np.float64)
 
 
-def _polygon_rings(target):
+def polygon_rings(target):
     """Every ring (exterior and interiors) of a Polygon / MultiPolygon as ``f[N, 2]`` arrays."""
     polys = list(getattr(target, "geoms", [target]))
     rings = []
@@ -130,10 +132,10 @@ def plot_fabric(scene, fabric, connectors=None, ax=None, path_sources=None):
     tint[target_mask] = (0.23, 0.51, 0.96, 0.45)
     ax.imshow(tint, origin="lower", extent=extent, interpolation="nearest", zorder=1)
     edge_lw = 1.2 if max(h, w) <= 80 else 0.6
-    ax.add_collection(LineCollection(_cell_edges(target_mask, x0, y0, s), colors=_TARGET,
+    ax.add_collection(LineCollection(cell_edges(target_mask, x0, y0, s), colors=_TARGET,
                                      linewidths=edge_lw, zorder=2))
     if scene.target is not None:
-        for ring in _polygon_rings(scene.target):
+        for ring in polygon_rings(scene.target):
             ax.plot(ring[:, 0], ring[:, 1], color="white", lw=1.3, ls="--", zorder=6)
 
     # Object counts.
@@ -152,7 +154,7 @@ def plot_fabric(scene, fabric, connectors=None, ax=None, path_sources=None):
 
     # Highway cells.
     if highways.any():
-        ax.add_collection(LineCollection(_cell_edges(highways, x0, y0, s), colors=_HIGHWAY,
+        ax.add_collection(LineCollection(cell_edges(highways, x0, y0, s), colors=_HIGHWAY,
                                          linewidths=edge_lw, zorder=4))
 
     # Arrows: green first-hop headings, orange connector headings.
@@ -293,7 +295,7 @@ def plot_episode(scene, episode):
     fig.colorbar(im, ax=right, fraction=0.046, pad=0.03).set_label("objects left per cell")
     from matplotlib.collections import LineCollection
 
-    right.add_collection(LineCollection(_cell_edges(target_mask, x0, y0, s), colors=_TARGET, linewidths=1.2))
+    right.add_collection(LineCollection(cell_edges(target_mask, x0, y0, s), colors=_TARGET, linewidths=1.2))
     totals = episode.totals()
     right.set_title(f"final counts: delivered {totals['delivered']:.1f} of {episode.initial_remaining:.1f}, "
                     f"remaining {totals['remaining']:.1f}", fontsize=10)
@@ -334,7 +336,7 @@ def animate_episode(scene, episode, path, *, fps: int = 4, dpi: int = 90, progre
     im = ax.imshow(frames[0]["heat"], origin="lower", extent=extent, cmap="hot", vmin=0, vmax=vmax,
                    interpolation="nearest")
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03).set_label("heat H(X) before the push (objects)")
-    ax.add_collection(LineCollection(_cell_edges(target_mask, x0, y0, s), colors=_TARGET, linewidths=1.2))
+    ax.add_collection(LineCollection(cell_edges(target_mask, x0, y0, s), colors=_TARGET, linewidths=1.2))
     highway_lines = LineCollection([], colors=_HIGHWAY, linewidths=0.9)
     ax.add_collection(highway_lines)
     quiver = ax.quiver(cx[::stride, ::stride], cy[::stride, ::stride], np.zeros_like(cx[::stride, ::stride]),
@@ -352,7 +354,7 @@ def animate_episode(scene, episode, path, *, fps: int = 4, dpi: int = 90, progre
     def draw(i):
         f = frames[i]
         im.set_data(f["heat"])
-        highway_lines.set_segments(list(_cell_edges(f["highways"], x0, y0, s)))
+        highway_lines.set_segments(list(cell_edges(f["highways"], x0, y0, s)))
         # NaN hides the arrow: only occupied cells carry a heading
         head = np.where(f["occupied"][..., None], f["heading"], np.nan)[::stride, ::stride] * 0.6 * s * stride
         quiver.set_UVC(head[..., 0], head[..., 1])

@@ -1,0 +1,364 @@
+"""A fleet run's report: its numbers (summary, trajectory, pushes), a figure and an animation.
+
+Everything here reads a :class:`jaxplan.fleet.run_types.FleetRun` and nothing else. The files
+:func:`write_fleet_outputs` writes into a run's output folder (``FLEET_OUTPUTS``):
+
+- ``summary.json``, :func:`summary_of`: the run in numbers (mass, T50 / T90, pushes and idle time
+  per rover, planning time per event, conflicts, stop reason);
+- ``trajectory.npz``, :func:`trajectory_arrays`: ``pos i32[T+1, N, 2]`` (row, col), ``delivered
+  f64[T+1]``, ``outside f64[T+1]`` (objects), ``initial_mass f64[]``;
+- ``pushes.json``, :func:`pushes_records`: one record per push;
+- ``fleet.png``, :func:`plot_fleet`: delivered mass over time with T50 / T90, and the final counts
+  with the rovers' final cells;
+- ``fleet.gif``, :func:`animate_fleet`: heatmap, highways, every rover and its current route, step
+  by step (from ``run.frames``; only when the run was recorded).
+
+T50 and T90 are the first step at which the mass delivered since the start (``delivered[t] -
+delivered[0]``) reaches 50% / 90% of the mass that started outside the targets; None if it never
+does. Plots follow :mod:`jaxplan.transport.viz` (rows = y, ``origin="lower"``, world units) and, like
+it, never select a matplotlib backend.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from jaxplan.core.animation import save_animation
+from jaxplan.fleet.run_types import FleetRun
+from jaxplan.transport.viz import PALETTE, cell_edges, polygon_rings
+
+__all__ = ["DEFAULT_MAX_FRAMES", "FLEET_OUTPUTS", "animate_fleet", "frame_steps", "plot_fleet", "pushes_records",
+           "summary_of", "t_fraction", "trajectory_arrays", "write_fleet_outputs"]
+
+FLEET_OUTPUTS = ("summary.json", "trajectory.npz", "pushes.json", "fleet.png", "fleet.gif")
+
+# Rover labels (their index) are drawn up to this many rovers; beyond, the markers alone.
+_LABEL_MAX_ROVERS = 16
+# Animation frames at most, by default: a long run is subsampled evenly (the last step always shown).
+DEFAULT_MAX_FRAMES = 240
+
+
+# --------------------------------------------------------------------------------------------------
+# Numbers
+
+
+def _float_or_none(x) -> float | None:
+    """A JSON-safe float: None for NaN / inf (JSON has neither)."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _check_run(run: FleetRun) -> tuple[int, int]:
+    """(T, N) of ``run`` after checking the arrays agree with them; ValueError naming the field."""
+    t, n = int(run.steps), int(run.n_rovers)
+    pos = np.asarray(run.pos)
+    if pos.shape != (t + 1, n, 2):
+        raise ValueError(f"FleetRun.pos: shape {pos.shape}, expected (steps + 1, n_rovers, 2) = {(t + 1, n, 2)}.")
+    for field in ("delivered", "outside"):
+        shape = np.shape(getattr(run, field))
+        if shape != (t + 1,):
+            raise ValueError(f"FleetRun.{field}: shape {shape}, expected (steps + 1,) = ({t + 1},).")
+    for field in ("rover_pushes", "idle_steps"):
+        shape = np.shape(getattr(run, field))
+        if shape != (n,):
+            raise ValueError(f"FleetRun.{field}: shape {shape}, expected (n_rovers,) = ({n},).")
+    return t, n
+
+
+def t_fraction(run: FleetRun, fraction: float) -> int | None:
+    """The first step t with ``delivered[t] - delivered[0] >= fraction * initial_outside``, or None.
+
+    fraction in [0, 1]: 0.5 gives T50, 0.9 gives T90 (steps; 0 = already at the start).
+    """
+    gain = np.asarray(run.delivered, np.float64) - float(run.delivered[0])
+    hit = np.nonzero(gain >= fraction * float(run.initial_outside))[0]
+    return int(hit[0]) if hit.size else None
+
+
+def summary_of(run: FleetRun) -> dict:
+    """The run in numbers, JSON-ready (summary.json). Mass in objects, times in steps unless named.
+
+    delivered: mass brought into the targets during the run (``delivered[T] - delivered[0]``);
+    spilled: sum of the pushes' spills (spilled mass stays on the site and may be pushed again);
+    remaining: mass outside the targets at the end. idle_fraction: ``idle_steps / steps`` per rover.
+    delivered_per_rover_step: delivered / (N * T). plan_ms: per planning event (a step in which an
+    assignment happened), median and p95 (None without events).
+    """
+    t, n = _check_run(run)
+    delivered = float(run.delivered[-1]) - float(run.delivered[0])
+    plan = np.asarray(run.plan_ms, np.float64)
+    has_plan = plan.size > 0
+    return {
+        "scene": getattr(run.scene, "name", None),
+        "grid": list(run.scene.shape),
+        "n_rovers": n,
+        "strategy": str(run.strategy),
+        "steps": t,
+        "initial_mass": float(run.initial_mass),
+        "initial_outside": float(run.initial_outside),
+        "delivered": delivered,
+        "spilled": float(sum(float(p["spilled"]) for p in run.pushes)),
+        "remaining": float(run.outside[-1]),
+        "T50": t_fraction(run, 0.5),
+        "T90": t_fraction(run, 0.9),
+        "pushes": len(run.pushes),
+        "pushes_per_rover": [int(v) for v in np.asarray(run.rover_pushes)],
+        "idle_fraction": [float(v) / max(t, 1) for v in np.asarray(run.idle_steps)],
+        "delivered_per_rover_step": delivered / max(n * t, 1),
+        "plan_events": int(plan.size),
+        "plan_ms_median": _float_or_none(np.median(plan)) if has_plan else None,
+        "plan_ms_p95": _float_or_none(np.percentile(plan, 95)) if has_plan else None,
+        "conflicts": int(run.conflicts),
+        "stop_reason": str(run.stop_reason),
+        "message": str(run.message),
+    }
+
+
+def trajectory_arrays(run: FleetRun) -> dict:
+    """The arrays of trajectory.npz: ``pos i32[T+1, N, 2]`` (row, col), ``delivered f64[T+1]`` (mass
+    inside the targets), ``outside f64[T+1]`` (mass outside), ``initial_mass f64[]`` (objects)."""
+    _check_run(run)
+    return {
+        "pos": np.asarray(run.pos, np.int32),
+        "delivered": np.asarray(run.delivered, np.float64),
+        "outside": np.asarray(run.outside, np.float64),
+        "initial_mass": np.asarray(run.initial_mass, np.float64),
+    }
+
+
+def pushes_records(run: FleetRun) -> list:
+    """pushes.json: one JSON-ready dict per push, in the order they were applied: index, rover,
+    first_step, last_step, cells ``[[row, col], ...]``, collected, delivered, spilled (objects), mode."""
+    return [{
+        "index": i,
+        "rover": int(p["rover"]),
+        "first_step": int(p["first_step"]),
+        "last_step": int(p["last_step"]),
+        "cells": [[int(r), int(c)] for r, c in np.asarray(p["cells"]).reshape(-1, 2)],
+        "collected": float(p["collected"]),
+        "delivered": float(p["delivered"]),
+        "spilled": float(p["spilled"]),
+        "mode": str(p.get("mode", "deliver")),
+    } for i, p in enumerate(run.pushes)]
+
+
+# --------------------------------------------------------------------------------------------------
+# Pictures
+
+
+def _frame_of(scene):
+    """(x0, y0, s, extent, centre) of ``scene``: ``centre(cells i[k, 2]) -> f64[k, 2]`` world (x, y)."""
+    h, w = scene.shape
+    s = float(np.asarray(scene.cell_size))
+    x0, y0 = (float(v) for v in np.asarray(scene.origin))
+    extent = (x0, x0 + w * s, y0, y0 + h * s)
+
+    def centre(cells):
+        cells = np.asarray(cells, np.float64).reshape(-1, 2)
+        return np.stack([x0 + (cells[:, 1] + 0.5) * s, y0 + (cells[:, 0] + 0.5) * s], -1)
+
+    return x0, y0, s, extent, centre
+
+
+def _rover_colors(n: int):
+    """One colour per rover, hues from green through blue to magenta: clear of the ``hot`` heatmap's
+    reds and yellows (and of the cyan highways for small N)."""
+    import matplotlib.colors as mcolors
+
+    hues = 0.3 + 0.62 * np.arange(n) / max(n - 1, 1) if n > 1 else np.array([0.6])
+    return [mcolors.hsv_to_rgb((h, 0.85, 1.0)) for h in hues]
+
+
+def _draw_targets(ax, scene, x0, y0, s, lw):
+    from matplotlib.collections import LineCollection
+
+    mask = np.asarray(scene.target_mask, bool)
+    ax.add_collection(LineCollection(cell_edges(mask, x0, y0, s), colors=PALETTE["target"], linewidths=lw,
+                                     zorder=4))
+    if scene.target is not None:
+        for ring in polygon_rings(scene.target):
+            ax.plot(ring[:, 0], ring[:, 1], color="white", lw=1.0, ls="--", zorder=5)
+
+
+def plot_fleet(run: FleetRun):
+    """The run's figure (fleet.png): mass over steps with T50 / T90 marked (left), and the final
+    counts with the targets and every rover's final cell (right). Returns the matplotlib Figure."""
+    import matplotlib.pyplot as plt
+
+    t, n = _check_run(run)
+    summary = summary_of(run)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(13.0, 5.4))
+    steps = np.arange(t + 1)
+    gain = np.asarray(run.delivered, np.float64) - float(run.delivered[0])
+    left.plot(steps, gain, color=PALETTE["target"], lw=2, label="delivered since the start")
+    left.plot(steps, np.asarray(run.outside, np.float64), color="black", lw=2, label="outside the targets")
+    for frac, key, ls in ((0.5, "T50", ":"), (0.9, "T90", "--")):
+        left.axhline(frac * float(run.initial_outside), color="grey", lw=0.8, ls=ls)
+        if summary[key] is not None:
+            left.axvline(summary[key], color=PALETTE["connector"], lw=1.2, ls=ls,
+                         label=f"{key} = {summary[key]} steps")
+    left.set_xlabel("step")
+    left.set_ylabel("mass (objects)")
+    left.set_title(f"{n} rover(s), {run.strategy}: {len(run.pushes)} pushes in {t} steps, "
+                   f"stop: {run.stop_reason}", fontsize=10)
+    left.grid(alpha=0.3)
+    left.legend(fontsize=8)
+
+    scene = run.final_scene
+    x0, y0, s, extent, centre = _frame_of(scene)
+    h, w = scene.shape
+    mask = np.asarray(scene.target_mask, bool)
+    im = right.imshow(np.where(mask, np.nan, np.asarray(scene.obj, np.float64)), origin="lower", extent=extent,
+                      cmap="viridis", interpolation="nearest")
+    fig.colorbar(im, ax=right, fraction=0.046, pad=0.03).set_label("objects left per cell")
+    _draw_targets(right, scene, x0, y0, s, lw=1.2 if max(h, w) <= 80 else 0.6)
+    final = centre(np.asarray(run.pos)[-1])
+    right.scatter(final[:, 0], final[:, 1], c=_rover_colors(n), s=36 if n <= 16 else 14, edgecolors="white",
+                  linewidths=0.8, zorder=6)
+    if n <= _LABEL_MAX_ROVERS:
+        for i, (x, y) in enumerate(final):
+            right.annotate(str(i), (x, y), xytext=(3, 3), textcoords="offset points", color="white", fontsize=7,
+                           zorder=7)
+    right.set_title(f"final counts and rovers: delivered {summary['delivered']:.1f} of "
+                    f"{float(run.initial_outside):.1f}, remaining {summary['remaining']:.1f}", fontsize=10)
+    right.set_xlim(extent[0], extent[1])
+    right.set_ylim(extent[2], extent[3])
+    right.set_aspect("equal")
+    right.set_xlabel("x (world units)")
+    right.set_ylabel("y (world units, up)")
+    fig.tight_layout()
+    return fig
+
+
+def frame_steps(n_frames: int, steps: int, max_frames: int) -> list[tuple[int, int]]:
+    """Which frames to draw: ``(frame index, step index into pos)`` pairs, at most ``max_frames``.
+
+    Frames are aligned to the end of ``pos`` (the last frame shows the last step), so a recording of
+    T + 1 frames (the start included) and one of T (after each step) both map right. Subsampling is
+    even and keeps the first and the last frame.
+    """
+    if n_frames <= 0:
+        return []
+    keep = np.unique(np.rint(np.linspace(0, n_frames - 1, min(n_frames, max(1, int(max_frames))))).astype(int))
+    offset = steps + 1 - n_frames
+    return [(int(i), int(min(max(i + offset, 0), steps))) for i in keep]
+
+
+def animate_fleet(run: FleetRun, path, *, fps: int = 8, max_frames: int = DEFAULT_MAX_FRAMES, dpi: int = 90,
+                  progress=None) -> int:
+    """Write the recorded run step by step to ``path`` (``.gif`` with Pillow, ``.mp4`` with ffmpeg).
+
+    Each frame: the heatmap ``H(X)`` (``hot``), the counts as a white veil, highway cells tinted cyan,
+    the targets outlined, and every rover (one colour each) with its current route as a line from
+    the route's start. At most ``max_frames`` frames (evenly subsampled, :func:`frame_steps`).
+    progress: optional ``progress(i, n)`` after each rendered frame. Returns the frames written.
+    Needs ``run.frames`` (``run_fleet(..., record=True)``).
+    """
+    import matplotlib.pyplot as plt
+
+    t, n = _check_run(run)
+    frames = run.frames
+    if not frames:
+        raise ValueError("animate_fleet: the run has no frames; run it with record=True.")
+    picks = frame_steps(len(frames), t, max_frames)
+    scene = run.scene
+    x0, y0, s, extent, centre = _frame_of(scene)
+    h, w = scene.shape
+    pos = np.asarray(run.pos)
+    colors = _rover_colors(n)
+    vmax = max(float(np.max(frames[i]["heat"])) for i, _ in picks) or 1.0
+    obj_max = max(float(np.max(frames[i]["obj"])) for i, _ in picks) or 1.0
+
+    def veil(obj):   # counts as white with alpha ~ count: the material shows over the heatmap
+        rgba = np.ones((h, w, 4))
+        rgba[..., 3] = 0.5 * np.clip(np.asarray(obj, np.float64) / obj_max, 0.0, 1.0)
+        return rgba
+
+    def tint(highways):
+        rgba = np.zeros((h, w, 4))
+        rgba[np.asarray(highways, bool)] = (0.13, 0.83, 0.93, 0.55)   # PALETTE["highway"], see-through
+        return rgba
+
+    fig, ax = plt.subplots(figsize=(7.2, 6.4))
+    first = frames[picks[0][0]]
+    im = ax.imshow(first["heat"], origin="lower", extent=extent, cmap="hot", vmin=0, vmax=vmax,
+                   interpolation="nearest", zorder=0)
+    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03).set_label("heat H(X) (objects)")
+    obj_im = ax.imshow(veil(first["obj"]), origin="lower", extent=extent, interpolation="nearest", zorder=1)
+    hw_im = ax.imshow(tint(first["highways"]), origin="lower", extent=extent, interpolation="nearest", zorder=2)
+    _draw_targets(ax, scene, x0, y0, s, lw=1.2 if max(h, w) <= 80 else 0.6)
+    route_lines = [ax.plot([], [], color=colors[i], lw=1.8, alpha=0.9, zorder=6)[0] for i in range(n)]
+    rovers = ax.scatter(np.zeros(n), np.zeros(n), c=colors, s=40 if n <= 16 else 14, edgecolors="white",
+                        linewidths=0.8, zorder=7)
+    labels = [ax.text(0, 0, str(i), color="white", fontsize=7, zorder=8) for i in range(n)] \
+        if n <= _LABEL_MAX_ROVERS else []
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_aspect("equal")
+    title = ax.set_title("", fontsize=10)
+    delivered = np.asarray(run.delivered, np.float64) - float(run.delivered[0])
+    outside = np.asarray(run.outside, np.float64)
+    shown = [0]   # frames reported to progress: FuncAnimation draws frame 0 once more to set up
+
+    def draw(k):
+        i, step = picks[k]
+        f = frames[i]
+        im.set_data(f["heat"])
+        obj_im.set_data(veil(f["obj"]))
+        hw_im.set_data(tint(f["highways"]))
+        xy = centre(pos[step])
+        rovers.set_offsets(xy)
+        for line, route in zip(route_lines, f["routes"]):
+            pts = centre(route) if route is not None and len(route) else np.zeros((0, 2))
+            line.set_data(pts[:, 0], pts[:, 1])
+        for label, (x, y) in zip(labels, xy):
+            label.set_position((x + 0.3 * s, y + 0.3 * s))
+        title.set_text(f"step {step}/{t}, {n} rover(s) ({run.strategy}): delivered {delivered[step]:.1f}, "
+                       f"outside {outside[step]:.1f}")
+        if progress is not None and k + 1 > shown[0]:
+            shown[0] = k + 1
+            progress(k + 1, len(picks))
+        return im, obj_im, hw_im, rovers, title, *route_lines, *labels
+
+    save_animation(fig, draw, len(picks), path, fps=fps, dpi=dpi)
+    return len(picks)
+
+
+# --------------------------------------------------------------------------------------------------
+# Files
+
+
+def write_fleet_outputs(run: FleetRun, run_folder, animate: bool, fps: int, *, extra_summary: dict | None = None,
+                        max_frames: int = DEFAULT_MAX_FRAMES, progress=None) -> dict:
+    """Write the run's files (module docstring) into ``run_folder`` (a :class:`jaxplan.core.outputs.RunFolder`
+    already entered); returns ``{file name: path}`` of what was written.
+
+    Cheapest first, each file atomically and recorded in the folder's manifest, so that a failing
+    figure or animation leaves the numbers on disk. extra_summary: more keys for summary.json (the
+    command's parameters); they cannot replace the run's own keys. fleet.gif only when ``animate``
+    and the run has frames; max_frames and progress go to :func:`animate_fleet`.
+    """
+    import matplotlib.pyplot as plt
+
+    summary = summary_of(run)
+    clash = sorted(set(extra_summary or {}) & set(summary))
+    if clash:
+        raise ValueError(f"write_fleet_outputs: extra_summary repeats the run's own keys {clash}; rename them.")
+    summary.update(extra_summary or {})
+    arrays = trajectory_arrays(run)
+    written = {
+        "summary.json": run_folder.write_json("summary.json", summary),
+        "trajectory.npz": run_folder.write("trajectory.npz", lambda fh: np.savez_compressed(fh, **arrays)),
+        "pushes.json": run_folder.write_json("pushes.json", pushes_records(run)),
+    }
+    fig = plot_fleet(run)
+    try:
+        written["fleet.png"] = run_folder.write("fleet.png", lambda fh: fig.savefig(fh, format="png", dpi=110))
+    finally:
+        plt.close(fig)
+    if animate and run.frames:
+        with run_folder.staged("fleet.gif") as tmp:
+            animate_fleet(run, tmp, fps=fps, max_frames=max_frames, progress=progress)
+        written["fleet.gif"] = run_folder.file("fleet.gif")
+    return {name: str(p) for name, p in written.items()}

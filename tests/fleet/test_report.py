@@ -1,0 +1,150 @@
+"""The fleet report on a hand-made FleetRun (2 rovers, 10 x 10 scene, 2 pushes): numbers and files."""
+from __future__ import annotations
+
+import json
+
+import matplotlib
+import numpy as np
+import pytest
+
+from jaxplan.core.outputs import RunFolder, read_manifest
+from jaxplan.fleet import FleetRun
+from jaxplan.fleet import report as R
+from jaxplan.transport.scene import Scene, circle
+
+matplotlib.use("Agg")
+
+T = 6
+
+
+def _scene(obj=None):
+    obj = np.zeros((10, 10)) if obj is None else obj
+    return Scene.from_arrays(obj, circle((8.5, 8.5), 1.2), name="tiny")
+
+
+def _fake_run(*, frames=True, plan_ms=(1.0, 3.0), **changes) -> FleetRun:
+    """Rover 0 walks right along row 1 and pushes once (steps 1-3); rover 1 walks up column 1 and
+    pushes once (steps 3-5). Initial outside mass 20; 12 delivered by step 5, 19 by step 6."""
+    obj = np.zeros((10, 10))
+    obj[1, 2:6] = 3.0
+    obj[3:5, 1] = 4.0
+    scene = _scene(obj)
+    pos = np.zeros((T + 1, 2, 2), np.int32)
+    pos[:, 0] = [[1, min(c, 5)] for c in range(1, T + 2)]
+    pos[:, 1] = [[min(r, 5), 1] for r in range(1, T + 2)]
+    delivered = np.array([0, 0, 0, 6, 6, 12, 19], float)
+    pushes = [
+        {"rover": 0, "first_step": 1, "last_step": 3, "cells": np.array([[1, 2], [1, 3], [1, 4]]),
+         "collected": np.float32(8.0), "delivered": np.float32(6.0), "spilled": np.float32(2.0), "mode": "deliver"},
+        {"rover": 1, "first_step": 3, "last_step": 5, "cells": [[3, 1], [4, 1]],
+         "collected": 7.0, "delivered": 6.0, "spilled": 1.0, "mode": "rearrange"},
+    ]
+    routes = [[np.array([[1, 2], [1, 3], [1, 4]]), None], [None, np.array([[3, 1], [4, 1]])], [None, None]]
+    rec = [{"obj": obj.astype(np.float32) * (1 - k / T), "heat": np.full((10, 10), k, np.float32),
+            "highways": np.eye(10, dtype=bool), "routes": routes[min(k // 2, 2)]} for k in range(T)]
+    fields = dict(
+        scene=scene, final_scene=scene.with_obj(obj * 0.05), n_rovers=2, strategy="coordinated", steps=T, pos=pos,
+        delivered=delivered, outside=20.0 - delivered, initial_mass=20.0, initial_outside=20.0, pushes=pushes,
+        rover_pushes=np.array([1, 1], np.int32), idle_steps=np.array([3, 1], np.int32), plan_ms=list(plan_ms),
+        conflicts=0, stop_reason="done", message="all delivered", frames=rec if frames else None)
+    fields.update(changes)
+    return FleetRun(**fields)
+
+
+def test_summary_numbers():
+    s = R.summary_of(_fake_run())
+    assert (s["n_rovers"], s["strategy"], s["steps"], s["pushes"]) == (2, "coordinated", T, 2)
+    assert (s["delivered"], s["spilled"], s["remaining"]) == (19.0, 3.0, 1.0)
+    assert (s["T50"], s["T90"]) == (5, 6)     # 12 >= 10 first at step 5; 19 >= 18 at step 6
+    assert s["pushes_per_rover"] == [1, 1]
+    assert s["idle_fraction"] == [0.5, 1 / 6]
+    assert s["plan_events"] == 2
+    assert s["plan_ms_median"] == pytest.approx(2.0) and s["plan_ms_p95"] == pytest.approx(2.9)
+    assert (s["conflicts"], s["stop_reason"], s["message"]) == (0, "done", "all delivered")
+    assert s["delivered_per_rover_step"] == pytest.approx(19.0 / 12)
+    json.dumps(s, allow_nan=False)   # plain JSON types only
+
+
+def test_summary_without_events_or_reaching_t90():
+    delivered = np.array([2, 2, 2, 4, 6, 9, 12], float)   # 10 gained of 20: T50 at step 6, no T90
+    s = R.summary_of(_fake_run(plan_ms=(), delivered=delivered, outside=22.0 - delivered))
+    assert (s["T50"], s["T90"]) == (6, None)
+    assert s["delivered"] == 10.0
+    assert s["plan_events"] == 0 and s["plan_ms_median"] is None and s["plan_ms_p95"] is None
+
+
+def test_a_run_whose_arrays_disagree_is_a_named_error():
+    with pytest.raises(ValueError, match=r"FleetRun.pos: shape \(6, 2, 2\)"):
+        R.summary_of(_fake_run(pos=np.zeros((T, 2, 2), np.int32)))
+
+
+def test_trajectory_and_pushes():
+    run = _fake_run()
+    arrays = R.trajectory_arrays(run)
+    assert arrays["pos"].dtype == np.int32 and arrays["pos"].shape == (T + 1, 2, 2)
+    assert arrays["delivered"].dtype == np.float64 and arrays["outside"].shape == (T + 1,)
+    assert arrays["initial_mass"].shape == () and float(arrays["initial_mass"]) == 20.0
+    records = R.pushes_records(run)
+    assert [r["rover"] for r in records] == [0, 1]
+    assert records[0]["cells"] == [[1, 2], [1, 3], [1, 4]] and records[1]["mode"] == "rearrange"
+    assert type(records[0]["delivered"]) is float
+    json.dumps(records, allow_nan=False)
+
+
+@pytest.mark.parametrize("n_frames, steps, most, expected", [
+    (6, 6, 10, [(i, i + 1) for i in range(6)]),       # one frame after each step
+    (7, 6, 10, [(i, i) for i in range(7)]),           # the start recorded too
+    (100, 100, 5, [(0, 1), (25, 26), (50, 51), (74, 75), (99, 100)]),
+    (0, 6, 10, []),
+])
+def test_frame_steps_subsample_evenly_and_end_on_the_last_step(n_frames, steps, most, expected):
+    assert R.frame_steps(n_frames, steps, most) == expected
+
+
+def test_write_fleet_outputs(tmp_path):
+    from PIL import Image
+
+    run = _fake_run()
+    with RunFolder(tmp_path / "out", "fleet", outputs=R.FLEET_OUTPUTS) as folder:
+        paths = R.write_fleet_outputs(run, folder, animate=True, fps=5, max_frames=4, extra_summary={"seed": 0})
+    out = tmp_path / "out"
+    assert sorted(paths) == sorted(R.FLEET_OUTPUTS)
+    manifest = read_manifest(out)
+    assert manifest["status"] == "complete" and sorted(manifest["files"]) == sorted(R.FLEET_OUTPUTS)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["T90"] == 6 and summary["seed"] == 0
+    with np.load(out / "trajectory.npz") as npz:
+        np.testing.assert_array_equal(npz["pos"], run.pos)
+        assert npz["delivered"].dtype == np.float64
+    assert len(json.loads((out / "pushes.json").read_text())) == 2
+    assert Image.open(out / "fleet.png").size[0] > 0
+    with Image.open(out / "fleet.gif") as gif:
+        assert gif.n_frames == 4
+
+
+def test_no_animation_without_frames_or_when_not_asked(tmp_path):
+    for name, run, animate in (("a", _fake_run(frames=False), True), ("b", _fake_run(), False)):
+        with RunFolder(tmp_path / name, "fleet", outputs=R.FLEET_OUTPUTS) as folder:
+            paths = R.write_fleet_outputs(run, folder, animate=animate, fps=5)
+        assert "fleet.gif" not in paths and not (tmp_path / name / "fleet.gif").exists()
+        assert (tmp_path / name / "fleet.png").is_file()
+
+
+def test_extra_summary_cannot_replace_the_runs_numbers(tmp_path):
+    with RunFolder(tmp_path / "out", "fleet") as folder, pytest.raises(ValueError, match="T90"):
+        R.write_fleet_outputs(_fake_run(), folder, animate=False, fps=5, extra_summary={"T90": 1})
+
+
+def test_plot_and_animation_accept_many_rovers(tmp_path):
+    n = 12   # beyond the labelled and tab10 range
+    pos = np.stack([np.stack([np.full(T + 1, i % 10), np.arange(T + 1) % 10], -1) for i in range(n)], 1)
+    frames = [{"obj": np.zeros((10, 10), np.float32), "heat": np.zeros((10, 10), np.float32),
+               "highways": np.zeros((10, 10), bool), "routes": [None] * n} for _ in range(T + 1)]
+    run = _fake_run(n_rovers=n, pos=pos.astype(np.int32), rover_pushes=np.zeros(n, np.int32),
+                    idle_steps=np.full(n, T, np.int32), frames=frames)
+    import matplotlib.pyplot as plt
+
+    plt.close(R.plot_fleet(run))
+    calls = []
+    assert R.animate_fleet(run, tmp_path / "many.gif", fps=5, max_frames=3, progress=lambda i, k: calls.append(i)) == 3
+    assert calls == [1, 2, 3] and (tmp_path / "many.gif").stat().st_size > 0
