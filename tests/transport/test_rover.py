@@ -170,7 +170,7 @@ def test_particle_layout_matches_counts():
     xyz, cells, represented = rover.particle_layout(scene, mask, rover.RoverConfig(particles_per_object=2))
     assert len(xyz) == 2 * int(np.asarray(scene.obj).sum())
     np.testing.assert_array_equal(represented, np.asarray(scene.obj))
-    row, col, inside = bridge._cells_of(scene, xyz[:, :2])
+    row, col, inside = bridge.cells_of(scene, xyz[:, :2])
     assert inside.all() and np.array_equal(np.stack([row, col], -1), cells)
     d = np.linalg.norm(xyz[:, None] - xyz[None], axis=-1) + np.eye(len(xyz)) * 9
     assert d.min() >= 2 * rover.RoverConfig().particle_radius     # no two particles overlap
@@ -277,7 +277,7 @@ def test_check_routes_takes_a_friction_per_route(tiny):
     # same routes, layouts, world and engine as the fixture's run at the default friction (0.6): the
     # C engine is deterministic, so a different trajectory means the frictions reached the physics
     assert not np.allclose(chk.trajectory.qpos, checks["c"].trajectory.qpos)
-    fields = bridge._friction_fields(world, [0.3, 1.2], 2)["geom_friction"]
+    fields = bridge.friction_fields(world, [0.3, 1.2], 2)["geom_friction"]
     wheel = world.model.geom("wheel_left").id
     assert (fields[0, 0, 0] == 0.3 and fields[1, 0, 0] == 1.2
             and fields[1, wheel, 0] == world.model.geom_friction[wheel, 0])

@@ -31,8 +31,9 @@ from jaxplan.physics.rollout import Simulator, Trajectory
 from jaxplan.transport import execute, spillage
 from jaxplan.transport.rover import model as rover_mod
 
-__all__ = ["PursuitParams", "RouteOutcome", "Check", "pursuit_policy", "route_path", "check_routes",
-           "rasterise", "project", "plan_routes", "tracking_error", "world_for_routes", "PUSH_IN"]
+__all__ = ["PursuitParams", "RouteOutcome", "Check", "pursuit_policy", "pursuit_params", "route_path", "pad_paths",
+           "check_routes", "route_mask", "cells_of", "particle_fates", "friction_fields", "rasterise", "project",
+           "plan_routes", "tracking_error", "world_for_routes", "PUSH_IN"]
 
 _SAMPLES = 8            # spline samples per waypoint segment (as spillage's default)
 _TIP_GAP = 0.68         # the shovel's wing tips start this many cells behind the source cell's
@@ -181,6 +182,21 @@ def _split_long_segments(way, max_length, piece):
     return np.asarray(out)
 
 
+def pursuit_params(paths, geometry: rover_mod.Geometry, speed, lookahead: float, cell_size: float) -> PursuitParams:
+    """``PursuitParams`` with leading axis B for ``paths`` (B ``route_path`` tuples, padded to one
+    length: ``pad_paths``). speed: blade speed in cells/s (scalar or f[B]); lookahead: cells."""
+    b = len(paths)
+    s = float(cell_size)
+    speeds = np.broadcast_to(np.asarray(speed, np.float64), (b,)) * s
+    f32 = lambda x: jnp.asarray(np.asarray(x), jnp.float32)  # noqa: E731
+    return PursuitParams(
+        path=f32([p[0] for p in paths]), arc=f32([p[1] for p in paths]), total=f32([p[2] for p in paths]),
+        end_dir=f32([p[3] for p in paths]), speed=f32(speeds), lookahead=f32(np.full(b, lookahead * s)),
+        offset=f32(np.full(b, geometry.blade_front)), half_track=f32(np.full(b, geometry.half_track)),
+        wheel_r=f32(np.full(b, geometry.wheel_r)), omega_max=f32(np.full(b, 2.0)),
+        stop_tol=f32(np.full(b, _STOP_TOL * s)))
+
+
 class RouteOutcome(NamedTuple):
     """Per-route physics verdicts (arrays [B]); masses in objects, lengths in cells, time in s.
 
@@ -232,7 +248,8 @@ class Check(NamedTuple):
     n_ticks: int
 
 
-def _route_mask(scene, route) -> np.ndarray:
+def route_mask(scene, route) -> np.ndarray:
+    """``bool[H, W]``: the non-target cells of one route (the cells whose count it collects)."""
     cells = np.asarray(route.cells)[: int(route.n_cells)]
     mask = np.zeros(scene.shape, bool)
     mask[cells[:, 0], cells[:, 1]] = True
@@ -253,7 +270,7 @@ def _point_polyline_distance(points, poly):
     return np.sqrt(np.min(np.sum((points[:, None] - closest) ** 2, -1), -1))
 
 
-def _cells_of(scene, xy):
+def cells_of(scene, xy):
     """``(row, col, inside)`` of world points ``xy f[..., 2]`` (numpy twin of execute._cell_of)."""
     h, w = scene.shape
     s = float(np.asarray(scene.cell_size))
@@ -266,7 +283,7 @@ def _cells_of(scene, xy):
 def rasterise(scene, xy, mass):
     """Step (i): ``(obj f[H, W], off_grid f[])`` from particle centroids ``xy f[P, 2]`` carrying
     ``mass f[P]`` objects each; mass off the grid is returned separately."""
-    row, col, inside = _cells_of(scene, np.asarray(xy, np.float64))
+    row, col, inside = cells_of(scene, np.asarray(xy, np.float64))
     obj = np.zeros(scene.shape)
     np.add.at(obj, (row[inside], col[inside]), np.asarray(mass, np.float64)[inside])
     return obj, float(np.sum(np.asarray(mass, np.float64)[~inside]))
@@ -339,16 +356,10 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
     g = world.geometry
     speeds = np.broadcast_to(np.asarray(speed, np.float64), (b,)) * s
     paths = [route_path(scene, _index(routes, i), g, push_in) for i in range(b)]
-    paths = _pad_paths(paths)
+    paths = pad_paths(paths)
     q0 = np.stack([rover_mod.initial_qpos(world, p[4], p[5], lay[0]) for p, lay in zip(paths, layouts)])
     qv0 = np.zeros((b, world.model.nv))
-    f32 = lambda x: jnp.asarray(np.asarray(x), jnp.float32)  # noqa: E731
-    params = PursuitParams(
-        path=f32([p[0] for p in paths]), arc=f32([p[1] for p in paths]), total=f32([p[2] for p in paths]),
-        end_dir=f32([p[3] for p in paths]), speed=f32(speeds), lookahead=f32(np.full(b, lookahead * s)),
-        offset=f32(np.full(b, g.blade_front)), half_track=f32(np.full(b, g.half_track)),
-        wheel_r=f32(np.full(b, g.wheel_r)), omega_max=f32(np.full(b, 2.0)),
-        stop_tol=f32(np.full(b, _STOP_TOL * s)))
+    params = pursuit_params(paths, g, speeds / s, lookahead, s)
     pstate0 = (jnp.zeros(b, jnp.float32), jnp.zeros(b, bool))
     if simulator is None:
         simulator = Simulator(world.model, pursuit_policy, substeps=cfg.substeps, bounds=world.bounds,
@@ -357,7 +368,7 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
         longest = max(p[2] for p in paths) / max(float(speeds.min()), 1e-9)
         n_ticks = int(math.ceil(horizon_factor * longest / simulator.tick_seconds)) + 20
     traj = simulator.run(q0, qv0, params, pstate0, n_ticks,
-                         model_fields=None if friction is None else _friction_fields(world, friction, b))
+                         model_fields=None if friction is None else friction_fields(world, friction, b))
     outcome = _score(scene, routes, world, traj, paths, layouts, masks, spill, evaluator)
     return Check(outcome, traj, world, params, [lay[1] for lay in layouts], [lay[2] for lay in layouts],
                  np.stack(masks), n_ticks)
@@ -365,7 +376,7 @@ def check_routes(scene, routes: execute.Route, *, config: rover_mod.RoverConfig 
 
 def _route_layouts(scene, routes: execute.Route, cfg: rover_mod.RoverConfig):
     """Per route i of ``routes``: its cell mask and its particle layout (seeded by i)."""
-    masks = [_route_mask(scene, _index(routes, i)) for i in range(int(np.asarray(routes.n_cells).shape[0]))]
+    masks = [route_mask(scene, _index(routes, i)) for i in range(int(np.asarray(routes.n_cells).shape[0]))]
     return masks, [rover_mod.particle_layout(scene, m, cfg, seed=i) for i, m in enumerate(masks)]
 
 
@@ -378,14 +389,16 @@ def world_for_routes(scene, routes: execute.Route, config: rover_mod.RoverConfig
     return rover_mod.build_world(scene, max(len(lay[0]) for lay in layouts), cfg)
 
 
-def _friction_fields(world: rover_mod.World, friction, b: int) -> dict:
+def friction_fields(world: rover_mod.World, friction, b: int) -> dict:
     """``{"geom_friction": f[B, ngeom, 3]}``: the world's geom frictions with the sliding
-    coefficient of every geom but the wheels set to ``friction`` (scalar or f[B]) per route."""
+    coefficient of every geom but the wheels (of every rover) set to ``friction`` (scalar or f[B])
+    per batch element."""
     mu = np.broadcast_to(np.asarray(friction, np.float64), (b,))
     if not np.all(np.isfinite(mu) & (mu > 0)):
         raise ValueError(f"friction: must be positive and finite, one value or one per route; got {friction!r}.")
     model = world.model
-    wheels = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name) for name in ("wheel_left", "wheel_right")]
+    wheels = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, rover_mod.rover_prefix(i, world.n_rovers) + name)
+              for i in range(world.n_rovers) for name in ("wheel_left", "wheel_right")]
     sliding = np.ones(model.ngeom, bool)
     sliding[wheels] = False
     table = np.repeat(np.asarray(model.geom_friction, np.float64)[None], b, 0)
@@ -398,27 +411,36 @@ def _pad_end(a, m: int):
     return np.concatenate([a, np.repeat(a[-1:], m - a.shape[0], 0)], 0)
 
 
-def _pad_paths(paths):
+def pad_paths(paths):
     """Route paths (``route_path``) padded to one length by repeating their end point."""
     m = max(p[0].shape[0] for p in paths)
     return [(_pad_end(p[0], m), _pad_end(p[1], m)) + tuple(p[2:]) for p in paths]
 
 
+def particle_fates(scene, final_xy, own_mask, finite: bool = True):
+    """Where each particle ended: ``(delivered, left, spilled, lost)``, bool[P] each, exactly one
+    true per particle (module docstring). final_xy: f[P, 2] world positions; own_mask: bool[H, W],
+    the cells of the route the particles started on; finite: the rollout stayed finite (else all lost)."""
+    final_xy = np.asarray(final_xy, np.float64)
+    row, col, inside = cells_of(scene, final_xy)
+    target = np.asarray(scene.target_mask)
+    own = np.asarray(own_mask, bool)
+    ok = bool(finite) & np.all(np.isfinite(final_xy), -1)
+    delivered = ok & inside & target[row, col]
+    left = ok & inside & ~target[row, col] & own[row, col]
+    spilled = ok & inside & ~target[row, col] & ~own[row, col]
+    return delivered, left, spilled, ~(delivered | left | spilled)
+
+
 def _score(scene, routes, world, traj: Trajectory, paths, layouts, masks, spill, evaluator) -> RouteOutcome:
     s = float(np.asarray(scene.cell_size))
     ppo = world.config.particles_per_object
-    target = np.asarray(scene.target_mask)
     cols = {k: [] for k in RouteOutcome._fields}
     for i, (path, (xyz, _cells, _), mask) in enumerate(zip(paths, layouts, masks)):
         n_p = len(xyz)
         mass = np.full(n_p, 1.0 / ppo)
         final = world.particle_xyz(traj.qpos[i, -1])[:n_p, :2]
-        row, col, inside = _cells_of(scene, final)
-        ok = bool(traj.finite[i]) & np.all(np.isfinite(final), -1)
-        delivered = ok & inside & target[row, col]
-        left = ok & inside & ~target[row, col] & mask[row, col]
-        spilled = ok & inside & ~target[row, col] & ~mask[row, col]
-        lost = ~(delivered | left | spilled)
+        delivered, left, spilled, lost = particle_fates(scene, final, mask, bool(traj.finite[i]))
         # blade point per tick, until the rover stopped (ctrl latched to exactly 0)
         qp = traj.qpos[i]
         yaw = np.arctan2(2 * (qp[:, 3] * qp[:, 6] + qp[:, 4] * qp[:, 5]), 1 - 2 * (qp[:, 5] ** 2 + qp[:, 6] ** 2))

@@ -11,6 +11,11 @@ particles (:func:`particle_layout`); the rest of the grid stays as counts. One m
 batch of routes: it has ``n_particles`` particle bodies, and a route that needs fewer parks the
 others in a strip outside the grid, where nothing reaches them.
 
+Several rovers (``build_world(..., n_rovers=N)``, a fleet's world): rover i's names carry the prefix
+``rover_prefix(i, N)`` ("r{i}_"; none for one rover, whose model is unchanged), its hull, wheels and
+casters get collision bit 8 so that rovers collide with (and touch) each other, and the qpos holds
+the N rovers' free joints and wheels first (``rover_qpos_adr``), then the particles.
+
 Contact caps (MJX has no real broadphase; ``docs/physics.md``): with N particle bodies,
 
     max_geom_pairs     = max(hull_boxes * N, pair_factor * N)
@@ -37,9 +42,11 @@ import numpy as np
 from mjx_models import MODEL_DIR
 
 __all__ = ["RoverConfig", "World", "build_world", "particle_layout", "contact_usage", "rover_pose",
-           "MODEL_DIR"]
+           "rover_prefix", "rover_xml", "rover_geometry", "Geometry", "MODEL_DIR"]
 
 HULL_BOXES = 4           # chassis, blade, two wings
+ROVER_QPOS = 9           # qpos per rover: free joint (7) and the two wheel hinges
+_OTHER_ROVER_BIT = 8     # collision bit of the other rovers in a world of several (template comment)
 _SLOTS = 3               # particles per cell side in one layer
 _PARK_GAP = 3.0          # parked particles are this many radii apart
 _SOLVERS = ("CG", "Newton")   # the constraint solvers both MJX and the C engine run
@@ -119,6 +126,8 @@ class World:
     n_particles: particle bodies (N). qpos layout: rover free joint [0:7], wheels [7:9], then
     particle k at ``[9 + 7k : 16 + 7k]``. bounds: (lo f[3], hi f[3]) world box for the divergence
     check. parking: f[N, 3] positions of parked particles. caps: the MJX caps written into the model.
+    n_rovers: rovers in the world (R); with R > 1 rover i's free joint and wheels are qpos
+    ``[9i : 9i + 9]`` and the particles start at ``9 R`` (``rover_qpos_adr``).
     """
 
     model: mujoco.MjModel
@@ -132,14 +141,17 @@ class World:
     bounds: tuple
     parking: np.ndarray
     caps: dict
+    n_rovers: int = 1
 
     def particle_xyz(self, qpos):
         """``f[..., N, 3]`` particle positions from ``qpos f[..., nq]``."""
-        q = np.asarray(qpos)[..., 9: 9 + 7 * self.n_particles]
+        first = ROVER_QPOS * self.n_rovers
+        q = np.asarray(qpos)[..., first: first + 7 * self.n_particles]
         return q.reshape(q.shape[:-1] + (self.n_particles, 7))[..., :3]
 
 
-def _geometry(s: float, cfg: RoverConfig) -> Geometry:
+def rover_geometry(s: float, cfg: RoverConfig) -> Geometry:
+    """The rover's dimensions (world units) for cell size ``s`` and ``cfg``."""
     wheel_r = 0.12 * s
     blade_x = 0.42 * s
     blade_hx = 0.02 * s
@@ -147,8 +159,20 @@ def _geometry(s: float, cfg: RoverConfig) -> Geometry:
                     cfg.wing_length * s - blade_hx)
 
 
-def _rover_xml(s: float, cfg: RoverConfig) -> str:
-    g = _geometry(s, cfg)
+def rover_prefix(i: int, n_rovers: int) -> str:
+    """The name prefix of rover ``i`` in a world of ``n_rovers``: "" for one rover, else "r{i}_"
+    (its body, joints, geoms and actuators are ``prefix + "rover"``, ``prefix + "wheel_left"``, ...)."""
+    return "" if int(n_rovers) == 1 else f"r{int(i)}_"
+
+
+def rover_xml(s: float, cfg: RoverConfig, prefix: str = "", collide_rovers: bool = False) -> str:
+    """The rover's MJCF body for cell size ``s``: the template ``rover.xml`` filled in.
+
+    prefix: put before every name (``rover_prefix``). collide_rovers: add collision bit 8 to the
+    hull, wheels and casters so that rovers of one world collide with each other (the template's
+    comment); without it the body is exactly the single-rover world's.
+    """
+    g = rover_geometry(s, cfg)
     template = (MODEL_DIR / "rover.xml").read_text()
     body = template[template.index("<body"):]
     # a chassis fifth of the blade height above the floor; the blade clears the floor by 0.01 s
@@ -164,14 +188,18 @@ def _rover_xml(s: float, cfg: RoverConfig) -> str:
         caster_mass=0.02 * cfg.rover_mass,
         wheel_y=g.half_track, wheel_mass=0.04 * cfg.rover_mass, wheel_damping=0.05,
     )
-    return body.format(**{k: f"{v:.6g}" for k, v in fields.items()})
+    extra = _OTHER_ROVER_BIT if collide_rovers else 0
+    bits = dict(hull_contype=4 | extra, hull_conaffinity=extra, gear_contype=extra, gear_conaffinity=1 | extra)
+    return body.format(prefix=prefix, **{k: str(v) for k, v in bits.items()},
+                       **{k: f"{v:.6g}" for k, v in fields.items()})
 
 
-def caps_for(n_particles: int, cfg: RoverConfig) -> dict:
-    """The MJX contact caps for N particle bodies (module docstring)."""
-    n = int(n_particles)
-    pairs = max(HULL_BOXES * n, cfg.pair_factor * n, 1)
-    points = (n + 4) + cfg.pair_factor * n + cfg.hull_factor * n
+def caps_for(n_particles: int, cfg: RoverConfig, n_rovers: int = 1) -> dict:
+    """The MJX contact caps for N particle bodies and R rovers (module docstring; every rover's hull
+    may touch every particle, and each rover has 4 floor contacts)."""
+    n, r = int(n_particles), int(n_rovers)
+    pairs = max(HULL_BOXES * r * n, cfg.pair_factor * n, 1)
+    points = (n + 4 * r) + cfg.pair_factor * n + cfg.hull_factor * r * n
     return {"max_geom_pairs": int(pairs), "max_contact_points": int(points)}
 
 
@@ -186,11 +214,15 @@ def _parking(n: int, s: float, cfg: RoverConfig, origin, width_cells: int) -> np
     return np.stack([x, y, np.full(n, r)], -1)
 
 
-def build_world(scene, n_particles: int, config: RoverConfig | None = None) -> World:
-    """Build the MJCF model of ``scene`` with ``n_particles`` particle bodies and compile it."""
+def build_world(scene, n_particles: int, config: RoverConfig | None = None, n_rovers: int = 1) -> World:
+    """Build the MJCF model of ``scene`` with ``n_particles`` particle bodies and ``n_rovers`` rovers
+    (module docstring) and compile it."""
     cfg = RoverConfig() if config is None else config
     if int(n_particles) < 0:
         raise ValueError(f"n_particles: must be >= 0; got {n_particles!r}.")
+    if not (isinstance(n_rovers, numbers.Integral) and n_rovers >= 1):
+        raise ValueError(f"n_rovers: must be an integer >= 1; got {n_rovers!r}.")
+    n_rovers = int(n_rovers)
     s = float(np.asarray(scene.cell_size))
     ox, oy = (float(v) for v in np.asarray(scene.origin))
     h, w = scene.shape
@@ -201,7 +233,7 @@ def build_world(scene, n_particles: int, config: RoverConfig | None = None) -> W
     margin = 3.0 * s
     lo = np.array([ox - margin, oy - margin - 1.5 * s - park_rows * s, -0.5 * s])
     hi = np.array([ox + w * s + margin, oy + h * s + margin, 3.0 * s])
-    caps = caps_for(n, cfg)
+    caps = caps_for(n, cfg, n_rovers)
 
     mask = np.asarray(scene.target_mask)
     target_geoms = []
@@ -222,8 +254,13 @@ def build_world(scene, n_particles: int, config: RoverConfig | None = None) -> W
                          f'conaffinity="7" rgba="0.55 0.45 0.35 1"/></body>')
     fx, fy = ox + 0.5 * w * s, oy + 0.5 * h * s
     fsize = 0.5 * max(h, w) * s + margin + park_rows * s + 1.5 * s
-    g = _geometry(s, cfg)
+    g = rover_geometry(s, cfg)
     vmax = 2.0 * s / g.wheel_r      # wheel rad/s: 2 cells/s top speed
+    prefixes = [rover_prefix(i, n_rovers) for i in range(n_rovers)]
+    rovers = "\n".join(rover_xml(s, cfg, p, collide_rovers=n_rovers > 1) for p in prefixes)
+    actuators = "\n".join(
+        f'    <velocity name="{p}{side}" joint="{p}{side}" kv="{cfg.wheel_kv:.6g}" ctrlrange="{-vmax:.6g} {vmax:.6g}"/>'
+        for p in prefixes for side in ("wheel_left", "wheel_right"))
     xml = f"""<mujoco model="rover_world">
   <option timestep="{cfg.timestep:.6g}" integrator="implicitfast" iterations="{cfg.iterations}"
           ls_iterations="{cfg.ls_iterations}" cone="pyramidal" solver="{cfg.solver}"/>
@@ -238,18 +275,26 @@ def build_world(scene, n_particles: int, config: RoverConfig | None = None) -> W
     <geom name="floor" type="plane" pos="{fx:.6g} {fy:.6g} 0" size="{fsize:.6g} {fsize:.6g} 0.1"
           contype="1" conaffinity="0" rgba="0.82 0.8 0.75 1"/>
     {''.join(target_geoms)}
-    {_rover_xml(s, cfg)}
+    {rovers}
     {''.join(particles)}
   </worldbody>
   <actuator>
-    <velocity name="wheel_left" joint="wheel_left" kv="{cfg.wheel_kv:.6g}" ctrlrange="{-vmax:.6g} {vmax:.6g}"/>
-    <velocity name="wheel_right" joint="wheel_right" kv="{cfg.wheel_kv:.6g}" ctrlrange="{-vmax:.6g} {vmax:.6g}"/>
+{actuators}
   </actuator>
 </mujoco>
 """
     model = mujoco.MjModel.from_xml_string(xml)
-    assert model.jnt_qposadr[0] == 0 and model.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
-    return World(model, xml, cfg, g, n, s, (ox, oy), (h, w), (lo, hi), parking, caps)
+    world = World(model, xml, cfg, g, n, s, (ox, oy), (h, w), (lo, hi), parking, caps, n_rovers)
+    assert list(rover_qpos_adr(world)) == [ROVER_QPOS * i for i in range(n_rovers)]
+    assert all(model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE for j in range(0, 3 * n_rovers, 3))
+    return world
+
+
+def rover_qpos_adr(world: World) -> np.ndarray:
+    """``i32[R]``: qpos address of each rover's free joint (its x, y, z, quaternion follow)."""
+    ids = [mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_JOINT, rover_prefix(i, world.n_rovers) + "rover")
+           for i in range(world.n_rovers)]
+    return world.model.jnt_qposadr[ids].astype(np.int32)
 
 
 def particle_layout(scene, cells_mask, config: RoverConfig | None = None, seed: int = 0):
@@ -290,18 +335,26 @@ def rover_pose(xy, yaw, world: World) -> np.ndarray:
 
 
 def initial_qpos(world: World, rover_xy, rover_yaw, particle_xyz) -> np.ndarray:
-    """``f[nq]``: rover pose, wheels at 0, the given particles first and the rest parked."""
+    """``f[nq]``: rover pose(s), wheels at 0, the given particles first and the rest parked.
+
+    rover_xy: f[2] (one rover) or f[R, 2] (one per rover of the world); rover_yaw: f[] or f[R].
+    """
     p = np.asarray(particle_xyz, np.float64).reshape(-1, 3)
     if p.shape[0] > world.n_particles:
         raise ValueError(f"particle_xyz: {p.shape[0]} particles but the world has {world.n_particles} bodies.")
+    xy = np.asarray(rover_xy, np.float64).reshape(-1, 2)
+    yaw = np.broadcast_to(np.asarray(rover_yaw, np.float64).reshape(-1), (xy.shape[0],))
+    if xy.shape[0] != world.n_rovers:
+        raise ValueError(f"rover_xy: {xy.shape[0]} poses but the world has {world.n_rovers} rovers.")
     q = np.zeros(world.model.nq)
-    q[:7] = rover_pose(rover_xy, rover_yaw, world)
+    for adr, pos, heading in zip(rover_qpos_adr(world), xy, yaw):
+        q[adr: adr + 7] = rover_pose(pos, heading, world)
     pos = world.parking.copy()
     pos[: p.shape[0]] = p
     blocks = np.zeros((world.n_particles, 7))
     blocks[:, :3] = pos
     blocks[:, 3] = 1.0
-    q[9:] = blocks.reshape(-1)
+    q[ROVER_QPOS * world.n_rovers:] = blocks.reshape(-1)
     return q
 
 
