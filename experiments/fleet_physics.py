@@ -17,7 +17,7 @@ route's straight run to the target and the push past the end included) is checke
 routes too: ``swept overlaps`` counts the pairs of routes whose swept footprints overlap, where
 contacts are to be expected.
 
-Results: ``experiments/results/fleet_physics.{json,md}``.
+Results: ``experiments/results/fleet_physics.{json,md}`` (``--name`` sets the stem).
 """
 from __future__ import annotations
 
@@ -128,7 +128,8 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="examples:\n  python experiments/fleet_physics.py\n"
                                         "  python experiments/fleet_physics.py --seed 3 --scenes 1 --rovers 3\n"
-                                        "  python experiments/fleet_physics.py --scenes 0 --sites site128")
+                                        "  python experiments/fleet_physics.py --scenes 0 --sites site128 "
+                                        "--footprint swept --name fleet_physics_swept")
     ap.add_argument("--rovers", type=int, default=4, help="rovers (= disjoint routes) per scene (default 4)")
     ap.add_argument("--seed", type=int, default=0, help="first random-scene seed to try (default 0)")
     ap.add_argument("--scenes", type=int, default=2,
@@ -141,8 +142,9 @@ def main(argv=None) -> int:
     ap.add_argument("--footprint", choices=("cells", "swept"), default="cells",
                     help="disjointness rule: route cells dilated by one (default) or the swept footprint")
     ap.add_argument("--size", type=int, default=SHAPE[0], help=f"side of the random scenes (default {SHAPE[0]})")
+    ap.add_argument("--name", default="fleet_physics", help="results file stem (default fleet_physics)")
     ap.add_argument("--results-dir", type=Path, default=RESULTS_DIR, metavar="DIR",
-                    help="where fleet_physics.json and .md go (default experiments/results)")
+                    help="where <name>.json and <name>.md go (default experiments/results)")
     args = ap.parse_args(argv)
     if args.rovers < 1 or args.scenes < 0 or args.max_seeds < 1 or args.candidates < args.rovers or args.size < 8:
         ap.error("--rovers >= 1, --scenes >= 0, --max-seeds >= 1, --candidates >= --rovers, --size >= 8")
@@ -177,7 +179,7 @@ def main(argv=None) -> int:
               "spill": "ROVER_FIT",
               "tolerance": 0.15, "scenes": scenes, "skipped": skipped, "totals": totals,
               "total_s": time.perf_counter() - t_start}
-    write_results(args.results_dir, "fleet_physics", result, markdown(result))
+    write_results(args.results_dir, args.name, result, markdown(result))
     return 0
 
 
