@@ -144,8 +144,9 @@ def _spill_cells(scene, route: Route, samples: spillage.PathSamples):
     return jnp.where(ok, r * w + c, own[:, 0] * w + own[:, 1])
 
 
-def _deposit_cell(scene, route: Route):
-    """Flat index of the target cell that receives the delivered load."""
+def deposit_cell(scene, route: Route):
+    """i32[]: flat index (row * W + col) of the target cell that receives the delivered load: the
+    route's last cell, or for a fallback route the target cell whose centre is nearest to ``route.end``."""
     h, w = scene.shape
     last = jnp.maximum(route.cells[jnp.maximum(route.n_cells - 1, 0)], 0)
     d2 = jnp.sum((scene.cell_centers() - route.end) ** 2, -1)
@@ -176,7 +177,7 @@ def execute(scene, route: Route, spill: spillage.SpillParams,
     emptied = jnp.zeros(h * w, bool).at[flat_route].max(collect)   # max: padding rows must not undo
     flat = jnp.where(emptied, 0.0, flat)
     flat = flat.at[_spill_cells(scene, route, samples)].add(spill_per_sample)
-    flat = flat.at[_deposit_cell(scene, route)].add(delivered)
+    flat = flat.at[deposit_cell(scene, route)].add(delivered)
     new_obj = flat.reshape(h, w)
     changed = (new_obj != obj) & ~scene.target_mask
     return new_obj, Push(collected, spilled, delivered, jnp.sum(samples.ds), changed, samples, spill_per_sample)
