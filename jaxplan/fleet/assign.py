@@ -149,20 +149,17 @@ def reserve(owner, task: Task, rover):
     return jnp.where(mask, rover, owner)
 
 
-def _empty_tasks(task_shape, n: int) -> Task:
-    return jax.tree.map(lambda x: jnp.zeros((n,) + x.shape, x.dtype), task_shape)
-
-
 def _source_score(scene, fabric, rule: str):
     return fabric.value if rule == "max_value" else -scene.dist
 
 
-def assign_greedy(scene, params, ep, spill, fabric, pos, idle, owner, budget, *, candidates: int, cap: int,
-                  evaluator):
-    """The coordinated strategy (module docstring): ``(tasks Task[N], assigned bool[N], owner, failure)``.
+def assign_greedy(scene, params, ep, spill, fabric, pos, idle, owner, budget, routes, *, candidates: int,
+                  cap: int, evaluator):
+    """The coordinated strategy (module docstring): ``(route, mode i32[N], assigned bool[N], owner, failure)``.
 
     pos: i32[N, 2]; idle: bool[N] rovers that may take a task; owner: i32[H, W]; budget: i32[] most
-    tasks to start; candidates (M), cap (walk cap), evaluator: static. tasks[r] is rover r's new task
+    tasks to start; routes: the rovers' current ``execute.Route`` batch (kept where none is assigned);
+    candidates (M), cap (walk cap), evaluator: static. route[r] and mode[r] are rover r's new task
     where assigned[r]; failure: i32[] the episode's code saying why nothing could be assigned
     (``RUNNING`` when something was).
     """
@@ -176,9 +173,16 @@ def assign_greedy(scene, params, ep, spill, fabric, pos, idle, owner, budget, *,
     tasks = jax.vmap(lambda s, e: plan_task(scene, params, ep, spill, fabric, s, e, cap, evaluator))(sources, exists)
     usable = exists & (tasks.code == RUNNING)
     choice, owner, count = greedy_choice(pos, idle, owner, budget, usable, tasks)
-    mine = jax.tree.map(lambda a: a[jnp.maximum(choice, 0)], tasks)
+    assigned = choice >= 0
+    mine = jax.tree.map(lambda a: a[jnp.maximum(choice, 0)], (tasks.route, tasks.mode))
+    route, mode = _keep_rows(assigned, mine, (routes, jnp.zeros(pos.shape[0], jnp.int32)))
     failure = jnp.select([count > 0, ~jnp.any(exists), ~jnp.any(usable)], [RUNNING, CLEARED, tasks.code[0]], BLOCKED)
-    return mine, choice >= 0, owner, failure.astype(jnp.int32)
+    return route, mode, assigned, owner, failure.astype(jnp.int32)
+
+
+def _keep_rows(mask, new, old):
+    """``new`` where ``mask: bool[N]`` else ``old``, leaf by leaf (leading axis N)."""
+    return jax.tree.map(lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
 
 
 def greedy_choice(pos, idle, owner, budget, usable, tasks: Task):
@@ -225,9 +229,10 @@ def greedy_choice(pos, idle, owner, budget, usable, tasks: Task):
     return choice, owner, count
 
 
-def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, region, *, retries: int, cap: int,
-                evaluator):
-    """The independent and partitioned strategies (module docstring); returns as ``assign_greedy``.
+def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, routes, region, *, retries: int,
+                cap: int, evaluator):
+    """The independent and partitioned strategies (module docstring); arguments and results as
+    ``assign_greedy``.
 
     region: i32[H, W] the sector each cell belongs to, -1 everywhere for ``independent`` (rover r
     takes sources where region is -1 or r); retries (static): sources tried per rover and step.
@@ -235,8 +240,6 @@ def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, regi
     h, w = scene.shape
     n = pos.shape[0]
     maps = rover_maps(pos, (h, w))
-    template = jax.eval_shape(lambda: plan_task(scene, params, ep, spill, fabric, jnp.zeros(2, jnp.int32),
-                                                jnp.bool_(True), cap, evaluator))
 
     def rover(r, carry):
         owner, tasks, assigned, count, failure = carry
@@ -255,7 +258,8 @@ def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, regi
                 pushable = task.code == RUNNING
                 free = pushable & footprint_free(task, owner, maps, r)
                 owner = jnp.where(free, reserve(owner, task, r), owner)
-                tasks = jax.tree.map(lambda all_, one: all_.at[r].set(jnp.where(free, one, all_[r])), tasks, task)
+                tasks = jax.tree.map(lambda all_, one: all_.at[r].set(jnp.where(free, one, all_[r])), tasks,
+                                     (task.route, task.mode))
                 assigned = assigned.at[r].set(free)
                 failure = jnp.where(free, failure, jnp.where(pushable, BLOCKED, task.code))
                 excluded = excluded.at[source[0], source[1]].set(True)
@@ -268,9 +272,9 @@ def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, regi
 
         return jax.lax.cond(idle[r] & (count < budget), attempt, lambda c: c, carry)
 
-    start = (owner, _empty_tasks(template, n), jnp.zeros(n, bool), jnp.int32(0), jnp.int32(RUNNING))
-    owner, tasks, assigned, count, failure = jax.lax.fori_loop(0, n, rover, start)
-    return tasks, assigned, owner, jnp.where(count > 0, RUNNING, failure).astype(jnp.int32)
+    start = (owner, (routes, jnp.zeros(n, jnp.int32)), jnp.zeros(n, bool), jnp.int32(0), jnp.int32(RUNNING))
+    owner, (route, mode), assigned, count, failure = jax.lax.fori_loop(0, n, rover, start)
+    return route, mode, assigned, owner, jnp.where(count > 0, RUNNING, failure).astype(jnp.int32)
 
 
 # ------------------------------------------------------------------------------------ sectors, starts

@@ -161,7 +161,10 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
                          f"the arguments ({n_rovers}, {strategy!r}); pass the same.")
     config = config.resolved(scene.shape)
 
-    state = _reset_jit(scene, params, spill, episode, config=config, starts=starts, max_steps=int(max_steps))
+    # the compiled programs do not depend on the budget (a static field): reset copies it into the state
+    planning = episode.replace(max_pushes=0, rebuild="full")
+    state = _reset_jit(scene, params, spill, planning, config=config, starts=starts, max_steps=int(max_steps),
+                       max_pushes=int(episode.max_pushes))
     initial = state
     first = jax.device_get(state)
     target = np.asarray(first.scene.target_mask)
@@ -173,7 +176,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     open_tasks: dict[int, dict] = {}
     kernel_conflicts = dropped = 0
     kernel = config.kernel()
-    run_step = lambda s: _step_jit(s, params, spill, episode, config=kernel, evaluator=evaluator)  # noqa: E731
+    run_step = lambda s: _step_jit(s, params, spill, planning, config=kernel, evaluator=evaluator)  # noqa: E731
     if not bool(first.done):
         jax.block_until_ready(run_step(state))        # compile outside the timed steps
     from tqdm.auto import tqdm

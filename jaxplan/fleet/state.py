@@ -3,7 +3,9 @@
 One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
 
 1. **Assign**: idle rovers get tasks from the current fabric by the strategy (``assign``), while the
-   push budget lasts (tasks started < ``EpisodeParams.max_pushes``). A rover already on its task's
+   push budget lasts (tasks started < ``FleetState.max_pushes``, which ``reset`` takes from
+   ``EpisodeParams.max_pushes``, so that the compiled step does not depend on the budget, a static
+   field of ``EpisodeParams``: ``step`` ignores ``episode.max_pushes``). A rover already on its task's
    start pushes at once, the others approach.
 2. **Distance fields**: when the ownership map or the set of parked rovers changed since they were
    computed (a task started, ended or was dropped; an idle rover reached its home cell), every
@@ -77,7 +79,7 @@ class FleetConfig:
     """Static fleet settings (part of the jit cache key).
 
     n_rovers: N, an int in [1, 64]. strategy: one of ``STRATEGIES``. candidates: M sources planned
-    per coordinated assignment (None: min(2 N, 64)). walk_cap: static walk length of a plan (None:
+    per coordinated assignment (None: 2 N, at least 8 and at most 64). walk_cap: static walk length of a plan (None:
     ``episode.default_walk_cap``); routes have S = 2 (walk_cap + 1) slots. stall_steps: steps without
     any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an
     independent or partitioned rover tries per step when footprints are taken.
@@ -99,7 +101,7 @@ class FleetConfig:
         h, w = shape
         return dataclasses.replace(
             self,
-            candidates=min(2 * self.n_rovers, MAX_CANDIDATES) if self.candidates is None else self.candidates,
+            candidates=min(max(2 * self.n_rovers, 8), MAX_CANDIDATES) if self.candidates is None else self.candidates,
             walk_cap=default_walk_cap(shape) if self.walk_cap is None else self.walk_cap,
             stall_steps=2 * (h + w) if self.stall_steps is None else self.stall_steps)
 
@@ -141,7 +143,8 @@ class FleetState(NamedTuple):
     replan: bool[] the ownership map changed since the fields were computed.
     pushes: i32[N] pushes applied per rover. started: i32[] tasks started and not dropped.
     idle_steps: i32[N] steps each rover had no task.
-    t: i32[] steps done. stall: i32[] consecutive steps without a move or push. max_steps: i32[].
+    t: i32[] steps done. stall: i32[] consecutive steps without a move or push. max_steps: i32[] the
+    step limit. max_pushes: i32[] the push budget (tasks started, dropped ones not counted).
     delivered, spilled: f32[] objects, all pushes. outside: f32[] objects outside the targets now.
     initial_mass, initial_outside, stop_at: f32[] (stop_at = stop_fraction * initial_outside).
     done: bool[]; stop: i32[] (``STOP_REASONS``).
@@ -166,6 +169,7 @@ class FleetState(NamedTuple):
     t: jax.Array
     stall: jax.Array
     max_steps: jax.Array
+    max_pushes: jax.Array
     delivered: jax.Array
     spilled: jax.Array
     outside: jax.Array
@@ -235,14 +239,15 @@ def route_slots(config: FleetConfig, shape) -> int:
 
 def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams | None = None,
           episode: EpisodeParams | None = None, config: FleetConfig | None = None, starts=None,
-          max_steps: int | None = None) -> FleetState:
+          max_steps: int | None = None, max_pushes=None) -> FleetState:
     """The state before the first step: counts rounded to ``execute.QUANTUM``, the fabric built,
     every rover idle at its start cell, the stop checks of an episode's start applied (no material,
     done, budget 0). Pure and jittable (``vmap`` it over scenes of one shape).
 
     starts: i32[N, 2] distinct cells outside the targets (default: ``assign.spread_starts``, or
     ``assign.sector_starts`` for ``partitioned``, so rover i starts in sector i); not checked here
-    (``run_fleet`` does). max_steps: step limit (default 100,000). spill is not read.
+    (``run_fleet`` does). max_steps: step limit (default 100,000). max_pushes: the push budget
+    (default ``episode.max_pushes``; an argument so a traced one needs no recompile). spill is not read.
     """
     params = FabricParams() if params is None else params
     ep = EpisodeParams() if episode is None else episode
@@ -268,13 +273,14 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
                           jnp.zeros((n, 2), jnp.float32))
     outside = _f32(_outside(scene))
     stop_at = _f32(_f32(ep.stop_fraction) * outside)
-    stop = _i32(jnp.select([outside <= 0, outside <= stop_at, ep.max_pushes <= 0], [NO_MATERIAL, DONE, BUDGET],
+    budget = _i32(ep.max_pushes if max_pushes is None else max_pushes)
+    stop = _i32(jnp.select([outside <= 0, outside <= stop_at, budget <= 0], [NO_MATERIAL, DONE, BUDGET],
                            RUNNING))
     zeros_n = jnp.zeros(n, jnp.int32)
     limit = DEFAULT_MAX_STEPS if max_steps is None else max_steps
     return FleetState(scene, fabric, pos, pos, zeros_n, route, zeros_n, zeros_n, zeros_n,
                       jnp.full(shape, -1, jnp.int32), jnp.full((n,) + shape, FAR, jnp.int32), region,
-                      jnp.bool_(False), zeros_n, _i32(0), zeros_n, _i32(0), _i32(0), _i32(limit), _f32(0.0),
+                      jnp.bool_(False), zeros_n, _i32(0), zeros_n, _i32(0), _i32(0), _i32(limit), budget, _f32(0.0),
                       _f32(0.0), outside, _f32(jnp.sum(scene.obj)), outside, stop_at, stop != RUNNING, stop)
 
 
@@ -292,21 +298,19 @@ def _select_rows(mask, new, old):
 
 
 def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
-    """Step 1: ``(tasks, assigned bool[N], owner, failure)``; nothing when no rover is idle or the budget is spent."""
+    """Step 1: ``(route, mode, assigned bool[N], owner, failure)`` (``assign.assign_greedy``); nothing
+    runs when no rover is idle or the budget is spent."""
     idle = state.phase == IDLE
-    budget = _i32(ep.max_pushes) - state.started
-    args = (state.scene, params, ep, spill, state.fabric, state.pos, idle, state.owner, budget)
+    budget = state.max_pushes - state.started
+    args = (state.scene, params, ep, spill, state.fabric, state.pos, idle, state.owner, budget, state.route)
 
     def run(_):
         if cfg.strategy == "coordinated":
             return assign.assign_greedy(*args, candidates=cfg.candidates, cap=cfg.walk_cap, evaluator=evaluator)
         return assign.assign_each(*args, state.region, retries=cfg.retries, cap=cfg.walk_cap, evaluator=evaluator)
 
-    shapes = jax.eval_shape(run, None)
-
     def skip(_):
-        tasks = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), shapes[0])
-        return tasks, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING)
+        return state.route, state.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING)
 
     return jax.lax.cond(jnp.any(idle) & (budget > 0), run, skip, None)
 
@@ -365,11 +369,11 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     n = state.pos.shape[0]
     step_no = state.t + 1
     # 1. assign
-    tasks, assigned, owner, failure = _assign(state, params, spill, ep, cfg, evaluator)
-    route = _select_rows(assigned, tasks.route, state.route)
+    new_route, new_mode, assigned, owner, failure = _assign(state, params, spill, ep, cfg, evaluator)
+    route = _select_rows(assigned, new_route, state.route)
     at_start = jnp.all(state.pos == route.cells[:, 0], -1)
     phase = jnp.where(assigned, jnp.where(at_start, PUSH, APPROACH), state.phase)
-    mode = jnp.where(assigned, tasks.mode, state.mode)
+    mode = jnp.where(assigned, new_mode, state.mode)
     task_step = jnp.where(assigned, step_no, state.task_step)
     progress = jnp.where(assigned, 0, state.progress)
     # 2. distance fields, unreachable starts dropped
@@ -409,13 +413,13 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     stuck = ~has_task & ~jnp.any(assigned) & (failure != RUNNING) & ((failure != NO_REACHABLE) | ~jnp.any(moved))
     parked_now = _parked(pos, state.home, phase)
     stop = _i32(jnp.select(
-        [outside <= state.stop_at, ~has_task & (started >= ep.max_pushes), stuck, stall >= cfg.stall_steps,
+        [outside <= state.stop_at, ~has_task & (started >= state.max_pushes), stuck, stall >= cfg.stall_steps,
          t >= state.max_steps],
         [DONE, BUDGET, failure, jnp.where(has_task, DEADLOCK, NO_REACHABLE), MAX_STEPS], RUNNING))
     replan = jnp.any(ended) | jnp.any(dropped) | jnp.any(parked_now & ~_parked(state.pos, state.home, phase))
     new = FleetState(scene, fabric, pos, state.home, phase, route, mode, task_step, progress, owner, dist,
                      state.region, replan, state.pushes + ended, started,
-                     state.idle_steps + idle_now, t, _i32(stall), state.max_steps, total_delivered,
+                     state.idle_steps + idle_now, t, _i32(stall), state.max_steps, state.max_pushes, total_delivered,
                      state.spilled + jnp.sum(spilled), outside, state.initial_mass, state.initial_outside,
                      state.stop_at, stop != RUNNING, stop)
     inside = jnp.sum(jnp.where(scene.target_mask, obj, 0.0))
@@ -427,7 +431,9 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
 def step(state: FleetState, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams,
          config: FleetConfig, evaluator: spillage.Evaluator = spillage.curvature_spill):
     """One step of the fleet (module docstring): ``(state, FleetRecord)``. Pure, one jittable program;
-    config and evaluator are static. A done state is returned as it is, with an invalid record."""
+    config and evaluator are static. A done state is returned as it is, with an invalid record. The
+    push budget is ``state.max_pushes`` (``episode.max_pushes`` and ``episode.rebuild`` are not read:
+    the fleet always rebuilds in full)."""
     _check_static(params, episode, config, "step")
     cfg = config.resolved(state.scene.shape)
     return jax.lax.cond(state.done, lambda s: (s, _idle_record(s)),

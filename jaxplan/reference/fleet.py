@@ -114,8 +114,8 @@ def conflicts(positions, reservations) -> list:
     reservations: iterable of ``(rover, first, last, cells)``: the rover held the footprint ``cells``
     (iterable of (row, col)) for the positions of steps ``first`` .. ``last`` (inclusive).
     Kinds: "same cell" (two rovers in one cell), "swap" (two rovers exchanged cells in one step),
-    "footprint" (a rover in a cell another rover holds reserved), "jump" (a rover moved more than one
-    cell in one step).
+    "footprint" (a rover in a cell another rover holds reserved), "overlap" (two rovers hold one cell
+    reserved at once), "jump" (a rover moved more than one cell in one step).
     """
     positions = np.asarray(positions)
     t_end = positions.shape[0]
@@ -135,6 +135,9 @@ def conflicts(positions, reservations) -> list:
             others = held[t].get(cell, set()) - {i}
             if others:
                 found.append((t, "footprint", (i, min(others))))
+        for owners in held[t].values():
+            if len(owners) > 1:
+                found.append((t, "overlap", tuple(sorted(owners))))
         if t == 0:
             continue
         before = [tuple(int(v) for v in p) for p in positions[t - 1]]
