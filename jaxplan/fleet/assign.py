@@ -4,9 +4,11 @@ A **task** is one planned push (``Task``): ``episode.plan_for_source`` from a so
 fabric, the delivered mass the spill model predicts for its route, the push's steps and its
 footprint (``footprint``). A task may start only if its footprint is **free**: it meets no cell of a
 running task's footprint (the ownership map) and holds no rover's cell but the assigned rover's.
-Disjoint footprints are checked without painting a map per task: a footprint is its core dilated
-by one cell plus the deposit cell, so it meets the reserved cells exactly when its core meets the
-reserved cells dilated by one, or its deposit cell is reserved (``footprint_free``).
+Disjoint footprints are checked without painting a map per task: a footprint is its core grown by
+r cells (the clearance) outside the targets plus its path, so it meets the reserved cells R exactly
+when its core meets the non-target cells of R grown by r, or its path meets R (``footprint_free``);
+and a rover stands in it exactly when a rover off the targets is within r cells of its core, or a
+rover stands on its path.
 
 - ``coordinated`` (``assign_greedy``): the top ``M`` sources by the source rule's score among the
   occupied cells outside every footprint, each planned (``vmap``); then, as long as a pair is left,
@@ -60,7 +62,8 @@ class Task(NamedTuple):
     source: i32[2]; route: execute.Route; mode: i32[] (0 deliver, 1 rearrange); code: i32[] the
     episode's plan code (``RUNNING`` = pushable, ``CLEARED`` no source, ``NO_ROUTE``, ``WALK_CAP``);
     predicted: f32[] objects the spill model delivers; steps: i32[] push steps; core: i32[C, 2],
-    core_valid: bool[C] the footprint's core; deposit: i32[] flat index of the deposit cell.
+    core_valid, on_path: bool[C] the footprint's core and which of its rows are the push path
+    (``footprint.core_cells``).
     """
 
     source: jax.Array
@@ -71,11 +74,12 @@ class Task(NamedTuple):
     steps: jax.Array
     core: jax.Array
     core_valid: jax.Array
-    deposit: jax.Array
+    on_path: jax.Array
 
 
-def plan_task(scene, params, ep, spill, fabric, source, has_source, cap: int, evaluator) -> Task:
-    """The ``Task`` of pushing from ``source: i32[2]`` (``has_source``: it is a candidate at all)."""
+def plan_task(scene, params, ep, spill, fabric, source, has_source, cap: int, evaluator, clearance: int) -> Task:
+    """The ``Task`` of pushing from ``source: i32[2]`` (``has_source``: it is a candidate at all);
+    cap, evaluator, clearance: static."""
     plan = plan_for_source(scene, params, ep, spill, fabric, source, cap, evaluator)
     plan = plan._replace(has_source=has_source & plan.has_source)
     route = plan.route
@@ -83,9 +87,9 @@ def plan_task(scene, params, ep, spill, fabric, source, has_source, cap: int, ev
     pickup, _ = execute.waypoint_pickup(scene, route)
     predicted, _, samples = spillage.evaluate_route(points, n_points, pickup, spill, evaluator,
                                                     chunk=execute.SPLINE_CHUNK)
-    core, valid = footprint.core_cells(scene, route, samples)
+    core, valid, on_path = footprint.core_cells(scene, route, samples, clearance)
     return Task(plan.source, route, plan.mode, plan_code(plan, cap, scene.shape), predicted,
-                footprint.push_steps(route), core, valid, execute.deposit_cell(scene, route))
+                footprint.push_steps(route), core, valid, on_path)
 
 
 def failure_rank(code):
@@ -98,16 +102,20 @@ def _worse(a, b):
     return jnp.where(failure_rank(b) > failure_rank(a), b, a)
 
 
-def rover_maps(pos, shape):
+def rover_maps(pos, target_mask, clearance: int):
     """``(at, low, high)``, each i32[H, W]: the index of the rover on each cell (-1 none), and the
-    lowest / highest rover index within Chebyshev distance 1 of each cell (``2**30`` / -1 none)."""
-    h, w = shape
+    lowest / highest index of the rovers off the targets within Chebyshev distance ``clearance``
+    (static, 0 or 1) of each cell (``2**30`` / -1 none)."""
+    h, w = target_mask.shape
     n = pos.shape[0]
     at = jnp.full(h * w, -1, jnp.int32).at[pos[:, 0] * w + pos[:, 1]].set(jnp.arange(n, dtype=jnp.int32))
     at = at.reshape(h, w)
-    low0 = jnp.where(at >= 0, at, _BIG)
+    off = jnp.where(target_mask, -1, at)
+    low0 = jnp.where(off >= 0, off, _BIG)
+    if clearance == 0:
+        return at, low0, off
     low = jnp.minimum(low0, jnp.min(lattice.neighbours(low0, _BIG), 0))
-    high = jnp.maximum(at, jnp.max(lattice.neighbours(at, -1), 0))
+    high = jnp.maximum(off, jnp.max(lattice.neighbours(off, -1), 0))
     return at, low, high
 
 
@@ -120,32 +128,36 @@ def _take(a, cells, valid, fill):
 def _rovers_inside(task: Task, maps):
     """``(low, high)``: lowest and highest index of the rovers standing in the task's footprint."""
     at, low, high = maps
-    w = at.shape[1]
-    dep = jnp.stack([task.deposit // w, task.deposit % w])
-    at_dep = at[dep[0], dep[1]]
-    lo = jnp.minimum(jnp.min(_take(low, task.core, task.core_valid, _BIG)), jnp.where(at_dep >= 0, at_dep, _BIG))
-    hi = jnp.maximum(jnp.max(_take(high, task.core, task.core_valid, -1)), at_dep)
+    path = task.core_valid & task.on_path
+    on_path = _take(at, task.core, path, -1)
+    lo = jnp.minimum(jnp.min(_take(low, task.core, task.core_valid, _BIG)),
+                     jnp.min(jnp.where(on_path >= 0, on_path, _BIG)))
+    hi = jnp.maximum(jnp.max(_take(high, task.core, task.core_valid, -1)), jnp.max(on_path))
     return lo, hi
 
 
+def _blocked(owner, target_mask, clearance: int):
+    """bool[H, W]: cells within ``clearance`` cells of a reserved cell off the targets."""
+    return footprint.dilate((owner >= 0) & ~target_mask, clearance)
+
+
 def _clear(task: Task, owner, blocked):
-    """bool[]: the task's footprint meets no reserved cell (``blocked`` = reserved cells dilated by one)."""
-    w = owner.shape[1]
+    """bool[]: the task's footprint meets no reserved cell (``blocked``: ``_blocked(owner, ...)``)."""
     hits = jnp.any(_take(blocked, task.core, task.core_valid, False))
-    return ~hits & (owner[task.deposit // w, task.deposit % w] < 0)
+    return ~hits & ~jnp.any(_take(owner, task.core, task.core_valid & task.on_path, -1) >= 0)
 
 
-def footprint_free(task: Task, owner, maps, rover):
+def footprint_free(task: Task, owner, target_mask, maps, rover, clearance: int):
     """bool[]: ``task``'s footprint is free for ``rover`` (module docstring). owner: i32[H, W] (-1
-    free); maps: ``rover_maps`` of the rovers' cells; rover: i32[]."""
+    free); maps: ``rover_maps`` of the rovers' cells; rover: i32[]; clearance: static."""
     lo, hi = _rovers_inside(task, maps)
     alone = (hi < 0) | ((lo == rover) & (hi == rover))
-    return _clear(task, owner, footprint.dilate(owner >= 0)) & alone
+    return _clear(task, owner, _blocked(owner, target_mask, clearance)) & alone
 
 
-def reserve(owner, task: Task, rover):
+def reserve(owner, task: Task, rover, target_mask, clearance: int):
     """i32[H, W]: ``owner`` with the task's footprint given to ``rover``."""
-    mask = footprint.mask_from_core(owner.shape, task.core, task.core_valid, task.deposit)
+    mask = footprint.mask_from_core(target_mask, task.core, task.core_valid, task.on_path, clearance)
     return jnp.where(mask, rover, owner)
 
 
@@ -154,12 +166,12 @@ def _source_score(scene, fabric, rule: str):
 
 
 def assign_greedy(scene, params, ep, spill, fabric, pos, idle, owner, budget, routes, *, candidates: int,
-                  cap: int, evaluator):
+                  cap: int, evaluator, clearance: int):
     """The coordinated strategy (module docstring): ``(route, mode i32[N], assigned bool[N], owner, failure)``.
 
     pos: i32[N, 2]; idle: bool[N] rovers that may take a task; owner: i32[H, W]; budget: i32[] most
     tasks to start; routes: the rovers' current ``execute.Route`` batch (kept where none is assigned);
-    candidates (M), cap (walk cap), evaluator: static. route[r] and mode[r] are rover r's new task
+    candidates (M), cap (walk cap), evaluator, clearance: static. route[r] and mode[r] are rover r's new task
     where assigned[r]; failure: i32[] the episode's code saying why nothing could be assigned
     (``RUNNING`` when something was).
     """
@@ -170,9 +182,10 @@ def assign_greedy(scene, params, ep, spill, fabric, pos, idle, owner, budget, ro
     top, idx = jax.lax.top_k(vals, m)
     exists = top > -jnp.inf
     sources = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
-    tasks = jax.vmap(lambda s, e: plan_task(scene, params, ep, spill, fabric, s, e, cap, evaluator))(sources, exists)
+    tasks = jax.vmap(lambda s, e: plan_task(scene, params, ep, spill, fabric, s, e, cap, evaluator,
+                                                clearance))(sources, exists)
     usable = exists & (tasks.code == RUNNING)
-    choice, owner, count = greedy_choice(pos, idle, owner, budget, usable, tasks)
+    choice, owner, count = greedy_choice(pos, idle, owner, budget, usable, tasks, scene.target_mask, clearance)
     assigned = choice >= 0
     mine = jax.tree.map(lambda a: a[jnp.maximum(choice, 0)], (tasks.route, tasks.mode))
     route, mode = _keep_rows(assigned, mine, (routes, jnp.zeros(pos.shape[0], jnp.int32)))
@@ -185,18 +198,19 @@ def _keep_rows(mask, new, old):
     return jax.tree.map(lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
 
 
-def greedy_choice(pos, idle, owner, budget, usable, tasks: Task):
+def greedy_choice(pos, idle, owner, budget, usable, tasks: Task, target_mask, clearance: int = 1):
     """The greedy rounds of ``assign_greedy``: ``(choice i32[N], owner, count i32[])``.
 
     pos: i32[N, 2]; idle: bool[N]; owner: i32[H, W]; budget: i32[] most assignments; usable: bool[M]
     candidates that may be assigned; tasks: Task[M] (its source, predicted, steps, core, core_valid,
-    deposit are read). choice[r] is the candidate rover r took (-1 none); owner has their footprints.
+    on_path are read); target_mask: bool[H, W]; clearance: static. choice[r] is the candidate rover r took (-1 none);
+    owner has their footprints.
     Each round assigns the best-scoring free pair (module docstring; ties: lowest rover, then
     candidate); rounds stop when no pair is left.
     """
     n = pos.shape[0]
     m = usable.shape[0]
-    maps = rover_maps(pos, owner.shape)
+    maps = rover_maps(pos, target_mask, clearance)
     lo, hi = jax.vmap(lambda t: _rovers_inside(t, maps))(tasks)
     rovers = jnp.arange(n, dtype=jnp.int32)
     alone = (hi < 0)[None] | ((lo == hi)[None] & (hi[None] == rovers[:, None]))          # [N, M]
@@ -209,14 +223,14 @@ def greedy_choice(pos, idle, owner, budget, usable, tasks: Task):
 
     def round_(carry):
         owner, idle, unused, choice, count, _ = carry
-        blocked = footprint.dilate(owner >= 0)
+        blocked = _blocked(owner, target_mask, clearance)
         clear = jax.vmap(lambda t: _clear(t, owner, blocked))(tasks)
         ok = pairs & idle[:, None] & (unused & clear)[None] & (count < budget)
         best = jnp.argmax(jnp.where(ok, score, -jnp.inf).reshape(-1))
         r, c = best // m, best % m
         found = jnp.any(ok)
         chosen = jax.tree.map(lambda a: a[c], tasks)
-        owner = jnp.where(found, reserve(owner, chosen, r), owner)
+        owner = jnp.where(found, reserve(owner, chosen, r, target_mask, clearance), owner)
         idle = idle.at[r].set(idle[r] & ~found)
         unused = unused.at[c].set(unused[c] & ~found)
         choice = choice.at[r].set(jnp.where(found, c, choice[r]))
@@ -230,7 +244,7 @@ def greedy_choice(pos, idle, owner, budget, usable, tasks: Task):
 
 
 def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, routes, region, *, retries: int,
-                cap: int, evaluator):
+                cap: int, evaluator, clearance: int):
     """The independent and partitioned strategies (module docstring); arguments and results as
     ``assign_greedy``.
 
@@ -239,7 +253,7 @@ def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, rout
     """
     h, w = scene.shape
     n = pos.shape[0]
-    maps = rover_maps(pos, (h, w))
+    maps = rover_maps(pos, scene.target_mask, clearance)
 
     def rover(r, carry):
         owner, tasks, assigned, count, failure = carry
@@ -254,10 +268,10 @@ def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, rout
             def try_(c):
                 excluded, tries, owner, tasks, assigned, failure, _ = c
                 source, has = choose_source(scene, fabric, ep.source_rule, mine & (owner < 0) & ~excluded)
-                task = plan_task(scene, params, ep, spill, fabric, source, has, cap, evaluator)
+                task = plan_task(scene, params, ep, spill, fabric, source, has, cap, evaluator, clearance)
                 pushable = task.code == RUNNING
-                free = pushable & footprint_free(task, owner, maps, r)
-                owner = jnp.where(free, reserve(owner, task, r), owner)
+                free = pushable & footprint_free(task, owner, scene.target_mask, maps, r, clearance)
+                owner = jnp.where(free, reserve(owner, task, r, scene.target_mask, clearance), owner)
                 tasks = jax.tree.map(lambda all_, one: all_.at[r].set(jnp.where(free, one, all_[r])), tasks,
                                      (task.route, task.mode))
                 assigned = assigned.at[r].set(free)

@@ -9,20 +9,26 @@ boundary (``route.end``), which the spline, and so the spill, follows.
   with the jump (if any) replaced by the cells of a Chebyshev walk along the straight line (cell k
   of a jump of D steps is ``a + round(k (b - a) / D)``, so consecutive path cells are neighbours).
   The rover stops at c_{n-1}; the final fallback segment is pushed without driving it.
-- **Core**: the push path's cells plus the cells of the spline's samples (the points ``execute``
-  evaluates the spill at: ``spillage.sample_route_prefix`` of the route's waypoints, clipped to the
-  grid).
-- **Footprint**: the core dilated by one cell (Chebyshev radius 1, clipped to the grid) plus the
-  deposit cell (``execute.deposit_cell``). It holds every cell a push changes, by construction: the
-  route's cells are emptied (in the core), a sample's spill lands one cell size beside the sample
-  (a unit offset moves each coordinate by at most one cell, so into the dilation) or on the route's
-  own cell, and the load lands on the deposit cell (``tests/fleet/test_footprint.py`` checks it on
-  ``execute``'s real changes). The route's cells dilated by one alone do not suffice: a sharp turn
-  next to a long straight segment makes the spline overshoot a cell, and its spill lands two cells
-  from the route.
+- **Footprint** with clearance r (``FleetConfig.clearance``, 0 or 1): a *core* of cells grown by r
+  cells (Chebyshev), without target cells, plus the push path's own cells (target cells included:
+  the rover drives there).
+  - r = 0: the core is the push path and the cell each spline sample's spill lands on
+    (``execute.spill_cells``: one cell size beside the sample, outside the targets, or the route's
+    own cell). These are exactly the cells a push can change outside the targets, whatever the
+    counts, so the footprint is the route's cells plus the cells its spill can reach.
+  - r = 1: the core is the push path and the cells of the spline's samples; grown by one cell, it
+    holds the r = 0 footprint (a spill lands within one cell of its sample) and keeps one cell of
+    clearance around every route. The route's cells grown by one alone would not: a sharp turn next
+    to a long straight segment makes the spline overshoot a cell, and its spill lands two cells
+    from the route.
+  ``tests/fleet/test_footprint.py`` checks both on ``execute``'s real changes. Target cells are only
+  ever added to (the delivered load, on ``execute.deposit_cell``), never collected, so pushes that
+  deposit on the same target cell commute: footprints reserve no target cell the rover does not
+  drive on (reserving the margin inside a small target serialised every push into it).
 
 Static sizes: a route of S slots has a push path of ``P = S + max(H, W)`` slots and ``S *
-samples_per_step`` spline samples, so a core list of ``P + S samples_per_step`` cells.
+samples_per_step`` spline samples, so a core list of ``C = P + S samples_per_step`` cells (the
+first P rows are the path).
 """
 from __future__ import annotations
 
@@ -31,8 +37,11 @@ import jax.numpy as jnp
 from jaxplan.core import lattice
 from jaxplan.transport import execute, spillage
 
-__all__ = ["core_cells", "dilate", "footprint_mask", "mask_from_core", "path_cell", "path_length", "path_slots",
-           "push_steps", "route_samples"]
+__all__ = ["CLEARANCES", "core_cells", "dilate", "footprint_mask", "mask_from_core", "path_cell", "path_length",
+           "path_slots", "push_steps", "route_samples"]
+
+CLEARANCES = (0, 1)
+"""Allowed clearances: cells around a route reserved beyond the cells its push changes."""
 
 
 def path_slots(route_slots: int, shape) -> int:
@@ -74,17 +83,23 @@ def route_samples(scene, route, spill: spillage.SpillParams) -> spillage.PathSam
                                         chunk=execute.SPLINE_CHUNK)
 
 
-def core_cells(scene, route, samples: spillage.PathSamples):
-    """``(cells i32[C, 2], valid bool[C])``: the footprint's core (module docstring), C = P + the
-    samples; invalid rows are -1. Cells may repeat. samples: ``route_samples`` of the route."""
+def core_cells(scene, route, samples: spillage.PathSamples, clearance: int = 1):
+    """``(cells i32[C, 2], valid bool[C], on_path bool[C])``: the footprint's core for a static
+    ``clearance`` (module docstring), invalid rows -1; on_path marks the push path's cells. Cells may
+    repeat. samples: ``route_samples`` of the route."""
     h, w = scene.shape
     k = jnp.arange(path_slots(route.cells.shape[0], scene.shape), dtype=jnp.int32)
     path_valid = k < path_length(route)
     path = jnp.where(path_valid[:, None], _path_cells(route, k), -1)
-    rc = jnp.floor((samples.pos - jnp.asarray(scene.origin, jnp.float32)) / scene.cell_size).astype(jnp.int32)
-    on_spline = jnp.stack([jnp.clip(rc[:, 1], 0, h - 1), jnp.clip(rc[:, 0], 0, w - 1)], -1)
-    on_spline = jnp.where(samples.valid[:, None], on_spline, -1)
-    return jnp.concatenate([path, on_spline]), jnp.concatenate([path_valid, samples.valid])
+    if clearance == 0:
+        flat = execute.spill_cells(scene, route, samples)
+        beside = jnp.stack([flat // w, flat % w], -1).astype(jnp.int32)
+    else:
+        rc = jnp.floor((samples.pos - jnp.asarray(scene.origin, jnp.float32)) / scene.cell_size).astype(jnp.int32)
+        beside = jnp.stack([jnp.clip(rc[:, 1], 0, h - 1), jnp.clip(rc[:, 0], 0, w - 1)], -1)
+    beside = jnp.where(samples.valid[:, None], beside, -1)
+    on_path = jnp.concatenate([path_valid, jnp.zeros_like(samples.valid)])
+    return jnp.concatenate([path, beside]), jnp.concatenate([path_valid, samples.valid]), on_path
 
 
 def _path_cells(route, k):
@@ -103,21 +118,25 @@ def _path_cells(route, k):
     return pick.astype(jnp.int32)
 
 
-def dilate(mask):
-    """bool[H, W]: ``mask`` grown by one cell in all 8 directions (Chebyshev radius 1)."""
+def dilate(mask, radius: int = 1):
+    """bool[H, W]: ``mask`` grown by ``radius`` (static, 0 or 1) cells in all 8 directions (Chebyshev)."""
+    if radius == 0:
+        return mask
     return mask | jnp.any(lattice.neighbours(mask, False), 0)
 
 
-def mask_from_core(shape, cells, valid, deposit):
-    """bool[H, W]: the footprint of a core list (``core_cells``) and a flat deposit cell (i32[])."""
+def _mark(shape, cells, valid):
     h, w = shape
     flat = jnp.where(valid, cells[:, 0] * w + cells[:, 1], h * w)
-    core = jnp.zeros(h * w + 1, bool).at[flat].set(True)[: h * w].reshape(h, w)
-    deposit = (jnp.arange(h * w) == deposit).reshape(h, w)
-    return dilate(core) | deposit
+    return jnp.zeros(h * w + 1, bool).at[flat].set(True)[: h * w].reshape(h, w)
 
 
-def footprint_mask(scene, route, samples: spillage.PathSamples):
+def mask_from_core(target_mask, cells, valid, on_path, clearance: int = 1):
+    """bool[H, W]: the footprint of a core list (``core_cells``) on a grid with ``target_mask``."""
+    core = _mark(target_mask.shape, cells, valid)
+    return (dilate(core, clearance) & ~target_mask) | _mark(target_mask.shape, cells, valid & on_path)
+
+
+def footprint_mask(scene, route, samples: spillage.PathSamples, clearance: int = 1):
     """bool[H, W]: the task's footprint (module docstring); samples: ``route_samples`` of the route."""
-    cells, valid = core_cells(scene, route, samples)
-    return mask_from_core(scene.shape, cells, valid, execute.deposit_cell(scene, route))
+    return mask_from_core(scene.target_mask, *core_cells(scene, route, samples, clearance), clearance)

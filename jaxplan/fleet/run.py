@@ -105,11 +105,11 @@ _reset_jit = grid_jit(reset, static_argnames=("config",))
 _step_jit = grid_jit(step, static_argnames=("config", "evaluator"))
 
 
-def _footprint(scene, route, spill):
-    return footprint.footprint_mask(scene, route, footprint.route_samples(scene, route, spill))
+def _footprint(scene, route, spill, clearance: int):
+    return footprint.footprint_mask(scene, route, footprint.route_samples(scene, route, spill), clearance)
 
 
-_footprint_jit = grid_jit(_footprint)
+_footprint_jit = grid_jit(_footprint, static_argnums=3)
 
 
 def _message(reason: str, state, episode: EpisodeParams, max_steps: int) -> str:
@@ -202,7 +202,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
                 for r in np.flatnonzero(assigned):
                     one = jax.tree.map(lambda a, r=r: a[r], routes)
                     cells = np.asarray(one.cells)[: int(one.n_cells)]
-                    mask = np.asarray(_footprint_jit(initial.scene, one, spill))
+                    mask = np.asarray(_footprint_jit(initial.scene, one, spill, config.clearance))
                     open_tasks[int(r)] = dict(rover=int(r), first_step=t, cells=cells.tolist(),
                                               mode=MODES[int(modes[r])], footprint=np.argwhere(mask))
             for r in np.flatnonzero(gone):

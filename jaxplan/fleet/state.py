@@ -82,7 +82,8 @@ class FleetConfig:
     per coordinated assignment (None: 2 N, at least 8 and at most 64). walk_cap: static walk length of a plan (None:
     ``episode.default_walk_cap``); routes have S = 2 (walk_cap + 1) slots. stall_steps: steps without
     any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an
-    independent or partitioned rover tries per step when footprints are taken.
+    independent or partitioned rover tries per step when footprints are taken. clearance: cells
+    reserved around a route beyond the cells its push changes, 0 or 1 (``footprint``).
 
     ``step`` reads only whether the strategy is "coordinated": independent and partitioned fleets
     differ in their state (``FleetState.region`` and ``home``, made by ``reset``), so both run the
@@ -95,6 +96,7 @@ class FleetConfig:
     walk_cap: int | None = None
     stall_steps: int | None = None
     retries: int = 3
+    clearance: int = 0
 
     def resolved(self, shape) -> FleetConfig:
         """This config with every None replaced by its value for a grid of ``shape``."""
@@ -125,6 +127,9 @@ class FleetConfig:
             if value is not None and (not is_int(value) or not low <= value <= high):
                 raise ValueError(f"FleetConfig.{name}: {value!r} is out of range; it must be an int in "
                                  f"[{low}, {high}] (or None for the default).")
+        if self.clearance not in footprint.CLEARANCES:
+            raise ValueError(f"FleetConfig.clearance: {self.clearance!r} is not allowed; use one of "
+                             f"{footprint.CLEARANCES} (cells reserved around a route).")
 
 
 class FleetState(NamedTuple):
@@ -306,8 +311,10 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
 
     def run(_):
         if cfg.strategy == "coordinated":
-            return assign.assign_greedy(*args, candidates=cfg.candidates, cap=cfg.walk_cap, evaluator=evaluator)
-        return assign.assign_each(*args, state.region, retries=cfg.retries, cap=cfg.walk_cap, evaluator=evaluator)
+            return assign.assign_greedy(*args, candidates=cfg.candidates, cap=cfg.walk_cap, evaluator=evaluator,
+                                        clearance=cfg.clearance)
+        return assign.assign_each(*args, state.region, retries=cfg.retries, cap=cfg.walk_cap, evaluator=evaluator,
+                                  clearance=cfg.clearance)
 
     def skip(_):
         return state.route, state.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING)

@@ -133,8 +133,10 @@ def waypoint_pickup(scene, route: Route):
     return jnp.append(jnp.where(collect, obj, 0.0), 0.0), collect
 
 
-def _spill_cells(scene, route: Route, samples: spillage.PathSamples):
-    """Flat index of the cell each sample's spill lands on (see the module docstring)."""
+def spill_cells(scene, route: Route, samples: spillage.PathSamples):
+    """i32[N]: flat index of the cell each sample's spill lands on (see the module docstring): one
+    cell size to the outside of the turn, or the cell the sample's segment leaves. Depends on the
+    route's geometry only, not on the counts."""
     h, w = scene.shape
     left = jnp.stack([-samples.tangent[:, 1], samples.tangent[:, 0]], -1)
     outside = -jnp.sign(samples.turn)[:, None] * left
@@ -176,7 +178,7 @@ def execute(scene, route: Route, spill: spillage.SpillParams,
     flat = obj.reshape(-1)
     emptied = jnp.zeros(h * w, bool).at[flat_route].max(collect)   # max: padding rows must not undo
     flat = jnp.where(emptied, 0.0, flat)
-    flat = flat.at[_spill_cells(scene, route, samples)].add(spill_per_sample)
+    flat = flat.at[spill_cells(scene, route, samples)].add(spill_per_sample)
     flat = flat.at[deposit_cell(scene, route)].add(delivered)
     new_obj = flat.reshape(h, w)
     changed = (new_obj != obj) & ~scene.target_mask

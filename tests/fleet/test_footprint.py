@@ -1,5 +1,6 @@
-"""A task's footprint holds every cell its push changes (``execute``'s real changes), and the push
-path is a chain of neighbouring cells from the route's first cell to its last."""
+"""A task's footprint holds every cell its push changes (``execute``'s real changes) and the cells
+its rover drives on, and no other target cell; the push path is a chain of neighbouring cells from
+the route's first cell to its last."""
 from __future__ import annotations
 
 import functools
@@ -34,19 +35,23 @@ def _site(seed: int, layout: str):
 _plan = jax.jit(plan_for_source, static_argnames=("max_steps", "evaluator"))
 
 
-@jax.jit
-def _observe(scene, route):
+@functools.partial(jax.jit, static_argnums=2)
+def _observe(scene, route, clearance):
     _, push = execute.execute(scene, route, SPILL)
-    mask = footprint.footprint_mask(scene, route, footprint.route_samples(scene, route, SPILL))
+    mask = footprint.footprint_mask(scene, route, footprint.route_samples(scene, route, SPILL), clearance)
     k = jnp.arange(footprint.path_slots(SLOTS, SHAPE))
     path = jax.vmap(lambda i: footprint.path_cell(route, i))(k)
-    return push.changed, execute.deposit_cell(scene, route), mask, path, footprint.path_length(route)
+    return push.changed, mask, path, footprint.path_length(route)
 
 
 def _check(scene, route):
-    changed, deposit, mask, path, n_path = (np.asarray(a) for a in _observe(scene, route))
-    assert not np.any(changed & ~mask), np.argwhere(changed & ~mask)
-    assert mask.reshape(-1)[int(deposit)]
+    for clearance in footprint.CLEARANCES:
+        _check_one(scene, route, clearance)
+
+
+def _check_one(scene, route, clearance):
+    changed, mask, path, n_path = (np.asarray(a) for a in _observe(scene, route, clearance))
+    assert not np.any(changed & ~mask), (clearance, np.argwhere(changed & ~mask))
     n = int(route.n_cells)
     cells = np.asarray(route.cells)[:n]
     path = path[:int(n_path)]
@@ -54,6 +59,9 @@ def _check(scene, route):
     assert tuple(path[0]) == tuple(cells[0]) and tuple(path[-1]) == tuple(cells[-1])
     assert {tuple(c) for c in cells} <= {tuple(c) for c in path}
     assert np.all(mask[path[:, 0], path[:, 1]])
+    on_path = np.zeros(SHAPE, bool)
+    on_path[path[:, 0], path[:, 1]] = True
+    assert not np.any(mask & np.asarray(scene.target_mask) & ~on_path)   # target cells: only where it drives
 
 
 @SETTINGS
@@ -100,13 +108,13 @@ def test_any_route_changes_only_its_footprint(seed, layout, cells, fallback):
 
 
 def test_the_route_cells_dilated_by_one_are_not_enough():
-    """Why the core holds the spline's cells: a U-turn beside a long jump spills two cells off the route."""
+    """Why clearance 1 grows the spline's cells: a U-turn beside a long jump spills two cells off the route."""
     scene, _ = _site(2, "uniform")
     cells = np.asarray([[9, 11], [10, 12], [10, 13], [11, 13], [10, 13], [10, 14], [1, 12], [2, 11]], np.int32)
     buf = np.full((SLOTS, 2), -1, np.int32)
     buf[:len(cells)] = cells
     route = execute.route_from_path(scene, jnp.asarray(buf), jnp.int32(len(cells)), jnp.bool_(True))
-    changed, _, mask, path, n_path = (np.asarray(a) for a in _observe(scene, route))
+    changed, mask, path, n_path = (np.asarray(a) for a in _observe(scene, route, 1))
     near = np.zeros(SHAPE, bool)
     for r, c in path[:int(n_path)]:
         near[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2] = True

@@ -70,7 +70,7 @@ def test_one_step_equals_the_serial_move_rule(seed):
 
 
 def _tasks(rng):
-    """M synthetic candidates: a random walk of C cells (some invalid), a deposit cell, scores."""
+    """M synthetic candidates: a random walk of C cells (some invalid; the first few the path), scores."""
     h, w = SHAPE
     core = np.zeros((M, C, 2), np.int32)
     for c in range(M):
@@ -79,27 +79,32 @@ def _tasks(rng):
             core[c, k] = cell
             cell = np.clip(cell + rng.integers(-1, 2, 2), 0, [h - 1, w - 1])
     valid = np.arange(C)[None] < rng.integers(1, C + 1, M)[:, None]
-    deposit = rng.integers(0, h * w, M).astype(np.int32)
+    on_path = np.arange(C)[None] < rng.integers(1, C + 1, M)[:, None]
     predicted = np.round(rng.uniform(0.5, 20.0, M), 3).astype(np.float32)
     steps = rng.integers(1, 10, M).astype(np.int32)
     route = execute.Route(jnp.zeros((M, 1, 2), jnp.int32), jnp.ones(M, jnp.int32), jnp.zeros(M, bool),
                           jnp.zeros((M, 2)))
     zeros = jnp.zeros(M, jnp.int32)
     return assign.Task(jnp.asarray(core[:, 0]), route, zeros, zeros, jnp.asarray(predicted), jnp.asarray(steps),
-                       jnp.asarray(core), jnp.asarray(valid), jnp.asarray(deposit))
+                       jnp.asarray(core), jnp.asarray(valid), jnp.asarray(on_path))
 
 
-def _footprint_set(task, c):
-    mask = np.asarray(footprint.mask_from_core(SHAPE, task.core[c], task.core_valid[c], task.deposit[c]))
+TARGET = np.zeros(SHAPE, bool)
+TARGET[3:6, 4:8] = True          # target cells: in a footprint only where its path runs
+
+
+def _footprint_set(task, c, clearance):
+    mask = np.asarray(footprint.mask_from_core(jnp.asarray(TARGET), task.core[c], task.core_valid[c],
+                                               task.on_path[c], clearance))
     return {tuple(p) for p in np.argwhere(mask).tolist()}
 
 
-_greedy = jax.jit(assign.greedy_choice)
+_greedy = jax.jit(assign.greedy_choice, static_argnums=7)
 
 
 @SETTINGS
-@given(seed=st.integers(0, 2 ** 31 - 1))
-def test_greedy_choice_equals_the_serial_greedy(seed):
+@given(seed=st.integers(0, 2 ** 31 - 1), clearance=st.sampled_from(footprint.CLEARANCES))
+def test_greedy_choice_equals_the_serial_greedy(seed, clearance):
     rng = np.random.default_rng(seed)
     tasks = _tasks(rng)
     pos = _distinct_cells(rng, N)
@@ -108,8 +113,8 @@ def test_greedy_choice_equals_the_serial_greedy(seed):
     owner = np.where(rng.random() < 0.5, _owner_map(rng), -1).astype(np.int32)
     budget = int(rng.integers(0, N + 1))
     choice, new_owner, count = _greedy(jnp.asarray(pos), jnp.asarray(idle), jnp.asarray(owner), jnp.int32(budget),
-                                       jnp.asarray(usable), tasks)
-    footprints = [_footprint_set(tasks, c) for c in range(M)]
+                                       jnp.asarray(usable), tasks, jnp.asarray(TARGET), clearance)
+    footprints = [_footprint_set(tasks, c, clearance) for c in range(M)]
     reserved = {tuple(p) for p in np.argwhere(owner >= 0).tolist()}
     want = ref.greedy_assign(idle, pos, np.asarray(tasks.source), np.asarray(tasks.steps),
                              np.asarray(tasks.predicted), usable, footprints, reserved)[:budget]
