@@ -14,7 +14,7 @@ from jaxplan.fleet.motion import IDLE
 from jaxplan.fleet.state import STOP_REASONS, FleetConfig, reset, step
 from jaxplan.reference import fleet as reference_fleet
 from jaxplan.transport import spillage
-from jaxplan.transport.episode import EpisodeParams, validate_episode_params
+from jaxplan.transport.episode import EpisodeParams, require_hard, validate_episode_params
 from jaxplan.transport.params import FabricParams, validate_params
 from jaxplan.transport.scene import Scene
 
@@ -73,6 +73,7 @@ def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max
         raise ValueError(f"scene: expected a Scene, got {type(scene).__name__}.")
     FleetConfig(n_rovers, strategy).validate()
     validate_params(params)
+    require_hard(params, "run_fleet")
     spillage.validate_spill_params(spill)
     validate_episode_params(episode)
     if episode.reselect:

@@ -1,6 +1,7 @@
 """Random small sites and fleets, every strategy: no conflict ever (the serial checker on the recorded
 positions and reserved footprints), the mass identity exact at every step, finite outputs, a named
-stop; the jitted step traces once, equals the step run without jit, and is a no-op once done."""
+stop; the jitted step traces once, equals the step run without jit and the scanned rollout, and is
+a no-op once done."""
 from __future__ import annotations
 
 import chex
@@ -11,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxplan import FabricParams, SpillParams
-from jaxplan.fleet import STOP_REASONS, STRATEGIES, FleetConfig, reset, run_fleet, step
+from jaxplan.fleet import STOP_REASONS, STRATEGIES, FleetConfig, reset, rollout, run_fleet, step
 from jaxplan.fleet.motion import IDLE
 from jaxplan.transport.episode import EpisodeParams
 from tests.fleet._sites import LAYOUTS, site
@@ -89,3 +90,19 @@ def test_the_step_without_jit_equals_the_jitted_step(traced_run):
         state, rec = step(states[t], PARAMS, SPILL, traced_run["ep"], traced_run["config"])
     chex.assert_trees_all_equal(rec, records[t])
     chex.assert_trees_all_equal(state, states[t + 1])
+
+
+def test_rollout_scans_the_same_steps(traced_run):
+    states, records = traced_run["states"], traced_run["records"]
+    n = len(records) + 2                       # two steps past the end: no-ops
+    final, scanned = jax.jit(rollout, static_argnames=("config", "n_steps", "evaluator"))(
+        states[0], PARAMS, SPILL, traced_run["ep"], traced_run["config"], n_steps=n)
+    stepped = jax.tree.map(lambda *xs: np.stack(xs), *records)
+    for name in ("pos", "phase", "assigned", "dropped", "ended", "stop", "valid"):
+        np.testing.assert_array_equal(np.asarray(getattr(scanned, name))[:len(records)], getattr(stepped, name))
+    for name in ("delivered", "outside", "inside"):
+        np.testing.assert_allclose(np.asarray(getattr(scanned, name))[:len(records)], getattr(stepped, name),
+                                   rtol=1e-6)
+    assert not np.any(np.asarray(scanned.valid)[len(records):])
+    np.testing.assert_array_equal(np.asarray(final.pos), np.asarray(states[-1].pos))
+    np.testing.assert_allclose(np.asarray(final.scene.obj), np.asarray(states[-1].scene.obj), atol=1e-6)
