@@ -7,8 +7,8 @@ Public API::
     fabric = jaxplan.build_fabric(scene, jaxplan.FabricParams(theta_tol_deg=60.0))
     episode = jaxplan.run_episode(scene)      # plan, push, spill, rebuild until delivered
 
-Each system is a package (``jaxplan.transport``, ``jaxplan.pusharound``, ``jaxplan.teams``) whose
-public API is re-exported here; docs/architecture.md is the map.
+Each system is a package (``jaxplan.transport``, ``jaxplan.fleet``, ``jaxplan.pusharound``,
+``jaxplan.teams``) whose public API is re-exported here; docs/architecture.md is the map.
 """
 from jaxplan.core import limit_malloc_arenas, single_cpu
 from jaxplan.transport import (
@@ -53,16 +53,18 @@ _LAZY = {
                                                 "connectivity", "nominal_scene", "plan_pushes", "rank_gaps")},
     **{name: "jaxplan.teams" for name in ("SiteParams", "TeamsConfig", "paper_scenario", "random_sites",
                                            "run_sites", "simulate_site")},
+    **{name: "jaxplan.fleet" for name in ("FleetConfig", "FleetRun", "run_fleet")},
 }
-_LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference", "cli")
+_LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference", "cli", "fleet")
 
 __all__ = [
     "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState",
-    "Fabric", "FabricParams", "Paths", "Push", "PushScene", "RankingParams", "Route", "Scene", "SearchConfig",
+    "Fabric", "FabricParams", "FleetConfig", "FleetRun", "Paths", "Push", "PushScene", "RankingParams", "Route",
+    "Scene", "SearchConfig",
     "Selection", "SiteParams", "SoftFabric", "SpillParams", "StepRecord", "Table", "TeamsConfig", "box",
     "build_fabric", "build_wccg", "builtin_scene", "circle", "connectivity", "extract_paths", "limit_malloc_arenas",
     "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes", "random_scene", "random_sites",
-    "rank_gaps", "refresh_connectors", "reselect", "reset", "run_episode", "run_sites", "select_routes",
+    "rank_gaps", "refresh_connectors", "reselect", "reset", "run_episode", "run_fleet", "run_sites", "select_routes",
     "selective_rebuild", "simulate_site", "single_cpu", "step", "sweep", "tune",
 ]
 __version__ = "0.1.0"

@@ -4,7 +4,8 @@
   ``from jaxplan import _x``, or ``module._y`` on an imported jaxplan module).
 - Layers only import downward: ``core`` imports no other jaxplan package; the systems
   (``transport``, ``pusharound``, ``teams``) and ``physics`` never import each other's packages, the
-  CLI, sweeps or tuning; nothing but the CLI imports ``jaxplan.cli``.
+  CLI, sweeps or tuning; ``fleet`` builds on ``transport`` (and counts conflicts with the serial
+  checker of ``reference``); nothing but the CLI imports ``jaxplan.cli``.
 - Each package lists its public API in ``__all__``, every listed name exists, and the names users
   call are importable from ``jaxplan``.
 """
@@ -72,7 +73,7 @@ ALLOWED = {
     "teams": set(),
     "tune": {"transport"},
     "sweep": {"transport"},
-    "fleet": {"transport"},
+    "fleet": {"transport", "reference"},
     "cli": {"transport", "pusharound", "teams", "physics", "sweep", "tune", "fleet"},
 }
 

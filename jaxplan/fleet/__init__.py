@@ -1,10 +1,27 @@
-"""A fleet of rovers on one shared fabric (issue 34): built-in sites, the run record and its report.
+"""A fleet of rovers on one shared fabric (docs/fleet.md): tasks are pushes the fabric offers, each
+reserving its footprint; idle rovers get tasks by a strategy (``coordinated``, ``independent``,
+``partitioned``); rovers approach and push one cell per step without colliding.
 
-``sites`` holds the built-in sites (``site128``, ``site256``, ``site512``); ``run_types.FleetRun``
-is what a fleet run returns; ``report`` turns a run into its files (summary, trajectory, pushes,
-figure, animation).
+Modules: ``footprint`` (a task's cells and push path), ``motion`` (distance fields, the one-step
+move), ``assign`` (the strategies), ``state`` (``FleetConfig``, ``FleetState``, ``reset``, ``step``,
+``rollout``), ``run`` (``run_fleet``, the host driver, and ``FleetRun``), ``sites`` (the built-in
+sites ``site128``, ``site256``, ``site512``), ``report`` (a run's summary, files, figure and
+animation), ``physics`` (concurrent pushes in one MuJoCo world).
 """
-from jaxplan.fleet.run_types import FleetRun
+from jaxplan.fleet.report import FLEET_OUTPUTS, plot_fleet, summary_of, write_fleet_outputs
+from jaxplan.fleet.run import FleetRun, run_fleet
 from jaxplan.fleet.sites import SITES, site
+from jaxplan.fleet.state import (
+    STOP_REASONS,
+    STRATEGIES,
+    FleetConfig,
+    FleetRecord,
+    FleetState,
+    reset,
+    rollout,
+    step,
+)
 
-__all__ = ["SITES", "FleetRun", "site"]
+__all__ = ["FLEET_OUTPUTS", "SITES", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord", "FleetRun",
+           "FleetState", "plot_fleet", "reset", "rollout", "run_fleet", "site", "step", "summary_of",
+           "write_fleet_outputs"]

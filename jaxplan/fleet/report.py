@@ -1,6 +1,6 @@
 """A fleet run's report: its numbers (summary, trajectory, pushes), a figure and an animation.
 
-Everything here reads a :class:`jaxplan.fleet.run_types.FleetRun` and nothing else. The files
+Everything here reads a :class:`jaxplan.fleet.run.FleetRun` and nothing else. The files
 :func:`write_fleet_outputs` writes into a run's output folder (``FLEET_OUTPUTS``):
 
 - ``summary.json``, :func:`summary_of`: the run in numbers (mass, T50 / T90, pushes and idle time
@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from jaxplan.core.animation import save_animation
-from jaxplan.fleet.run_types import FleetRun
+from jaxplan.fleet.run import FleetRun
 from jaxplan.transport.viz import PALETTE, cell_edges, polygon_rings
 
 __all__ = ["DEFAULT_MAX_FRAMES", "FLEET_OUTPUTS", "animate_fleet", "frame_steps", "plot_fleet", "pushes_records",

@@ -181,18 +181,38 @@ def _concat_paths(first, first_n, second, second_n):
     return jnp.where((i < first_n + second_n)[:, None], out, -1), first_n + second_n
 
 
-def _choose_source(scene, fabric: Fabric, rule: str):
+def choose_source(scene, fabric: Fabric, rule: str, allowed=None):
+    """``(source i32[2], has_source bool[])``: the occupied cell the rule picks (``argmax J`` for
+    "max_value", the one nearest to the target for "nearest"; ties to the lowest row-major index).
+
+    allowed: optional bool[H, W]; only occupied cells where it is True are candidates (a fleet skips
+    the cells other rovers have reserved). has_source is False when no candidate is left; the
+    source is then (0, 0).
+    """
     h, w = scene.shape
     score = fabric.value if rule == "max_value" else -scene.dist
-    flat = jnp.argmax(jnp.where(fabric.occupied, score, -jnp.inf).reshape(-1))
-    return jnp.stack([flat // w, flat % w]).astype(jnp.int32), jnp.any(fabric.occupied)
+    candidates = fabric.occupied if allowed is None else fabric.occupied & allowed
+    flat = jnp.argmax(jnp.where(candidates, score, -jnp.inf).reshape(-1))
+    return jnp.stack([flat // w, flat % w]).astype(jnp.int32), jnp.any(candidates)
 
 
 def plan_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.SpillParams, fabric: Fabric,
               max_steps: int, evaluator: spillage.Evaluator = spillage.curvature_spill) -> Plan:
-    """Choose the source, the mode and the route for one push (the module docstring's rule)."""
+    """Choose the source, the mode and the route for one push (the module docstring's rule):
+    ``choose_source`` then ``plan_for_source``."""
+    source, has_source = choose_source(scene, fabric, ep.source_rule)
+    plan = plan_for_source(scene, params, ep, spill, fabric, source, max_steps, evaluator)
+    return plan._replace(has_source=has_source)
+
+
+def plan_for_source(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.SpillParams, fabric: Fabric,
+                    source, max_steps: int, evaluator: spillage.Evaluator = spillage.curvature_spill) -> Plan:
+    """The mode and the route of one push from a given ``source: i32[2]`` (steps 2-4 of the module
+    docstring). ``Plan.has_source`` says whether the source is an occupied cell. max_steps,
+    evaluator: static, as in ``plan_tick``. Pure and jittable; ``vmap`` it over sources."""
     h, w = scene.shape
-    source, has_source = _choose_source(scene, fabric, ep.source_rule)
+    source = jnp.asarray(source, jnp.int32)
+    has_source = fabric.occupied[source[0], source[1]]
     sel = selection.select_routes(scene, fabric, source[None], params.slack_tau, spill,
                                   max_steps=max_steps, evaluator=evaluator)
     entry = sel.entry[0]
@@ -420,7 +440,7 @@ def _stop_code(remaining, initial_remaining, stop_at, tick, max_pushes: int):
                            [NO_MATERIAL, DONE, BUDGET], RUNNING))
 
 
-def _plan_code(plan: Plan, cap: int, shape):
+def plan_code(plan: Plan, cap: int, shape):
     """i32[]: why ``plan`` cannot be pushed (RUNNING when it can). An incomplete walk under a cap
     shorter than any simple path is WALK_CAP (walking again may complete it), otherwise NO_ROUTE."""
     incomplete = ~plan.complete
@@ -505,7 +525,7 @@ def act(state: EpisodeState, params: FabricParams, spill: spillage.SpillParams, 
     shape = state.scene.obj.shape
     cap = default_walk_cap(shape) if walk_cap is None else int(walk_cap)
     plan, _ = _plan(state.scene, params, episode, spill, state.fabric, cap, evaluator)
-    code = _plan_code(plan, cap, shape)
+    code = plan_code(plan, cap, shape)
     go = ~state.done & (code == RUNNING)
     new_obj, push = execute.execute(state.scene, plan.route, spill, evaluator)
     new, record = _advance(state, plan, push, new_obj, go, episode)
@@ -623,12 +643,12 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
             if code == RUNNING:
                 (plan, planned), plan_ms = timed(lambda: _plan(state.scene, params, ep, spill, state.fabric, cap,
                                                                evaluator))
-                code = int(_plan_code(plan, cap, shape))
+                code = int(plan_code(plan, cap, shape))
                 if code == WALK_CAP:
                     cap = shape[0] * shape[1] + 1
                     (plan, planned), plan_ms = timed(lambda: _plan(state.scene, params, ep, spill, state.fabric,
                                                                    cap, evaluator))
-                    code = int(_plan_code(plan, cap, shape))
+                    code = int(plan_code(plan, cap, shape))
             if code != RUNNING:
                 break
             (new_obj, push), execute_ms = timed(lambda: execute.execute_jit(state.scene, plan.route, spill, evaluator))

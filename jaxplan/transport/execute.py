@@ -133,8 +133,10 @@ def waypoint_pickup(scene, route: Route):
     return jnp.append(jnp.where(collect, obj, 0.0), 0.0), collect
 
 
-def _spill_cells(scene, route: Route, samples: spillage.PathSamples):
-    """Flat index of the cell each sample's spill lands on (see the module docstring)."""
+def spill_cells(scene, route: Route, samples: spillage.PathSamples):
+    """i32[N]: flat index of the cell each sample's spill lands on (see the module docstring): one
+    cell size to the outside of the turn, or the cell the sample's segment leaves. Depends on the
+    route's geometry only, not on the counts."""
     h, w = scene.shape
     left = jnp.stack([-samples.tangent[:, 1], samples.tangent[:, 0]], -1)
     outside = -jnp.sign(samples.turn)[:, None] * left
@@ -144,8 +146,9 @@ def _spill_cells(scene, route: Route, samples: spillage.PathSamples):
     return jnp.where(ok, r * w + c, own[:, 0] * w + own[:, 1])
 
 
-def _deposit_cell(scene, route: Route):
-    """Flat index of the target cell that receives the delivered load."""
+def deposit_cell(scene, route: Route):
+    """i32[]: flat index (row * W + col) of the target cell that receives the delivered load: the
+    route's last cell, or for a fallback route the target cell whose centre is nearest to ``route.end``."""
     h, w = scene.shape
     last = jnp.maximum(route.cells[jnp.maximum(route.n_cells - 1, 0)], 0)
     d2 = jnp.sum((scene.cell_centers() - route.end) ** 2, -1)
@@ -175,8 +178,8 @@ def execute(scene, route: Route, spill: spillage.SpillParams,
     flat = obj.reshape(-1)
     emptied = jnp.zeros(h * w, bool).at[flat_route].max(collect)   # max: padding rows must not undo
     flat = jnp.where(emptied, 0.0, flat)
-    flat = flat.at[_spill_cells(scene, route, samples)].add(spill_per_sample)
-    flat = flat.at[_deposit_cell(scene, route)].add(delivered)
+    flat = flat.at[spill_cells(scene, route, samples)].add(spill_per_sample)
+    flat = flat.at[deposit_cell(scene, route)].add(delivered)
     new_obj = flat.reshape(h, w)
     changed = (new_obj != obj) & ~scene.target_mask
     return new_obj, Push(collected, spilled, delivered, jnp.sum(samples.ds), changed, samples, spill_per_sample)

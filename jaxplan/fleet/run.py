@@ -1,0 +1,239 @@
+"""``run_fleet``: the host driver. The jitted ``step`` in a Python loop, with what needs the host:
+validation, planning times, the pushes' list, the serial invariant check, frames, a progress bar."""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import jax
+import numpy as np
+
+from jaxplan.core.compilation import grid_jit
+from jaxplan.fleet import footprint
+from jaxplan.fleet.motion import IDLE
+from jaxplan.fleet.state import STOP_REASONS, FleetConfig, reset, step
+from jaxplan.reference import fleet as reference_fleet
+from jaxplan.transport import spillage
+from jaxplan.transport.episode import EpisodeParams, require_hard, validate_episode_params
+from jaxplan.transport.params import FabricParams, validate_params
+from jaxplan.transport.scene import Scene
+
+__all__ = ["MAX_STEPS_LIMIT", "FleetRun", "run_fleet", "validate_fleet_inputs"]
+
+MAX_STEPS_LIMIT = 1 << 30
+MODES = ("deliver", "rearrange")
+
+
+@dataclasses.dataclass
+class FleetRun:
+    """A finished fleet run. T steps, N rovers; arrays indexed by step hold the state after it (0 = start).
+
+    scene: the initial Scene (counts quantized); final_scene: the counts at the end.
+    pos: i32[T+1, N, 2] (row, col) of every rover. delivered: f64[T+1] mass inside the targets
+    (objects); outside: f64[T+1] mass outside them. initial_mass, initial_outside: floats.
+    pushes: one dict per applied push, in order of application: rover, first_step (the step its task
+    was assigned), last_step (the step it was applied), cells [[r, c], ...] (the route), collected,
+    delivered, spilled (objects), mode ("deliver" / "rearrange").
+    rover_pushes: i32[N]; idle_steps: i32[N] steps each rover had no task.
+    plan_ms: wall ms of each step in which a task was assigned (the whole step: assignment, motion
+    and any fabric refresh). conflicts: invariant violations the serial checker
+    (``jaxplan.reference.fleet.conflicts``) found in ``pos`` and the reserved footprints (must be 0).
+    stop_reason: one of ``STOP_REASONS``; message: a sentence for people.
+    frames: with ``record=True``, T+1 dicts (0 = start) {"obj": f32[H, W], "heat": f32[H, W],
+    "highways": bool[H, W], "routes": N entries, i32[k, 2] cells of the rover's task or None}.
+    kernel_conflicts: the step's own count of the same violations (``FleetRecord.conflicts``), summed.
+    dropped: tasks dropped because their start could not be reached.
+    """
+
+    scene: Scene
+    final_scene: Scene
+    n_rovers: int
+    strategy: str
+    steps: int
+    pos: np.ndarray
+    delivered: np.ndarray
+    outside: np.ndarray
+    initial_mass: float
+    initial_outside: float
+    pushes: list
+    rover_pushes: np.ndarray
+    idle_steps: np.ndarray
+    plan_ms: list
+    conflicts: int
+    stop_reason: str
+    message: str
+    frames: list | None = None
+    kernel_conflicts: int = 0
+    dropped: int = 0
+
+
+def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts) -> None:
+    """Raise ``ValueError`` naming the argument for bad inputs of ``run_fleet`` (before any work)."""
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene: expected a Scene, got {type(scene).__name__}.")
+    FleetConfig(n_rovers, strategy).validate()
+    validate_params(params)
+    require_hard(params, "run_fleet")
+    spillage.validate_spill_params(spill)
+    validate_episode_params(episode)
+    if episode.reselect:
+        raise ValueError("EpisodeParams.reselect: True is not supported by the fleet, which plans on the "
+                         "entry-0 fabric; use reselect=False.")
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or \
+            not 1 <= max_steps <= MAX_STEPS_LIMIT:
+        raise ValueError(f"max_steps: {max_steps!r} is out of range; it must be an int in [1, {MAX_STEPS_LIMIT}].")
+    target = np.asarray(scene.target_mask)
+    free = int(target.size - target.sum())
+    if free < n_rovers:
+        raise ValueError(f"n_rovers: {n_rovers} rovers need as many cells outside the targets; the scene has "
+                         f"{free}. Use at most {free} rovers.")
+    if starts is not None:
+        cells = np.asarray(starts)
+        h, w = target.shape
+        if cells.shape != (n_rovers, 2) or not np.issubdtype(cells.dtype, np.integer):
+            raise ValueError(f"starts: expected {n_rovers} (row, col) integer pairs, shape ({n_rovers}, 2); "
+                             f"got shape {cells.shape} of {cells.dtype}.")
+        if np.any(cells < 0) or np.any(cells[:, 0] >= h) or np.any(cells[:, 1] >= w):
+            raise ValueError(f"starts: every cell must lie in the {h} x {w} grid (rows 0..{h - 1}, "
+                             f"cols 0..{w - 1}); got {cells.tolist()}.")
+        if len({tuple(c) for c in cells.tolist()}) != n_rovers:
+            raise ValueError(f"starts: two rovers start on one cell; give {n_rovers} distinct cells.")
+        if np.any(target[cells[:, 0], cells[:, 1]]):
+            raise ValueError("starts: a rover starts inside a target; start every rover outside the targets.")
+
+
+_reset_jit = grid_jit(reset, static_argnames=("config",))
+_step_jit = grid_jit(step, static_argnames=("config", "evaluator"))
+
+
+def _footprint(scene, route, spill, clearance: int):
+    return footprint.footprint_mask(scene, route, footprint.route_samples(scene, route, spill), clearance)
+
+
+_footprint_jit = grid_jit(_footprint, static_argnums=3)
+
+
+def _message(reason: str, state, episode: EpisodeParams, max_steps: int) -> str:
+    outside, initial = float(state.outside), float(state.initial_outside)
+    return {
+        "done": f"{outside:.3g} objects left outside the targets (<= {float(episode.stop_fraction):.3g} of "
+                f"{initial:.3g}) or no source left",
+        "budget": f"push budget of {episode.max_pushes} spent",
+        "no_material": "the scene has no material outside the targets: nothing to push",
+        "no_route": "the best source has no complete route to a target (raise FabricParams.max_hops or use "
+                    "monotone=True)",
+        "walk_cap": "a route is longer than the fleet's walk cap (FleetConfig.walk_cap)",
+        "max_steps": f"the step limit of {max_steps} was reached",
+        "deadlock": "no rover moved or pushed for FleetConfig.stall_steps steps while tasks were assigned",
+        "no_reachable_task": "every pushable task's footprint held another rover, or its start could not be reached",
+    }.get(reason, reason)
+
+
+def _frame(state, shown) -> dict:
+    cells = np.asarray(state.route.cells)
+    n_cells = np.asarray(state.route.n_cells)
+    return dict(obj=np.asarray(state.scene.obj), heat=np.asarray(state.fabric.heat),
+                highways=np.asarray(state.fabric.highways),
+                routes=[cells[r, :n_cells[r]].copy() if shown[r] else None for r in range(len(shown))])
+
+
+def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: FabricParams | None = None,
+              spill: spillage.SpillParams | None = None, episode: EpisodeParams | None = None,
+              max_steps: int = 10_000, *, starts=None, record: bool = False, progress: bool = False,
+              config: FleetConfig | None = None,
+              evaluator: spillage.Evaluator = spillage.curvature_spill) -> FleetRun:
+    """Run a fleet of ``n_rovers`` on ``scene`` with ``strategy`` until it stops (``state`` module
+    docstring) or ``max_steps`` steps. Returns ``FleetRun``.
+
+    starts: optional i32[N, 2] distinct start cells outside the targets. record: keep per-step frames.
+    progress: a progress bar on stderr. config: a ``FleetConfig`` for the other static settings
+    (its n_rovers and strategy must match). All inputs are checked before any work.
+    """
+    params = FabricParams() if params is None else params
+    spill = spillage.SpillParams() if spill is None else spill
+    episode = EpisodeParams() if episode is None else episode
+    validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts)
+    if params.temperature is not None:    # a concrete 0 is the hard fabric
+        params = params.replace(temperature=None)
+    config = FleetConfig(n_rovers, strategy) if config is None else config
+    config.validate()
+    if (config.n_rovers, config.strategy) != (n_rovers, strategy):
+        raise ValueError(f"config: its n_rovers and strategy ({config.n_rovers}, {config.strategy!r}) differ from "
+                         f"the arguments ({n_rovers}, {strategy!r}); pass the same.")
+    config = config.resolved(scene.shape)
+
+    # the compiled programs do not depend on the budget (a static field): reset copies it into the state
+    planning = episode.replace(max_pushes=0, rebuild="full")
+    state = _reset_jit(scene, params, spill, planning, config=config, starts=starts, max_steps=int(max_steps),
+                       max_pushes=int(episode.max_pushes))
+    initial = state
+    first = jax.device_get(state)
+    target = np.asarray(first.scene.target_mask)
+    positions = [np.asarray(first.pos)]
+    inside = [float(np.asarray(first.scene.obj)[target].sum())]
+    outside = [float(first.outside)]
+    frames = [_frame(first, np.zeros(n_rovers, bool))] if record else None
+    plan_ms, pushes, reservations = [], [], []
+    open_tasks: dict[int, dict] = {}
+    kernel_conflicts = dropped = 0
+    kernel = config.kernel()
+    run_step = lambda s: _step_jit(s, params, spill, planning, config=kernel, evaluator=evaluator)  # noqa: E731
+    if not bool(first.done):
+        jax.block_until_ready(run_step(state))        # compile outside the timed steps
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=int(max_steps), desc=f"fleet {strategy} x{n_rovers}", unit="step", leave=False,
+               disable=not progress)
+    try:
+        while not bool(state.done):
+            start = time.perf_counter()
+            state, rec = run_step(state)
+            rec = jax.device_get(rec)
+            ms = 1e3 * (time.perf_counter() - start)
+            t = len(positions)
+            positions.append(np.asarray(rec.pos))
+            inside.append(float(rec.inside))
+            outside.append(float(rec.outside))
+            kernel_conflicts += int(rec.conflicts)
+            assigned, ended, gone = np.asarray(rec.assigned), np.asarray(rec.ended), np.asarray(rec.dropped)
+            if assigned.any():
+                plan_ms.append(ms)
+                routes = jax.device_get(state.route)
+                modes = np.asarray(state.mode)
+                for r in np.flatnonzero(assigned):
+                    one = jax.tree.map(lambda a, r=r: a[r], routes)
+                    cells = np.asarray(one.cells)[: int(one.n_cells)]
+                    mask = np.asarray(_footprint_jit(initial.scene, one, spill, config.clearance))
+                    open_tasks[int(r)] = dict(rover=int(r), first_step=t, cells=cells.tolist(),
+                                              mode=MODES[int(modes[r])], footprint=np.argwhere(mask))
+            for r in np.flatnonzero(gone):
+                task = open_tasks.pop(int(r))
+                reservations.append((int(r), task["first_step"], t - 1, task["footprint"]))
+                dropped += 1
+            for r in np.flatnonzero(ended):
+                task = open_tasks.pop(int(r))
+                reservations.append((int(r), task["first_step"], t, task["footprint"]))
+                pushes.append(dict(rover=int(r), first_step=task["first_step"], last_step=t, cells=task["cells"],
+                                   collected=float(rec.collected[r]), delivered=float(rec.delivered[r]),
+                                   spilled=float(rec.spilled[r]), mode=task["mode"]))
+            if record:
+                frames.append(_frame(jax.device_get(state), (np.asarray(rec.phase) != IDLE) | ended))
+            bar.update(1)
+            if inside[0] + outside[0] > 0:
+                bar.set_postfix(outside=f"{outside[-1] / max(outside[0], 1e-9):.0%}", refresh=False)
+    finally:
+        bar.close()
+    for r, task in open_tasks.items():          # tasks still running when the fleet stopped
+        reservations.append((r, task["first_step"], len(positions) - 1, task["footprint"]))
+    final = jax.device_get(state)
+    pos = np.asarray(positions, np.int32)
+    reason = STOP_REASONS[int(final.stop)]
+    return FleetRun(
+        scene=initial.scene, final_scene=state.scene, n_rovers=n_rovers, strategy=strategy, steps=len(positions) - 1,
+        pos=pos, delivered=np.asarray(inside, np.float64), outside=np.asarray(outside, np.float64),
+        initial_mass=float(first.initial_mass), initial_outside=float(first.initial_outside), pushes=pushes,
+        rover_pushes=np.asarray(final.pushes, np.int32), idle_steps=np.asarray(final.idle_steps, np.int32),
+        plan_ms=plan_ms, conflicts=len(reference_fleet.conflicts(pos, reservations)), stop_reason=reason,
+        message=_message(reason, final, episode, int(max_steps)), frames=frames,
+        kernel_conflicts=kernel_conflicts, dropped=dropped)
+

@@ -1,0 +1,454 @@
+"""The fleet as a pure state machine: ``FleetConfig``, ``FleetState``, ``reset``, ``step``, ``rollout``.
+
+One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
+
+1. **Assign**: idle rovers get tasks from the current fabric by the strategy (``assign``), while the
+   push budget lasts (tasks started < ``FleetState.max_pushes``, which ``reset`` takes from
+   ``EpisodeParams.max_pushes``, so that the compiled step does not depend on the budget, a static
+   field of ``EpisodeParams``: ``step`` ignores ``episode.max_pushes``). A rover already on its task's
+   start pushes at once, the others approach.
+2. **Distance fields**: when the ownership map or the set of parked rovers changed since they were
+   computed (a task started, ended or was dropped; an idle rover reached its home cell), every
+   rover's field is recomputed (``motion.distance_fields``): an approaching rover's to its task's
+   start, an idle rover's to its home cell (its start cell), over the cells outside other rovers'
+   footprints and off the cells of other idle rovers parked at home. An approaching rover that
+   cannot reach its start drops its task (footprint released, not counted against the budget) and
+   idles.
+3. **Move**: every rover moves at most one cell, in index order (``motion.move_rovers``): rovers not
+   pushing down their field, pushing rovers one cell along the push path. Idle rovers thus drive
+   home, out of the way of tasks their cells would block. A rover that reaches its start pushes
+   from the next step on.
+4. **Apply**: pushes that reached their path's last cell this step are applied to the counts with
+   ``execute`` in rover order, on the counts at that moment, their footprints released; then one
+   full ``build_fabric`` refreshes the shared fabric.
+5. **Stop** (first that holds): the mass outside the targets is at most ``stop_fraction`` of its start
+   ("done"); no task runs and the budget is spent ("budget"); no task runs, none could be assigned
+   and the next step would be the same (the assignment's reason: "done" when no source is left,
+   "no_route" / "walk_cap" as in an episode, "no_reachable_task" when every pushable task's
+   footprint held another rover and no rover moved); nothing moved or pushed for ``stall_steps`` steps ("deadlock",
+   or "no_reachable_task" when no task runs: rovers kept dropping unreachable tasks); the step
+   limit ("max_steps").
+
+A finished state's step is a no-op, so ``rollout`` (``lax.scan``) may run past the end. Counts stay
+multiples of ``execute.QUANTUM``, so the grid's total is exactly conserved by every push.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan.fleet import assign, footprint, motion
+from jaxplan.fleet.motion import APPROACH, FAR, IDLE, PUSH
+from jaxplan.transport import execute, spillage
+from jaxplan.transport.episode import (
+    BUDGET,
+    DONE,
+    NO_MATERIAL,
+    RUNNING,
+    EpisodeParams,
+    default_walk_cap,
+    require_hard,
+)
+from jaxplan.transport.fabric import Fabric, build_fabric
+from jaxplan.transport.params import FabricParams
+
+__all__ = ["DEADLOCK", "MAX_STEPS", "NO_REACHABLE", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord",
+           "FleetState", "max_rovers", "reset", "rollout", "step"]
+
+STRATEGIES = ("coordinated", "independent", "partitioned")
+# Stop codes: the episode's (0-6: running, done, done (no source left), budget, no_material,
+# no_route, walk_cap), then the fleet's own.
+MAX_STEPS, DEADLOCK, NO_REACHABLE = 7, 8, assign.BLOCKED
+STOP_REASONS = ("running", "done", "done", "budget", "no_material", "no_route", "walk_cap", "max_steps",
+                "deadlock", "no_reachable_task")
+MAX_ROVERS = 64
+MAX_CANDIDATES = 64
+DEFAULT_MAX_STEPS = 100_000
+
+
+def max_rovers() -> int:
+    """The most rovers a fleet may have (64)."""
+    return MAX_ROVERS
+
+
+@dataclasses.dataclass(frozen=True)
+class FleetConfig:
+    """Static fleet settings (part of the jit cache key).
+
+    n_rovers: N, an int in [1, 64]. strategy: one of ``STRATEGIES``. candidates: M sources planned
+    per coordinated assignment (None: 2 N, at least 8 and at most 64). walk_cap: static walk length of a plan (None:
+    ``episode.default_walk_cap``); routes have S = 2 (walk_cap + 1) slots. stall_steps: steps without
+    any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an
+    independent or partitioned rover tries per step when footprints are taken. clearance: cells
+    reserved around a route beyond the cells its push changes, 0 or 1 (``footprint``).
+
+    ``step`` reads only whether the strategy is "coordinated": independent and partitioned fleets
+    differ in their state (``FleetState.region`` and ``home``, made by ``reset``), so both run the
+    program of ``kernel()``.
+    """
+
+    n_rovers: int
+    strategy: str = "coordinated"
+    candidates: int | None = None
+    walk_cap: int | None = None
+    stall_steps: int | None = None
+    retries: int = 3
+    clearance: int = 0
+
+    def resolved(self, shape) -> FleetConfig:
+        """This config with every None replaced by its value for a grid of ``shape``."""
+        h, w = shape
+        return dataclasses.replace(
+            self,
+            candidates=min(max(2 * self.n_rovers, 8), MAX_CANDIDATES) if self.candidates is None else self.candidates,
+            walk_cap=default_walk_cap(shape) if self.walk_cap is None else self.walk_cap,
+            stall_steps=2 * (h + w) if self.stall_steps is None else self.stall_steps)
+
+    def kernel(self) -> FleetConfig:
+        """The config ``step`` compiles for: partitioned runs the independent program."""
+        return dataclasses.replace(self, strategy="independent") if self.strategy == "partitioned" else self
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the field for a bad setting."""
+        def is_int(v):
+            return isinstance(v, int) and not isinstance(v, bool)
+
+        if not is_int(self.n_rovers) or not 1 <= self.n_rovers <= MAX_ROVERS:
+            raise ValueError(f"FleetConfig.n_rovers: {self.n_rovers!r} is out of range; a fleet has an int in "
+                             f"[1, {MAX_ROVERS}] rovers.")
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"FleetConfig.strategy: {self.strategy!r} is not a strategy; use one of {STRATEGIES}.")
+        for name, low, high in (("candidates", 1, 4096), ("walk_cap", 1, 1 << 24), ("stall_steps", 1, 1 << 30),
+                                ("retries", 1, 64)):
+            value = getattr(self, name)
+            if value is not None and (not is_int(value) or not low <= value <= high):
+                raise ValueError(f"FleetConfig.{name}: {value!r} is out of range; it must be an int in "
+                                 f"[{low}, {high}] (or None for the default).")
+        if self.clearance not in footprint.CLEARANCES:
+            raise ValueError(f"FleetConfig.clearance: {self.clearance!r} is not allowed; use one of "
+                             f"{footprint.CLEARANCES} (cells reserved around a route).")
+
+
+class FleetState(NamedTuple):
+    """Everything the fleet carries from one step to the next. A pytree; N rovers, H x W grid, S route slots.
+
+    scene: Scene, counts now (multiples of ``execute.QUANTUM``). fabric: Fabric of those counts.
+    pos: i32[N, 2] rover cells (row, col). home: i32[N, 2] start cells, where idle rovers park.
+    phase: i32[N] (``motion.IDLE``, ``APPROACH``, ``PUSH``).
+    route: execute.Route batched (cells i32[N, S, 2], n_cells i32[N], fallback bool[N], end f32[N, 2]),
+      each rover's task (stale while idle). mode: i32[N] 0 deliver, 1 rearrange.
+    task_step: i32[N] the step its task was assigned in (1 = the first step).
+    progress: i32[N] index of the rover's cell on its push path while pushing.
+    owner: i32[H, W] the rover whose footprint holds the cell (-1 none).
+    dist: i32[N, H, W] approach distance fields (``motion.FAR``: cannot reach).
+    region: i32[H, W] partitioned sectors (-1 everywhere for the other strategies).
+    replan: bool[] the ownership map changed since the fields were computed.
+    pushes: i32[N] pushes applied per rover. started: i32[] tasks started and not dropped.
+    idle_steps: i32[N] steps each rover had no task.
+    t: i32[] steps done. stall: i32[] consecutive steps without a move or push. max_steps: i32[] the
+    step limit. max_pushes: i32[] the push budget (tasks started, dropped ones not counted).
+    delivered, spilled: f32[] objects, all pushes. outside: f32[] objects outside the targets now.
+    initial_mass, initial_outside, stop_at: f32[] (stop_at = stop_fraction * initial_outside).
+    done: bool[]; stop: i32[] (``STOP_REASONS``).
+    """
+
+    scene: Any
+    fabric: Fabric
+    pos: jax.Array
+    home: jax.Array
+    phase: jax.Array
+    route: execute.Route
+    mode: jax.Array
+    task_step: jax.Array
+    progress: jax.Array
+    owner: jax.Array
+    dist: jax.Array
+    region: jax.Array
+    replan: jax.Array
+    pushes: jax.Array
+    started: jax.Array
+    idle_steps: jax.Array
+    t: jax.Array
+    stall: jax.Array
+    max_steps: jax.Array
+    max_pushes: jax.Array
+    delivered: jax.Array
+    spilled: jax.Array
+    outside: jax.Array
+    initial_mass: jax.Array
+    initial_outside: jax.Array
+    stop_at: jax.Array
+    done: jax.Array
+    stop: jax.Array
+
+
+class FleetRecord(NamedTuple):
+    """What one step did (all zero for a finished state's step). N rovers.
+
+    pos: i32[N, 2] cells after the step. phase: i32[N] after the step. assigned: bool[N] a task
+    started; dropped: bool[N] an unreachable task was dropped; ended: bool[N] a push was applied.
+    collected, delivered, spilled: f32[N] objects of the pushes applied (0 elsewhere).
+    delivered_total: f32[] objects delivered by all pushes so far. outside, inside: f32[] objects
+    outside / inside the targets after the step. mass: f32[] the grid's total. conflicts: i32[]
+    invariant violations of this step found in the step itself (two rovers in one cell, a swap, a
+    rover in another's footprint); must be 0. failure: i32[] why an assignment found nothing
+    (``STOP_REASONS`` code, 0 when it did or none ran). stop: i32[] the stop code after the step.
+    valid: bool[] the step ran (the state was not done).
+    """
+
+    pos: jax.Array
+    phase: jax.Array
+    assigned: jax.Array
+    dropped: jax.Array
+    ended: jax.Array
+    collected: jax.Array
+    delivered: jax.Array
+    spilled: jax.Array
+    delivered_total: jax.Array
+    outside: jax.Array
+    inside: jax.Array
+    mass: jax.Array
+    conflicts: jax.Array
+    failure: jax.Array
+    stop: jax.Array
+    valid: jax.Array
+
+
+def _f32(x):
+    return jnp.asarray(x, jnp.float32)
+
+
+def _i32(x):
+    return jnp.asarray(x, jnp.int32)
+
+
+def _outside(scene):
+    return jnp.sum(jnp.where(scene.target_mask, 0.0, scene.obj))
+
+
+def _check_static(params: FabricParams, ep: EpisodeParams, config: FleetConfig, where: str) -> None:
+    require_hard(params, where)
+    config.validate()
+    if ep.reselect:
+        raise ValueError("EpisodeParams.reselect: True is not supported by the fleet, which plans on the "
+                         "entry-0 fabric (Eq. 5 sources, Eq. 6 per planned source); use reselect=False.")
+
+
+def route_slots(config: FleetConfig, shape) -> int:
+    """S: route slots of a fleet's tasks (``2 (walk_cap + 1)``, as ``episode.plan_tick``'s routes)."""
+    return 2 * (config.resolved(shape).walk_cap + 1)
+
+
+def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams | None = None,
+          episode: EpisodeParams | None = None, config: FleetConfig | None = None, starts=None,
+          max_steps: int | None = None, max_pushes=None) -> FleetState:
+    """The state before the first step: counts rounded to ``execute.QUANTUM``, the fabric built,
+    every rover idle at its start cell, the stop checks of an episode's start applied (no material,
+    done, budget 0). Pure and jittable (``vmap`` it over scenes of one shape).
+
+    starts: i32[N, 2] distinct cells outside the targets (default: ``assign.spread_starts``, or
+    ``assign.sector_starts`` for ``partitioned``, so rover i starts in sector i); not checked here
+    (``run_fleet`` does). max_steps: step limit (default 100,000). max_pushes: the push budget
+    (default ``episode.max_pushes``; an argument so a traced one needs no recompile). spill is not read.
+    """
+    params = FabricParams() if params is None else params
+    ep = EpisodeParams() if episode is None else episode
+    config = FleetConfig(1, "independent") if config is None else config
+    _check_static(params, ep, config, "reset")
+    del spill
+    shape = scene.shape
+    cfg = config.resolved(shape)
+    n = cfg.n_rovers
+    scene = scene.with_obj(execute.quantize(scene.obj))
+    fabric = build_fabric(scene, params)
+    target = jnp.asarray(scene.target_mask, bool)
+    if cfg.strategy == "partitioned":
+        sectors = assign.sectors(shape, n)
+        region = jnp.asarray(sectors)
+        default_starts = assign.sector_starts(target, sectors)
+    else:
+        region = jnp.full(shape, -1, jnp.int32)
+        default_starts = assign.spread_starts(target, n)
+    pos = default_starts if starts is None else _i32(starts).reshape(n, 2)
+    s = route_slots(cfg, shape)
+    route = execute.Route(jnp.full((n, s, 2), -1, jnp.int32), jnp.ones(n, jnp.int32), jnp.zeros(n, bool),
+                          jnp.zeros((n, 2), jnp.float32))
+    outside = _f32(_outside(scene))
+    stop_at = _f32(_f32(ep.stop_fraction) * outside)
+    budget = _i32(ep.max_pushes if max_pushes is None else max_pushes)
+    stop = _i32(jnp.select([outside <= 0, outside <= stop_at, budget <= 0], [NO_MATERIAL, DONE, BUDGET],
+                           RUNNING))
+    zeros_n = jnp.zeros(n, jnp.int32)
+    limit = DEFAULT_MAX_STEPS if max_steps is None else max_steps
+    return FleetState(scene, fabric, pos, pos, zeros_n, route, zeros_n, zeros_n, zeros_n,
+                      jnp.full(shape, -1, jnp.int32), jnp.full((n,) + shape, FAR, jnp.int32), region,
+                      jnp.bool_(False), zeros_n, _i32(0), zeros_n, _i32(0), _i32(0), _i32(limit), budget, _f32(0.0),
+                      _f32(0.0), outside, _f32(jnp.sum(scene.obj)), outside, stop_at, stop != RUNNING, stop)
+
+
+def _idle_record(state: FleetState) -> FleetRecord:
+    n = state.pos.shape[0]
+    f, b = jnp.zeros(n, jnp.float32), jnp.zeros(n, bool)
+    inside = jnp.sum(jnp.where(state.scene.target_mask, state.scene.obj, 0.0))
+    return FleetRecord(state.pos, state.phase, b, b, b, f, f, f, state.delivered, state.outside, _f32(inside),
+                       _f32(jnp.sum(state.scene.obj)), _i32(0), _i32(RUNNING), state.stop, jnp.bool_(False))
+
+
+def _select_rows(mask, new, old):
+    """``new`` where ``mask: bool[N]`` else ``old``, leaf by leaf (leading axis N)."""
+    return jax.tree.map(lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
+
+
+def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
+    """Step 1: ``(route, mode, assigned bool[N], owner, failure)`` (``assign.assign_greedy``); nothing
+    runs when no rover is idle or the budget is spent."""
+    idle = state.phase == IDLE
+    budget = state.max_pushes - state.started
+    args = (state.scene, params, ep, spill, state.fabric, state.pos, idle, state.owner, budget, state.route)
+
+    def run(_):
+        if cfg.strategy == "coordinated":
+            return assign.assign_greedy(*args, candidates=cfg.candidates, cap=cfg.walk_cap, evaluator=evaluator,
+                                        clearance=cfg.clearance)
+        return assign.assign_each(*args, state.region, retries=cfg.retries, cap=cfg.walk_cap, evaluator=evaluator,
+                                  clearance=cfg.clearance)
+
+    def skip(_):
+        return state.route, state.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING)
+
+    return jax.lax.cond(jnp.any(idle) & (budget > 0), run, skip, None)
+
+
+def _parked(pos, home, phase):
+    """bool[N]: idle rovers standing on their home cell."""
+    return (phase == IDLE) & jnp.all(pos == home, -1)
+
+
+def _fields(pos, home, phase, route, owner):
+    """Step 2: i32[N, H, W] distance fields (module docstring); ``FAR`` for pushing rovers."""
+    n = pos.shape[0]
+    h, w = owner.shape
+    parked = jnp.full(h * w, -1, jnp.int32).at[pos[:, 0] * w + pos[:, 1]].set(
+        jnp.where(_parked(pos, home, phase), jnp.arange(n, dtype=jnp.int32), -1)).reshape(h, w)
+    rovers = jnp.arange(n, dtype=jnp.int32)[:, None, None]
+    passable = ((owner[None] < 0) | (owner[None] == rovers)) & ((parked[None] < 0) | (parked[None] == rovers))
+    passable = passable & (phase != PUSH)[:, None, None]
+    goals = jnp.where((phase == APPROACH)[:, None], route.cells[:, 0], home)
+    return motion.distance_fields(goals, passable)
+
+
+def _conflicts(before, after, moved, owner):
+    """i32[]: pairs in one cell, swapping pairs, and rovers in another rover's footprint."""
+    n = before.shape[0]
+    pair = ~jnp.eye(n, dtype=bool)
+    same = jnp.all(after[:, None] == after[None], -1) & pair
+    swap = jnp.all(after[:, None] == before[None], -1) & jnp.all(before[:, None] == after[None], -1) & pair \
+        & moved[:, None]
+    held = owner[after[:, 0], after[:, 1]]
+    foreign = (held >= 0) & (held != jnp.arange(n))
+    return _i32(jnp.sum(same) // 2 + jnp.sum(swap) // 2 + jnp.sum(foreign))
+
+
+def _apply(scene, route, ended, spill, evaluator):
+    """Step 4: the ended pushes applied in rover order: ``(obj, collected, delivered, spilled)``, f32[N] each."""
+    n = ended.shape[0]
+    zeros = jnp.zeros(n, jnp.float32)
+
+    def one(r, carry):
+        obj, collected, delivered, spilled = carry
+
+        def push(carry):
+            obj, collected, delivered, spilled = carry
+            mine = jax.tree.map(lambda a: a[r], route)
+            new_obj, result = execute.execute(scene.with_obj(obj), mine, spill, evaluator)
+            return (new_obj, collected.at[r].set(result.collected), delivered.at[r].set(result.delivered),
+                    spilled.at[r].set(result.spilled))
+
+        return jax.lax.cond(ended[r], push, lambda c: c, carry)
+
+    return jax.lax.fori_loop(0, n, one, (scene.obj, zeros, zeros, zeros))
+
+
+def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
+    n = state.pos.shape[0]
+    step_no = state.t + 1
+    # 1. assign
+    new_route, new_mode, assigned, owner, failure = _assign(state, params, spill, ep, cfg, evaluator)
+    route = _select_rows(assigned, new_route, state.route)
+    at_start = jnp.all(state.pos == route.cells[:, 0], -1)
+    phase = jnp.where(assigned, jnp.where(at_start, PUSH, APPROACH), state.phase)
+    mode = jnp.where(assigned, new_mode, state.mode)
+    task_step = jnp.where(assigned, step_no, state.task_step)
+    progress = jnp.where(assigned, 0, state.progress)
+    # 2. distance fields, unreachable starts dropped
+    dist = jax.lax.cond(state.replan | jnp.any(assigned), lambda _: _fields(state.pos, state.home, phase, route, owner),
+                        lambda _: state.dist, None)
+    here = dist[jnp.arange(n), state.pos[:, 0], state.pos[:, 1]]
+    dropped = (phase == APPROACH) & (here >= FAR)
+    owner = jnp.where((owner >= 0) & dropped[jnp.maximum(owner, 0)], -1, owner)
+    phase = jnp.where(dropped, IDLE, phase)
+    idle_now = phase == IDLE
+    # 3. move
+    push_next = jax.vmap(lambda r, k: footprint.path_cell(r, k))(route, progress + 1)
+    pos, moved = motion.move_rovers(state.pos, phase, dist, owner, push_next)
+    conflicts = _conflicts(state.pos, pos, moved, owner)
+    pushing = phase == PUSH
+    progress = jnp.where(pushing & moved, progress + 1, progress)
+    ended = pushing & (progress >= jax.vmap(footprint.path_length)(route) - 1)
+    arrived = (phase == APPROACH) & jnp.all(pos == route.cells[:, 0], -1)
+    phase = jnp.where(arrived, PUSH, phase)
+    progress = jnp.where(arrived, 0, progress)
+    # 4. apply the pushes that ended, release their footprints, refresh the fabric
+    obj, collected, delivered, spilled = _apply(state.scene, route, ended, spill, evaluator)
+    scene = state.scene.with_obj(obj)
+    owner = jnp.where((owner >= 0) & ended[jnp.maximum(owner, 0)], -1, owner)
+    phase = jnp.where(ended, IDLE, phase)
+    fabric = jax.lax.cond(jnp.any(ended), lambda s: build_fabric(s, params), lambda s: state.fabric, scene)
+    # 5. totals and stop
+    t = step_no
+    outside = _f32(_outside(scene))
+    total_delivered = state.delivered + jnp.sum(delivered)
+    started = state.started + jnp.sum(assigned) - jnp.sum(dropped)
+    has_task = jnp.any(phase != IDLE)
+    progressed = jnp.any(moved) | jnp.any(ended)
+    stall = jnp.where(progressed, 0, jnp.where(has_task | jnp.any(dropped), state.stall + 1, state.stall))
+    # all idle and nothing assigned: the next step is this one again, unless rovers are driving home
+    # out of the way of the tasks their cells blocked
+    stuck = ~has_task & ~jnp.any(assigned) & (failure != RUNNING) & ((failure != NO_REACHABLE) | ~jnp.any(moved))
+    parked_now = _parked(pos, state.home, phase)
+    stop = _i32(jnp.select(
+        [outside <= state.stop_at, ~has_task & (started >= state.max_pushes), stuck, stall >= cfg.stall_steps,
+         t >= state.max_steps],
+        [DONE, BUDGET, failure, jnp.where(has_task, DEADLOCK, NO_REACHABLE), MAX_STEPS], RUNNING))
+    replan = jnp.any(ended) | jnp.any(dropped) | jnp.any(parked_now & ~_parked(state.pos, state.home, phase))
+    new = FleetState(scene, fabric, pos, state.home, phase, route, mode, task_step, progress, owner, dist,
+                     state.region, replan, state.pushes + ended, started,
+                     state.idle_steps + idle_now, t, _i32(stall), state.max_steps, state.max_pushes, total_delivered,
+                     state.spilled + jnp.sum(spilled), outside, state.initial_mass, state.initial_outside,
+                     state.stop_at, stop != RUNNING, stop)
+    inside = jnp.sum(jnp.where(scene.target_mask, obj, 0.0))
+    record = FleetRecord(pos, phase, assigned, dropped, ended, collected, delivered, spilled, total_delivered,
+                         outside, _f32(inside), _f32(jnp.sum(obj)), conflicts, _i32(failure), stop, jnp.bool_(True))
+    return new, record
+
+
+def step(state: FleetState, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams,
+         config: FleetConfig, evaluator: spillage.Evaluator = spillage.curvature_spill):
+    """One step of the fleet (module docstring): ``(state, FleetRecord)``. Pure, one jittable program;
+    config and evaluator are static. A done state is returned as it is, with an invalid record. The
+    push budget is ``state.max_pushes`` (``episode.max_pushes`` and ``episode.rebuild`` are not read:
+    the fleet always rebuilds in full)."""
+    _check_static(params, episode, config, "step")
+    cfg = config.resolved(state.scene.shape)
+    return jax.lax.cond(state.done, lambda s: (s, _idle_record(s)),
+                        lambda s: _live(s, params, spill, episode, cfg, evaluator), state)
+
+
+def rollout(state: FleetState, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams,
+            config: FleetConfig, n_steps: int, evaluator: spillage.Evaluator = spillage.curvature_spill):
+    """``n_steps`` (static) steps in one ``lax.scan``: ``(state, FleetRecord stacked over n_steps)``."""
+    return jax.lax.scan(lambda s, _: step(s, params, spill, episode, config, evaluator), state, None,
+                        length=n_steps)

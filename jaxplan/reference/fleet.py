@@ -1,0 +1,150 @@
+"""Serial reference of the fleet's kernels (``jaxplan.fleet``): plain Python, one cell and one rover
+at a time, written from docs/fleet.md.
+
+- ``distance_field``: breadth-first search from the goal (a queue), 8-connected.
+- ``move_rovers``: the prioritised one-step move rule.
+- ``greedy_assign``: the coordinated strategy's greedy choice over (idle rover, candidate) pairs.
+- ``conflicts``: the invariant checker over recorded positions and reservations (no shared cell, no
+  swap, no rover inside another rover's reserved footprint).
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from jaxplan.reference.visibility import DIRS
+
+FAR = 2 ** 30          # as jaxplan.fleet.motion.FAR
+IDLE, APPROACH, PUSH = 0, 1, 2
+
+
+def distance_field(goal, passable) -> np.ndarray:
+    """i64[H, W]: 8-connected steps to ``goal`` (row, col) through ``passable`` cells; FAR elsewhere."""
+    passable = np.asarray(passable, bool)
+    h, w = passable.shape
+    d = np.full((h, w), FAR, np.int64)
+    g = (int(goal[0]), int(goal[1]))
+    if not passable[g]:
+        return d
+    d[g] = 0
+    queue = deque([g])
+    while queue:
+        r, c = queue.popleft()
+        for dr, dc in DIRS:
+            q = (r + dr, c + dc)
+            if 0 <= q[0] < h and 0 <= q[1] < w and passable[q] and d[q] == FAR:
+                d[q] = d[r, c] + 1
+                queue.append(q)
+    return d
+
+
+def move_rovers(pos, phase, dist, owner, push_next):
+    """``(pos i64[N, 2], moved bool[N])`` after one step of the move rule (``jaxplan.fleet.motion``)."""
+    pos = [tuple(int(v) for v in p) for p in np.asarray(pos)]
+    owner = np.asarray(owner)
+    h, w = owner.shape
+    held = {p: r for r, p in enumerate(pos)}
+    moved = [False] * len(pos)
+    for r, here in enumerate(pos):
+        def free(q, r=r):
+            inside = 0 <= q[0] < h and 0 <= q[1] < w
+            return inside and owner[q] in (-1, r) and q not in held
+        to = here
+        if phase[r] != PUSH:
+            best = dist[r][here]
+            for dr, dc in DIRS:
+                q = (here[0] + dr, here[1] + dc)
+                if free(q) and dist[r][q] < best:
+                    to, best = q, dist[r][q]
+        elif phase[r] == PUSH:
+            q = tuple(int(v) for v in push_next[r])
+            if q != here and free(q):
+                to = q
+        if to != here:
+            del held[here]
+            held[to] = r
+            pos[r] = to
+            moved[r] = True
+    return np.asarray(pos, np.int64).reshape(-1, 2), np.asarray(moved)
+
+
+def greedy_assign(idle, pos, starts, steps, predicted, usable, footprints, reserved=()):
+    """The coordinated strategy's greedy assignment: a list of (rover, candidate) in the order chosen.
+
+    idle: bool[N]; pos: [N, 2] rover cells; starts: [M, 2] each candidate's first cell; steps: [M]
+    push steps; predicted: [M] delivered objects; usable: bool[M] (a pushable plan); footprints: M
+    sets of (row, col); reserved: cells of the footprints of tasks already running.
+    Each round takes the best score ``predicted / (Chebyshev(rover, start) + steps)`` (float32, as the
+    kernel) over idle rovers x unused usable candidates whose footprint meets neither ``reserved`` nor
+    a footprint chosen before and holds no other rover's cell; ties go to the lowest (rover,
+    candidate) in row-major order. It stops when no pair is left.
+    """
+    idle = [bool(v) for v in idle]
+    pos = [tuple(int(v) for v in p) for p in np.asarray(pos)]
+    used = [False] * len(footprints)
+    taken = set(reserved)
+    chosen = []
+    while True:
+        best, pick = -np.inf, None
+        for r in range(len(pos)):
+            if not idle[r]:
+                continue
+            for c, cells in enumerate(footprints):
+                if used[c] or not usable[c] or cells & taken:
+                    continue
+                if any(p in cells for q, p in enumerate(pos) if q != r):
+                    continue
+                approach = max(abs(pos[r][0] - int(starts[c][0])), abs(pos[r][1] - int(starts[c][1])))
+                score = np.float32(predicted[c]) / np.float32(approach + int(steps[c]))
+                if score > best:
+                    best, pick = score, (r, c)
+        if pick is None:
+            return chosen
+        r, c = pick
+        chosen.append(pick)
+        idle[r], used[c] = False, True
+        taken |= footprints[c]
+
+
+def conflicts(positions, reservations) -> list:
+    """Invariant violations in a recorded fleet run: a list of ``(step, kind, rovers)`` (empty = none).
+
+    positions: [T + 1, N, 2], every rover's cell after each step (row 0: the start).
+    reservations: iterable of ``(rover, first, last, cells)``: the rover held the footprint ``cells``
+    (iterable of (row, col)) for the positions of steps ``first`` .. ``last`` (inclusive).
+    Kinds: "same cell" (two rovers in one cell), "swap" (two rovers exchanged cells in one step),
+    "footprint" (a rover in a cell another rover holds reserved), "overlap" (two rovers hold one cell
+    reserved at once), "jump" (a rover moved more than one cell in one step).
+    """
+    positions = np.asarray(positions)
+    t_end = positions.shape[0]
+    held: list[dict] = [dict() for _ in range(t_end)]
+    for rover, first, last, cells in reservations:
+        for t in range(max(int(first), 0), min(int(last), t_end - 1) + 1):
+            for cell in cells:
+                held[t].setdefault((int(cell[0]), int(cell[1])), set()).add(int(rover))
+    found = []
+    for t in range(t_end):
+        cells = [tuple(int(v) for v in p) for p in positions[t]]
+        for i in range(len(cells)):
+            for j in range(i + 1, len(cells)):
+                if cells[i] == cells[j]:
+                    found.append((t, "same cell", (i, j)))
+        for i, cell in enumerate(cells):
+            others = held[t].get(cell, set()) - {i}
+            if others:
+                found.append((t, "footprint", (i, min(others))))
+        for owners in held[t].values():
+            if len(owners) > 1:
+                found.append((t, "overlap", tuple(sorted(owners))))
+        if t == 0:
+            continue
+        before = [tuple(int(v) for v in p) for p in positions[t - 1]]
+        for i in range(len(cells)):
+            if max(abs(cells[i][0] - before[i][0]), abs(cells[i][1] - before[i][1])) > 1:
+                found.append((t, "jump", (i,)))
+            for j in range(i + 1, len(cells)):
+                if cells[i] != before[i] and cells[i] == before[j] and cells[j] == before[i]:
+                    found.append((t, "swap", (i, j)))
+    return found

@@ -1,0 +1,108 @@
+"""Random small sites and fleets, every strategy: no conflict ever (the serial checker on the recorded
+positions and reserved footprints), the mass identity exact at every step, finite outputs, a named
+stop; the jitted step traces once, equals the step run without jit and the scanned rollout, and is
+a no-op once done."""
+from __future__ import annotations
+
+import chex
+import jax
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from jaxplan import FabricParams, SpillParams
+from jaxplan.fleet import STOP_REASONS, STRATEGIES, FleetConfig, reset, rollout, run_fleet, step
+from jaxplan.fleet.motion import IDLE
+from jaxplan.transport.episode import EpisodeParams
+from tests.fleet._sites import LAYOUTS, site
+
+SITES = {2: (12, 12), 3: (16, 16), 5: (20, 20)}     # one grid per fleet size: one compile each
+PARAMS = FabricParams()
+SPILL = SpillParams(lam=0.1)
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES)
+@pytest.mark.parametrize("n", sorted(SITES))
+@settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=False)
+@given(seed=st.integers(0, 10 ** 6), layout=st.sampled_from(LAYOUTS), fraction=st.sampled_from((0.02, 0.4)),
+       pushes=st.integers(0, 12))
+def test_random_fleets_keep_every_invariant(n, strategy, seed, layout, fraction, pushes):
+    scene = site(seed, SITES[n], layout)
+    ep = EpisodeParams(max_pushes=pushes, stop_fraction=fraction, rebuild="full")
+    run = run_fleet(scene, n, strategy, PARAMS, SPILL, ep, max_steps=1_000)
+    assert run.conflicts == 0 and run.kernel_conflicts == 0
+    assert run.stop_reason in STOP_REASONS and run.stop_reason not in ("running", "max_steps"), run.message
+    t = run.steps
+    assert run.pos.shape == (t + 1, n, 2) and run.delivered.shape == run.outside.shape == (t + 1,)
+    h, w = SITES[n]
+    assert np.all((run.pos >= 0) & (run.pos < [h, w]))
+    for a in (run.delivered, run.outside, [p[k] for p in run.pushes for k in ("collected", "delivered", "spilled")]):
+        assert np.all(np.isfinite(a))
+    # mass identity, exact: counts are multiples of execute.QUANTUM
+    np.testing.assert_array_equal(run.delivered + run.outside, np.full(t + 1, run.initial_mass))
+    gained = np.zeros(t + 1)
+    for p in run.pushes:
+        gained[p["last_step"]] += p["delivered"]
+        assert p["collected"] == pytest.approx(p["delivered"] + p["spilled"], abs=1e-4)
+        assert p["first_step"] <= p["last_step"]
+    np.testing.assert_allclose(np.diff(run.delivered), gained[1:], atol=1e-3)
+    assert len(run.pushes) == int(run.rover_pushes.sum()) <= pushes
+    assert np.all(run.idle_steps <= t)
+
+
+@pytest.fixture(scope="module")
+def traced_run():
+    """Twelve steps of a jitted step that may be traced only once, with their states."""
+    chex.clear_trace_counter()
+    scene = site(0, SITES[2], "uniform")
+    config = FleetConfig(2, "coordinated")
+    ep = EpisodeParams(max_pushes=3, stop_fraction=0.02, rebuild="full")
+    jitted = jax.jit(chex.assert_max_traces(step, n=1), static_argnames=("config", "evaluator"))
+    state = reset(scene, PARAMS, SPILL, ep, config, max_steps=500)
+    states, records = [state], []
+    while not bool(state.done):
+        state, rec = jitted(state, PARAMS, SPILL, ep, config=config)
+        states.append(state)
+        records.append(rec)
+    after, idle = jitted(state, PARAMS, SPILL, ep, config=config)
+    return dict(config=config, ep=ep, states=states, records=records, after=after, idle=idle)
+
+
+def test_step_traces_once_and_a_done_state_stays_as_it_is(traced_run):
+    final, after, idle = traced_run["states"][-1], traced_run["after"], traced_run["idle"]
+    assert STOP_REASONS[int(final.stop)] == "budget" and len(traced_run["records"]) > 3
+    chex.assert_trees_all_equal(final, after)
+    assert not bool(idle.valid) and not np.any(np.asarray(idle.ended))
+
+
+def test_the_step_without_jit_equals_the_jitted_step(traced_run):
+    """On a step that plans nothing (every rover busy, or the budget spent), keeps its distance fields
+    and applies no push, run op by op (the whole step without jit takes minutes)."""
+    states, records, ep = traced_run["states"], traced_run["records"], traced_run["ep"]
+    busy = [t for t in range(len(records) - 1)
+            if (np.all(np.asarray(states[t].phase) != IDLE) or int(states[t].started) >= ep.max_pushes)
+            and not bool(states[t].replan) and not np.any(np.asarray(records[t].ended))
+            and np.any(np.asarray(records[t].pos != states[t].pos))]
+    assert busy
+    t = busy[0]
+    with jax.disable_jit():
+        state, rec = step(states[t], PARAMS, SPILL, traced_run["ep"], traced_run["config"])
+    chex.assert_trees_all_equal(rec, records[t])
+    chex.assert_trees_all_equal(state, states[t + 1])
+
+
+def test_rollout_scans_the_same_steps(traced_run):
+    states, records = traced_run["states"], traced_run["records"]
+    n = len(records) + 2                       # two steps past the end: no-ops
+    final, scanned = jax.jit(rollout, static_argnames=("config", "n_steps", "evaluator"))(
+        states[0], PARAMS, SPILL, traced_run["ep"], traced_run["config"], n_steps=n)
+    stepped = jax.tree.map(lambda *xs: np.stack(xs), *records)
+    for name in ("pos", "phase", "assigned", "dropped", "ended", "stop", "valid"):
+        np.testing.assert_array_equal(np.asarray(getattr(scanned, name))[:len(records)], getattr(stepped, name))
+    for name in ("delivered", "outside", "inside"):
+        np.testing.assert_allclose(np.asarray(getattr(scanned, name))[:len(records)], getattr(stepped, name),
+                                   rtol=1e-6)
+    assert not np.any(np.asarray(scanned.valid)[len(records):])
+    np.testing.assert_array_equal(np.asarray(final.pos), np.asarray(states[-1].pos))
+    np.testing.assert_allclose(np.asarray(final.scene.obj), np.asarray(states[-1].scene.obj), atol=1e-6)

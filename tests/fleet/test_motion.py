@@ -1,0 +1,127 @@
+"""The vectorised motion and assignment kernels equal their serial references
+(``jaxplan.reference.fleet``): BFS distance fields, the prioritised one-step move, the greedy choice."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from jaxplan.fleet import assign, footprint, motion
+from jaxplan.reference import fleet as ref
+from jaxplan.transport import execute
+
+SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SHAPE = (10, 12)
+N = 5          # rovers
+M = 6          # greedy candidates
+C = 12         # core cells per candidate
+
+_fields = jax.jit(motion.distance_fields)
+_move = jax.jit(motion.move_rovers)
+
+
+def _distinct_cells(rng, n):
+    flat = rng.choice(SHAPE[0] * SHAPE[1], n, replace=False)
+    return np.stack([flat // SHAPE[1], flat % SHAPE[1]], -1).astype(np.int32)
+
+
+def _owner_map(rng):
+    """Random rectangles given to random rovers (-1 elsewhere)."""
+    owner = np.full(SHAPE, -1, np.int32)
+    for _ in range(rng.integers(0, 4)):
+        r, c = rng.integers(0, SHAPE[0]), rng.integers(0, SHAPE[1])
+        owner[r:r + rng.integers(1, 5), c:c + rng.integers(1, 5)] = rng.integers(0, N)
+    return owner
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2 ** 31 - 1), density=st.sampled_from((0.5, 0.7, 0.9, 1.0)))
+def test_distance_fields_equal_breadth_first_search(seed, density):
+    rng = np.random.default_rng(seed)
+    passable = rng.random((N,) + SHAPE) < density
+    goals = _distinct_cells(rng, N)
+    if rng.random() < 0.5:
+        passable[0, goals[0, 0], goals[0, 1]] = False     # an impassable goal: FAR everywhere
+    got = np.asarray(_fields(jnp.asarray(goals), jnp.asarray(passable)))
+    for r in range(N):
+        np.testing.assert_array_equal(got[r], ref.distance_field(goals[r], passable[r]))
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2 ** 31 - 1))
+def test_one_step_equals_the_serial_move_rule(seed):
+    rng = np.random.default_rng(seed)
+    pos = _distinct_cells(rng, N)
+    phase = rng.integers(0, 3, N).astype(np.int32)
+    owner = _owner_map(rng)
+    goals = _distinct_cells(rng, N)
+    dist = np.stack([ref.distance_field(goals[r], (owner < 0) | (owner == r)) for r in range(N)]).astype(np.int32)
+    step = rng.integers(-1, 2, (N, 2))
+    push_next = np.clip(pos + step, 0, np.asarray(SHAPE) - 1).astype(np.int32)
+    got_pos, got_moved = _move(*(jnp.asarray(a) for a in (pos, phase, dist, owner, push_next)))
+    want_pos, want_moved = ref.move_rovers(pos, phase, dist, owner, push_next)
+    np.testing.assert_array_equal(np.asarray(got_pos), want_pos)
+    np.testing.assert_array_equal(np.asarray(got_moved), want_moved)
+    after = np.asarray(got_pos)
+    assert len({tuple(p) for p in after.tolist()}) == N                    # never two in one cell
+    assert not ref.conflicts(np.stack([pos, after]), [])                   # nor a swap or a jump
+
+
+def _tasks(rng):
+    """M synthetic candidates: a random walk of C cells (some invalid; the first few the path), scores."""
+    h, w = SHAPE
+    core = np.zeros((M, C, 2), np.int32)
+    for c in range(M):
+        cell = np.asarray([rng.integers(0, h), rng.integers(0, w)])
+        for k in range(C):
+            core[c, k] = cell
+            cell = np.clip(cell + rng.integers(-1, 2, 2), 0, [h - 1, w - 1])
+    valid = np.arange(C)[None] < rng.integers(1, C + 1, M)[:, None]
+    on_path = np.arange(C)[None] < rng.integers(1, C + 1, M)[:, None]
+    predicted = np.round(rng.uniform(0.5, 20.0, M), 3).astype(np.float32)
+    steps = rng.integers(1, 10, M).astype(np.int32)
+    route = execute.Route(jnp.zeros((M, 1, 2), jnp.int32), jnp.ones(M, jnp.int32), jnp.zeros(M, bool),
+                          jnp.zeros((M, 2)))
+    zeros = jnp.zeros(M, jnp.int32)
+    return assign.Task(jnp.asarray(core[:, 0]), route, zeros, zeros, jnp.asarray(predicted), jnp.asarray(steps),
+                       jnp.asarray(core), jnp.asarray(valid), jnp.asarray(on_path))
+
+
+TARGET = np.zeros(SHAPE, bool)
+TARGET[3:6, 4:8] = True          # target cells: in a footprint only where its path runs
+
+
+def _footprint_set(task, c, clearance):
+    mask = np.asarray(footprint.mask_from_core(jnp.asarray(TARGET), task.core[c], task.core_valid[c],
+                                               task.on_path[c], clearance))
+    return {tuple(p) for p in np.argwhere(mask).tolist()}
+
+
+_greedy = jax.jit(assign.greedy_choice, static_argnums=7)
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2 ** 31 - 1), clearance=st.sampled_from(footprint.CLEARANCES))
+def test_greedy_choice_equals_the_serial_greedy(seed, clearance):
+    rng = np.random.default_rng(seed)
+    tasks = _tasks(rng)
+    pos = _distinct_cells(rng, N)
+    idle = rng.random(N) < 0.7
+    usable = rng.random(M) < 0.8
+    owner = np.where(rng.random() < 0.5, _owner_map(rng), -1).astype(np.int32)
+    budget = int(rng.integers(0, N + 1))
+    choice, new_owner, count = _greedy(jnp.asarray(pos), jnp.asarray(idle), jnp.asarray(owner), jnp.int32(budget),
+                                       jnp.asarray(usable), tasks, jnp.asarray(TARGET), clearance)
+    footprints = [_footprint_set(tasks, c, clearance) for c in range(M)]
+    reserved = {tuple(p) for p in np.argwhere(owner >= 0).tolist()}
+    want = ref.greedy_assign(idle, pos, np.asarray(tasks.source), np.asarray(tasks.steps),
+                             np.asarray(tasks.predicted), usable, footprints, reserved)[:budget]
+    choice = np.asarray(choice)
+    assert {(r, int(choice[r])) for r in range(N) if choice[r] >= 0} == set(want)
+    assert int(count) == len(want)
+    new_owner = np.asarray(new_owner)
+    for r, c in want:                                       # each chosen footprint reserved for its rover
+        assert all(new_owner[p] == r for p in footprints[c])
+    assert np.array_equal(new_owner[owner >= 0], owner[owner >= 0])
