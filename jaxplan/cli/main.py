@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from jaxplan.cli import pusharound, rover, sweep, teams, transport
+from jaxplan.cli import fleet, pusharound, rover, sweep, teams, transport
 from jaxplan.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CLIError, Parser, wrap
 from jaxplan.core.files import shown_path
 from jaxplan.transport.scenes import BUILTIN_SCENES
@@ -27,11 +27,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog="jaxplan", formatter_class=fmt,
         description=wrap("Plan how robots move bulk material and clear paths on a construction "
-                         "site: environment-first aggregate transport (fabric, demo, episode, rover, "
+                         "site: environment-first aggregate transport (fabric, demo, episode, fleet, rover, "
                          "sweep, scenes), PushAround path clearing (pusharound) and team organization "
                          "(teams), as jit-compiled JAX kernels."),
         epilog="examples:\n  jaxplan demo\n  jaxplan episode --scene corridor --out out/corridor\n"
                "  jaxplan fabric --scene corridor --out fabric.npz\n"
+               "  jaxplan fleet --scene site128 --rovers 8 --out out/fleet\n"
                "  jaxplan pusharound --seed 3 --out out/push3\n  jaxplan teams --out out/teams\n"
                "  jaxplan sweep sweep.toml --out sweep.csv\n"
                "  jaxplan scenes\n\nRun 'jaxplan COMMAND --help' for the options of a command.")
@@ -42,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="one malloc arena for all threads: less peak memory "
                              "(see jaxplan.limit_malloc_arenas)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for system in (transport, teams, rover, pusharound, sweep):
+    for system in (transport, fleet, teams, rover, pusharound, sweep):
         system.add_parsers(sub, fmt, scene_help)
     return parser
 

@@ -414,3 +414,47 @@ def _masses(scene, routes, world: rover_mod.World, roll: dict, owner, masks, spi
         _, push = execute.execute_jit(scene, _index(routes, i), spill, evaluator)
         pred_collected[i], pred_delivered[i] = float(push.collected), float(push.delivered)
     return sim, pred_collected, pred_delivered
+
+
+def first_round(run) -> list:
+    """The pushes of a fleet run's first round: those whose task started at the run's first assignment,
+    one per rover (dicts of ``FleetRun.pushes``, in rover order)."""
+    if not run.pushes:
+        return []
+    start = min(p["first_step"] for p in run.pushes)
+    return sorted((p for p in run.pushes if p["first_step"] == start), key=lambda p: p["rover"])
+
+
+def routes_of(scene, pushes) -> execute.Route:
+    """The ``execute.Route`` batch (leading axis = len(pushes)) of fleet push records: their cells, a
+    fallback end where the last cell lies outside the targets (the route then ends on the boundary)."""
+    slots = max(len(p["cells"]) for p in pushes)
+    target = np.asarray(scene.target_mask)
+    routes = []
+    for p in pushes:
+        cells = np.full((slots, 2), -1, np.int32)
+        cells[:len(p["cells"])] = np.asarray(p["cells"], np.int32)
+        last = cells[len(p["cells"]) - 1]
+        fallback = not bool(target[last[0], last[1]])
+        routes.append(execute.route_from_path(scene, jnp.asarray(cells), jnp.int32(len(p["cells"])),
+                                              jnp.bool_(fallback)))
+    return jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *routes)
+
+
+def check_first_round(run, spill: spillage.SpillParams, **kwargs) -> dict:
+    """Drive a fleet run's first round of concurrent pushes (``first_round``) in one MuJoCo world on the
+    run's initial counts, each rover starting on its route's start (the approach is not simulated).
+
+    Returns a JSON-ready dict: the fleet-level summary (contacts, fraction within tolerance, ...), one
+    row per push with its rover, and the pushes' grid-model delivered mass from the fleet run.
+    kwargs go to :func:`check_concurrent_pushes`.
+    """
+    pushes = first_round(run)
+    if not pushes:
+        return {"rovers": 0, "note": "the run made no push; nothing to check"}
+    check = check_concurrent_pushes(run.scene, routes_of(run.scene, pushes), spill=spill, **kwargs)
+    rows = [dict(row, rover=p["rover"], fleet_delivered=float(p["delivered"]))
+            for row, p in zip(check.rows(), pushes)]
+    return {**check.summary(), "first_step": pushes[0]["first_step"], "pushes": rows,
+            "note": ("each rover starts on its route's start; particles stand on the routes' non-target "
+                     "cells of the initial counts; predicted_delivered is the 2D model on the same route")}
