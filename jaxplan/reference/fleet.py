@@ -116,35 +116,46 @@ def conflicts(positions, reservations) -> list:
     Kinds: "same cell" (two rovers in one cell), "swap" (two rovers exchanged cells in one step),
     "footprint" (a rover in a cell another rover holds reserved), "overlap" (two rovers hold one cell
     reserved at once), "jump" (a rover moved more than one cell in one step).
+    The reserved cells are kept in one map, updated as reservations start and end, so the check costs
+    the reservations' cells plus N^2 per step.
     """
     positions = np.asarray(positions)
     t_end = positions.shape[0]
-    held: list[dict] = [dict() for _ in range(t_end)]
+    starting: dict[int, list] = {}
     for rover, first, last, cells in reservations:
-        for t in range(max(int(first), 0), min(int(last), t_end - 1) + 1):
-            for cell in cells:
-                held[t].setdefault((int(cell[0]), int(cell[1])), set()).add(int(rover))
+        if int(first) <= int(last):
+            starting.setdefault(max(int(first), 0), []).append(
+                (int(rover), int(last), [(int(c[0]), int(c[1])) for c in cells]))
+    ending: dict[int, list] = {}
+    held: dict[tuple, set] = {}
     found = []
     for t in range(t_end):
-        cells = [tuple(int(v) for v in p) for p in positions[t]]
-        for i in range(len(cells)):
-            for j in range(i + 1, len(cells)):
-                if cells[i] == cells[j]:
+        for rover, last, cells in starting.get(t, []):
+            for cell in cells:
+                owners = held.setdefault(cell, set())
+                if owners - {rover}:
+                    found.append((t, "overlap", tuple(sorted(owners | {rover}))))
+                owners.add(rover)
+            ending.setdefault(last, []).append((rover, cells))
+        now = [tuple(int(v) for v in p) for p in positions[t]]
+        for i in range(len(now)):
+            for j in range(i + 1, len(now)):
+                if now[i] == now[j]:
                     found.append((t, "same cell", (i, j)))
-        for i, cell in enumerate(cells):
-            others = held[t].get(cell, set()) - {i}
+            others = held.get(now[i], set()) - {i}
             if others:
                 found.append((t, "footprint", (i, min(others))))
-        for owners in held[t].values():
-            if len(owners) > 1:
-                found.append((t, "overlap", tuple(sorted(owners))))
-        if t == 0:
-            continue
-        before = [tuple(int(v) for v in p) for p in positions[t - 1]]
-        for i in range(len(cells)):
-            if max(abs(cells[i][0] - before[i][0]), abs(cells[i][1] - before[i][1])) > 1:
-                found.append((t, "jump", (i,)))
-            for j in range(i + 1, len(cells)):
-                if cells[i] != before[i] and cells[i] == before[j] and cells[j] == before[i]:
-                    found.append((t, "swap", (i, j)))
+        if t > 0:
+            before = [tuple(int(v) for v in p) for p in positions[t - 1]]
+            for i in range(len(now)):
+                if max(abs(now[i][0] - before[i][0]), abs(now[i][1] - before[i][1])) > 1:
+                    found.append((t, "jump", (i,)))
+                for j in range(i + 1, len(now)):
+                    if now[i] != before[i] and now[i] == before[j] and now[j] == before[i]:
+                        found.append((t, "swap", (i, j)))
+        for rover, cells in ending.pop(t, []):
+            for cell in cells:
+                held[cell].discard(rover)
+                if not held[cell]:
+                    del held[cell]
     return found

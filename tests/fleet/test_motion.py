@@ -125,3 +125,11 @@ def test_greedy_choice_equals_the_serial_greedy(seed, clearance):
     for r, c in want:                                       # each chosen footprint reserved for its rover
         assert all(new_owner[p] == r for p in footprints[c])
     assert np.array_equal(new_owner[owner >= 0], owner[owner >= 0])
+
+
+def test_the_checker_finds_every_kind_of_violation():
+    pos = np.array([[[0, 0], [5, 5]], [[1, 1], [5, 5]], [[2, 2], [4, 4]], [[4, 4], [2, 2]], [[3, 3], [3, 3]]])
+    found = ref.conflicts(pos, [(1, 1, 2, [(2, 2), (3, 3)]), (0, 2, 3, [(3, 3)])])
+    assert {(t, kind) for t, kind, _ in found} == {(2, "overlap"), (2, "footprint"), (3, "jump"), (3, "swap"),
+                                                   (4, "same cell")}
+    assert ref.conflicts(pos[:2], [(1, 0, 1, [(5, 5)])]) == []        # a rover in its own footprint is fine

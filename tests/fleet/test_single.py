@@ -26,7 +26,7 @@ def pair(request):
     scene = site(seed, SHAPE, layout)
     ep = EpisodeParams(max_pushes=pushes, stop_fraction=fraction, rebuild="full", rearrange_margin=0.0)
     return (run_episode(scene, PARAMS, SPILL, ep, record=True),
-            run_fleet(scene, 1, "independent", PARAMS, SPILL, ep, max_steps=2_000))
+            run_fleet(scene, 1, "independent", PARAMS, SPILL, ep, max_steps=2_000, record=True))
 
 
 def test_one_independent_rover_pushes_the_episodes_routes(pair):
@@ -50,3 +50,14 @@ def test_the_rover_drives_one_cell_a_step_and_stays_clear(pair):
     np.testing.assert_array_equal(fleet.delivered + fleet.outside, np.full(fleet.steps + 1, fleet.initial_mass))
     for push in fleet.pushes:    # the rover stands on the route's last cell when its push is applied
         assert tuple(fleet.pos[push["last_step"], 0]) == tuple(push["cells"][-1])
+
+
+def test_frames_follow_the_run(pair):
+    _, fleet = pair
+    assert len(fleet.frames) == fleet.steps + 1 and fleet.frames[0]["routes"] == [None]
+    shape = np.asarray(fleet.scene.obj).shape
+    assert all(f["obj"].shape == f["heat"].shape == f["highways"].shape == shape for f in fleet.frames)
+    for push in fleet.pushes:    # every frame of a task shows its route
+        for t in range(push["first_step"], push["last_step"] + 1):
+            np.testing.assert_array_equal(fleet.frames[t]["routes"][0], push["cells"])
+    np.testing.assert_array_equal(fleet.frames[-1]["obj"], np.asarray(fleet.final_scene.obj))
