@@ -1,0 +1,100 @@
+"""The fleet against one rover: T50 / T90, speed-up, delivered per rover-step, conflicts, planning time.
+
+For every site and fleet size N and strategy, ``run_fleet`` runs until the mass outside the targets is
+at most 2% of its start or ``--max-steps`` pass. Speed-up S(N) = T90(1) / T90(N) within a strategy
+(T90: the first step by which 90% of the mass that started outside the targets was delivered; "-"
+when not reached). Planning ms per event: the median wall time of the steps in which tasks were
+assigned (assignment, motion and any fabric refresh); beside it, the median time of one full fabric
+build of the site, measured in the same run. Writes ``experiments/results/fleet.{json,md}``.
+
+    python experiments/fleet.py                                   # site128, N = 1, 2, 4, 8
+    python experiments/fleet.py --sites site128 site256 --rovers 1 2 4 8 16 32 64
+    python experiments/fleet.py --quick                           # a 24x24 piles scene, N = 1, 2
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import jax
+
+from experiments._results import write_results
+from jaxplan import FabricParams, build_fabric, random_scene
+from jaxplan.fleet import STRATEGIES, run_fleet, site, summary_of
+from jaxplan.transport.episode import EpisodeParams
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+
+
+def _build_ms(scene, params, repeats: int = 5) -> float:
+    jax.block_until_ready(build_fabric(scene, params))
+    runs = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(build_fabric(scene, params))
+        runs.append(1e3 * (time.perf_counter() - start))
+    return statistics.median(runs)
+
+
+def _row(name, scene, n, strategy, params, episode, max_steps) -> dict:
+    start = time.perf_counter()
+    run = run_fleet(scene, n, strategy, params, episode=episode, max_steps=max_steps, progress=True)
+    wall = time.perf_counter() - start
+    s = summary_of(run)
+    return {"site": name, "rovers": n, "strategy": strategy, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
+            "pushes": s["pushes"], "delivered_per_rover_step": s["delivered_per_rover_step"],
+            "conflicts": s["conflicts"], "plan_ms_median": s["plan_ms_median"], "plan_events": s["plan_events"],
+            "idle_fraction_mean": statistics.fmean(s["idle_fraction"]), "stop_reason": s["stop_reason"],
+            "wall_s": round(wall, 2)}
+
+
+def _markdown(rows, builds, meta) -> str:
+    t90_one = {(r["site"], r["strategy"]): r["T90"] for r in rows if r["rovers"] == 1}
+    lines = [f"# Fleet: T90, speed-up and planning time\n\n{meta}\n",
+             "| site | strategy | N | T50 | T90 | S(N) | delivered / rover-step | idle (mean) | conflicts | "
+             "plan ms / event | full build ms | stop |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for r in rows:
+        one = t90_one.get((r["site"], r["strategy"]))
+        speed = f"{one / r['T90']:.2f}" if one and r["T90"] else "-"
+        plan = "-" if r["plan_ms_median"] is None else f"{r['plan_ms_median']:.1f}"
+        lines.append(f"| {r['site']} | {r['strategy']} | {r['rovers']} | {r['T50'] or '-'} | {r['T90'] or '-'} | "
+                     f"{speed} | {r['delivered_per_rover_step']:.3f} | {r['idle_fraction_mean']:.0%} | "
+                     f"{r['conflicts']} | {plan} | {builds[r['site']]:.2f} | {r['stop_reason']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="examples:\n  python experiments/fleet.py\n"
+                                            "  python experiments/fleet.py --sites site128 --rovers 1 2 4 8 "
+                                            "--strategies coordinated\n  python experiments/fleet.py --quick")
+    parser.add_argument("--sites", nargs="+", default=["site128"], help="built-in fleet sites; default site128")
+    parser.add_argument("--rovers", nargs="+", type=int, default=[1, 2, 4, 8], help="fleet sizes; default 1 2 4 8")
+    parser.add_argument("--strategies", nargs="+", default=list(STRATEGIES), choices=STRATEGIES)
+    parser.add_argument("--max-steps", type=int, default=20_000, help="step limit per run; default 20000")
+    parser.add_argument("--quick", action="store_true", help="a 24x24 piles scene, N = 1 and 2 (a smoke test)")
+    parser.add_argument("--name", default="fleet", help="results file stem; default fleet")
+    args = parser.parse_args(argv)
+    if args.quick:
+        scenes = {"piles24": random_scene(0, (24, 24), layout="piles")}
+        args.rovers, args.max_steps = [1, 2], 2000
+    else:
+        scenes = {name: site(name) for name in args.sites}
+    params, episode = FabricParams(), EpisodeParams(max_pushes=1_000_000)
+    builds = {name: _build_ms(scene, params) for name, scene in scenes.items()}
+    rows = [_row(name, scene, n, strategy, params, episode, args.max_steps)
+            for name, scene in scenes.items() for strategy in args.strategies for n in args.rovers]
+    meta = (f"{_dt.datetime.now(_dt.UTC).isoformat(timespec='seconds')}, {platform.platform()}, "
+            f"jax {jax.__version__} ({jax.default_backend()}), {platform.processor() or platform.machine()}; "
+            f"stop at 2% of the mass outside the targets or {args.max_steps} steps.")
+    write_results(RESULTS_DIR, args.name, {"meta": meta, "full_build_ms": builds, "rows": rows},
+                  _markdown(rows, builds, meta))
+
+
+if __name__ == "__main__":
+    main()
