@@ -50,6 +50,7 @@ from jaxplan.transport.episode import (
     RUNNING,
     EpisodeParams,
     default_walk_cap,
+    outside_mass,
     require_hard,
 )
 from jaxplan.transport.fabric import Fabric, build_fabric
@@ -225,10 +226,6 @@ def _i32(x):
     return jnp.asarray(x, jnp.int32)
 
 
-def _outside(scene):
-    return jnp.sum(jnp.where(scene.target_mask, 0.0, scene.obj))
-
-
 def _check_static(params: FabricParams, ep: EpisodeParams, config: FleetConfig, where: str) -> None:
     require_hard(params, where)
     config.validate()
@@ -276,7 +273,7 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
     s = route_slots(cfg, shape)
     route = execute.Route(jnp.full((n, s, 2), -1, jnp.int32), jnp.ones(n, jnp.int32), jnp.zeros(n, bool),
                           jnp.zeros((n, 2), jnp.float32))
-    outside = _f32(_outside(scene))
+    outside = _f32(outside_mass(scene))
     stop_at = _f32(_f32(ep.stop_fraction) * outside)
     budget = _i32(ep.max_pushes if max_pushes is None else max_pushes)
     stop = _i32(jnp.select([outside <= 0, outside <= stop_at, budget <= 0], [NO_MATERIAL, DONE, BUDGET],
@@ -409,7 +406,7 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     fabric = jax.lax.cond(jnp.any(ended), lambda s: build_fabric(s, params), lambda s: state.fabric, scene)
     # 5. totals and stop
     t = step_no
-    outside = _f32(_outside(scene))
+    outside = _f32(outside_mass(scene))
     total_delivered = state.delivered + jnp.sum(delivered)
     started = state.started + jnp.sum(assigned) - jnp.sum(dropped)
     has_task = jnp.any(phase != IDLE)

@@ -429,7 +429,7 @@ def _i32(x):
     return jnp.asarray(x, jnp.int32)
 
 
-def _outside(scene):
+def outside_mass(scene):
     """f32[]: objects outside the target (exact: counts are multiples of QUANTUM)."""
     return jnp.sum(jnp.where(scene.target_mask, 0.0, scene.obj))
 
@@ -465,7 +465,7 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
     centres = scene.cell_centers()
     rover = jnp.sum(jnp.where(target[..., None], centres, 0.0), (0, 1)) / jnp.maximum(jnp.sum(target), 1)
     initial_mass = _f32(jnp.sum(scene.obj))
-    initial_remaining = _f32(_outside(scene))
+    initial_remaining = _f32(outside_mass(scene))
     stop_at = _f32(_f32(ep.stop_fraction) * initial_remaining)
     tick = _i32(0)
     stop = _stop_code(initial_remaining, initial_remaining, stop_at, tick, ep.max_pushes)
@@ -478,7 +478,7 @@ def _advance(state: EpisodeState, plan: Plan, push: execute.Push, new_obj, go, e
     """``(state, record)`` after pushing ``plan`` (``push``, ``new_obj``: ``execute``'s output) when
     ``go``; otherwise ``state`` unchanged and an invalid record. The fabric is left as it was."""
     scene = state.scene.with_obj(new_obj)
-    remaining = _f32(_outside(scene))
+    remaining = _f32(outside_mass(scene))
     approach = jnp.linalg.norm(scene.cell_centers()[plan.source[0], plan.source[1]] - state.rovers[0])
     tick = state.tick + 1
     delivered = state.delivered + push.delivered
