@@ -36,18 +36,23 @@ import numpy as np
 from jaxplan.core import lattice
 from jaxplan.fleet import footprint
 from jaxplan.transport import execute, spillage
+from jaxplan.transport.connectors import slot_anchors
 from jaxplan.transport.episode import (
     CLEARED,
     NO_ROUTE,
     RUNNING,
     WALK_CAP,
+    anchor_connector,
     choose_source,
     plan_code,
     plan_for_source,
+    plan_with_connector,
+    source_anchor,
 )
 
-__all__ = ["BLOCKED", "Task", "assign_each", "assign_greedy", "failure_rank", "footprint_free", "greedy_choice",
-           "plan_task", "reserve", "rover_maps", "sector_grid", "sector_starts", "sectors", "spread_starts"]
+__all__ = ["BLOCKED", "Candidates", "Task", "assign_each", "assign_greedy", "assign_planned", "failure_rank",
+           "footprint_free", "greedy_choice", "plan_candidates", "plan_task", "reserve", "rover_maps", "sector_grid",
+           "sector_starts", "sectors", "spread_starts"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
@@ -77,10 +82,15 @@ class Task(NamedTuple):
     on_path: jax.Array
 
 
-def plan_task(scene, params, ep, spill, fabric, source, has_source, cap: int, evaluator, clearance: int) -> Task:
+def plan_task(scene, params, ep, spill, fabric, source, has_source, cap: int, evaluator, clearance: int,
+              connector=None) -> Task:
     """The ``Task`` of pushing from ``source: i32[2]`` (``has_source``: it is a candidate at all);
-    cap, evaluator, clearance: static."""
-    plan = plan_for_source(scene, params, ep, spill, fabric, source, cap, evaluator)
+    cap, evaluator, clearance: static. connector: optional ``(anchor i32[], Table)``, the source's
+    anchor and its connector table when already computed (``plan_candidates``)."""
+    if connector is None:
+        plan = plan_for_source(scene, params, ep, spill, fabric, source, cap, evaluator)
+    else:
+        plan = plan_with_connector(scene, params, ep, spill, fabric, source, *connector, cap, evaluator)
     plan = plan._replace(has_source=has_source & plan.has_source)
     route = plan.route
     points, n_points = execute.waypoints(scene, route)
@@ -165,6 +175,46 @@ def _source_score(scene, fabric, rule: str):
     return fabric.value if rule == "max_value" else -scene.dist
 
 
+class Candidates(NamedTuple):
+    """The coordinated strategy's planned candidates (M of them), valid while the fabric and the
+    reserved footprints they were planned on stay the same.
+
+    tasks: Task[M]; exists: bool[M] the slot holds an occupied source; usable: bool[M] it holds a
+    pushable task.
+    """
+
+    tasks: Task
+    exists: jax.Array
+    usable: jax.Array
+
+
+def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int, cap: int, evaluator,
+                    clearance: int) -> Candidates:
+    """The top ``M = candidates`` sources by the source rule's score among the occupied cells outside
+    every footprint (``owner: i32[H, W]``, -1 free), each planned as a ``Task``.
+
+    Sources that share a highway anchor share its connector DP: the distinct anchors are listed
+    (at most M) and their tables computed one after another, skipping empty slots, so the cost
+    grows with the number of distinct anchors, not with M.
+    """
+    h, w = scene.shape
+    m = min(int(candidates), h * w)
+    score_src = _source_score(scene, fabric, ep.source_rule)
+    vals = jnp.where(fabric.occupied & (owner < 0), score_src, -jnp.inf).reshape(-1)
+    top, idx = jax.lax.top_k(vals, m)
+    exists = top > -jnp.inf
+    sources = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
+    anchors = jax.vmap(lambda s: source_anchor(scene, params, fabric, s))(sources)
+    anchors = jnp.where(exists, anchors, -1)
+    distinct = slot_anchors(anchors, m)
+    tables = jax.lax.map(lambda a: anchor_connector(scene, params, fabric, a), distinct)
+    slot = jnp.argmax(distinct[None] == anchors[:, None], -1)
+    tasks = jax.vmap(lambda s, e, a, k: plan_task(
+        scene, params, ep, spill, fabric, s, e, cap, evaluator, clearance,
+        connector=(a, jax.tree.map(lambda t: t[k], tables))))(sources, exists, anchors, slot)
+    return Candidates(tasks, exists, exists & (tasks.code == RUNNING))
+
+
 def assign_greedy(scene, params, ep, spill, fabric, pos, idle, owner, budget, routes, *, candidates: int,
                   cap: int, evaluator, clearance: int):
     """The coordinated strategy (module docstring): ``(route, mode i32[N], assigned bool[N], owner, failure)``.
@@ -175,21 +225,21 @@ def assign_greedy(scene, params, ep, spill, fabric, pos, idle, owner, budget, ro
     where assigned[r]; failure: i32[] the episode's code saying why nothing could be assigned
     (``RUNNING`` when something was).
     """
-    h, w = scene.shape
-    m = min(int(candidates), h * w)
-    score_src = _source_score(scene, fabric, ep.source_rule)
-    vals = jnp.where(fabric.occupied & (owner < 0), score_src, -jnp.inf).reshape(-1)
-    top, idx = jax.lax.top_k(vals, m)
-    exists = top > -jnp.inf
-    sources = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
-    tasks = jax.vmap(lambda s, e: plan_task(scene, params, ep, spill, fabric, s, e, cap, evaluator,
-                                                clearance))(sources, exists)
-    usable = exists & (tasks.code == RUNNING)
-    choice, owner, count = greedy_choice(pos, idle, owner, budget, usable, tasks, scene.target_mask, clearance)
+    planned = plan_candidates(scene, params, ep, spill, fabric, owner, candidates=candidates, cap=cap,
+                              evaluator=evaluator, clearance=clearance)
+    return assign_planned(planned, scene.target_mask, pos, idle, owner, budget, routes, clearance)
+
+
+def assign_planned(planned: Candidates, target_mask, pos, idle, owner, budget, routes, clearance: int):
+    """``assign_greedy`` on candidates already planned (``plan_candidates`` on this fabric and this
+    ``owner``); the same results."""
+    tasks = planned.tasks
+    choice, owner, count = greedy_choice(pos, idle, owner, budget, planned.usable, tasks, target_mask, clearance)
     assigned = choice >= 0
     mine = jax.tree.map(lambda a: a[jnp.maximum(choice, 0)], (tasks.route, tasks.mode))
     route, mode = _keep_rows(assigned, mine, (routes, jnp.zeros(pos.shape[0], jnp.int32)))
-    failure = jnp.select([count > 0, ~jnp.any(exists), ~jnp.any(usable)], [RUNNING, CLEARED, tasks.code[0]], BLOCKED)
+    failure = jnp.select([count > 0, ~jnp.any(planned.exists), ~jnp.any(planned.usable)],
+                         [RUNNING, CLEARED, tasks.code[0]], BLOCKED)
     return route, mode, assigned, owner, failure.astype(jnp.int32)
 
 

@@ -147,6 +147,10 @@ class FleetState(NamedTuple):
     dist: i32[N, H, W] approach distance fields (``motion.FAR``: cannot reach).
     region: i32[H, W] partitioned sectors (-1 everywhere for the other strategies).
     replan: bool[] the ownership map changed since the fields were computed.
+    candidates: ``assign.Candidates`` (M slots for ``coordinated``, none otherwise), the tasks the
+      last coordinated assignment planned; fresh: bool[] they were planned on this fabric and this
+      ownership map (no push ended, no task started or was dropped since), so the next assignment
+      reuses them instead of planning again: the same tasks, at the cost of the greedy rounds only.
     pushes: i32[N] pushes applied per rover. started: i32[] tasks started and not dropped.
     idle_steps: i32[N] steps each rover had no task.
     t: i32[] steps done. stall: i32[] consecutive steps without a move or push. max_steps: i32[] the
@@ -169,6 +173,8 @@ class FleetState(NamedTuple):
     dist: jax.Array
     region: jax.Array
     replan: jax.Array
+    candidates: assign.Candidates
+    fresh: jax.Array
     pushes: jax.Array
     started: jax.Array
     idle_steps: jax.Array
@@ -249,13 +255,14 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
     starts: i32[N, 2] distinct cells outside the targets (default: ``assign.spread_starts``, or
     ``assign.sector_starts`` for ``partitioned``, so rover i starts in sector i); not checked here
     (``run_fleet`` does). max_steps: step limit (default 100,000). max_pushes: the push budget
-    (default ``episode.max_pushes``; an argument so a traced one needs no recompile). spill is not read.
+    (default ``episode.max_pushes``; an argument so a traced one needs no recompile). Only spill's
+    static sizes are read (they shape the candidate cache): pass the spill ``step`` will get.
     """
     params = FabricParams() if params is None else params
     ep = EpisodeParams() if episode is None else episode
     config = FleetConfig(1, "independent") if config is None else config
     _check_static(params, ep, config, "reset")
-    del spill
+    spill = spillage.SpillParams() if spill is None else spill
     shape = scene.shape
     cfg = config.resolved(shape)
     n = cfg.n_rovers
@@ -280,10 +287,22 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
                            RUNNING))
     zeros_n = jnp.zeros(n, jnp.int32)
     limit = DEFAULT_MAX_STEPS if max_steps is None else max_steps
+    candidates = _no_candidates(scene, params, ep, spill, fabric, cfg)
     return FleetState(scene, fabric, pos, pos, zeros_n, route, zeros_n, zeros_n, zeros_n,
                       jnp.full(shape, -1, jnp.int32), jnp.full((n,) + shape, FAR, jnp.int32), region,
-                      jnp.bool_(False), zeros_n, _i32(0), zeros_n, _i32(0), _i32(0), _i32(limit), budget, _f32(0.0),
+                      jnp.bool_(False), candidates, jnp.bool_(False), zeros_n, _i32(0), zeros_n,
+                      _i32(0), _i32(0), _i32(limit), budget, _f32(0.0),
                       _f32(0.0), outside, _f32(jnp.sum(scene.obj)), outside, stop_at, stop != RUNNING, stop)
+
+
+def _no_candidates(scene, params, ep, spill, fabric, cfg: FleetConfig) -> assign.Candidates:
+    """Zeros shaped like ``assign.plan_candidates``'s result: M slots for the coordinated strategy,
+    none for the others (which do not cache)."""
+    m = min(cfg.candidates, scene.shape[0] * scene.shape[1]) if cfg.strategy == "coordinated" else 0
+    shapes = jax.eval_shape(lambda: assign.plan_candidates(
+        scene, params, ep, spill, fabric, jnp.full(scene.shape, -1, jnp.int32), candidates=1, cap=cfg.walk_cap,
+        evaluator=spillage.curvature_spill, clearance=cfg.clearance))
+    return jax.tree.map(lambda a: jnp.zeros((m,) + a.shape[1:], a.dtype), shapes)
 
 
 def _idle_record(state: FleetState) -> FleetRecord:
@@ -300,21 +319,27 @@ def _select_rows(mask, new, old):
 
 
 def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
-    """Step 1: ``(route, mode, assigned bool[N], owner, failure)`` (``assign.assign_greedy``); nothing
-    runs when no rover is idle or the budget is spent."""
+    """Step 1: ``(route, mode, assigned bool[N], owner, failure, candidates, fresh)``
+    (``assign.assign_greedy``, on the cached candidates while they are fresh); nothing runs when no
+    rover is idle or the budget is spent."""
     idle = state.phase == IDLE
     budget = state.max_pushes - state.started
-    args = (state.scene, params, ep, spill, state.fabric, state.pos, idle, state.owner, budget, state.route)
+    scene = state.scene
 
     def run(_):
         if cfg.strategy == "coordinated":
-            return assign.assign_greedy(*args, candidates=cfg.candidates, cap=cfg.walk_cap, evaluator=evaluator,
-                                        clearance=cfg.clearance)
-        return assign.assign_each(*args, state.region, retries=cfg.retries, cap=cfg.walk_cap, evaluator=evaluator,
-                                  clearance=cfg.clearance)
+            planned = jax.lax.cond(state.fresh, lambda _: state.candidates, lambda _: assign.plan_candidates(
+                scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
+                evaluator=evaluator, clearance=cfg.clearance), None)
+            return assign.assign_planned(planned, scene.target_mask, state.pos, idle, state.owner, budget,
+                                         state.route, cfg.clearance) + (planned, jnp.bool_(True))
+        return assign.assign_each(scene, params, ep, spill, state.fabric, state.pos, idle, state.owner, budget,
+                                  state.route, state.region, retries=cfg.retries, cap=cfg.walk_cap,
+                                  evaluator=evaluator, clearance=cfg.clearance) + (state.candidates, state.fresh)
 
     def skip(_):
-        return state.route, state.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING)
+        return (state.route, state.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING), state.candidates,
+                state.fresh)
 
     return jax.lax.cond(jnp.any(idle) & (budget > 0), run, skip, None)
 
@@ -373,7 +398,8 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     n = state.pos.shape[0]
     step_no = state.t + 1
     # 1. assign
-    new_route, new_mode, assigned, owner, failure = _assign(state, params, spill, ep, cfg, evaluator)
+    new_route, new_mode, assigned, owner, failure, candidates, fresh = _assign(state, params, spill, ep, cfg,
+                                                                               evaluator)
     route = _select_rows(assigned, new_route, state.route)
     at_start = jnp.all(state.pos == route.cells[:, 0], -1)
     phase = jnp.where(assigned, jnp.where(at_start, PUSH, APPROACH), state.phase)
@@ -421,8 +447,9 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
          t >= state.max_steps],
         [DONE, BUDGET, failure, jnp.where(has_task, DEADLOCK, NO_REACHABLE), MAX_STEPS], RUNNING))
     replan = jnp.any(ended) | jnp.any(dropped) | jnp.any(parked_now & ~_parked(state.pos, state.home, phase))
+    fresh = fresh & ~(jnp.any(assigned) | jnp.any(dropped) | jnp.any(ended))
     new = FleetState(scene, fabric, pos, state.home, phase, route, mode, task_step, progress, owner, dist,
-                     state.region, replan, state.pushes + ended, started,
+                     state.region, replan, candidates, fresh, state.pushes + ended, started,
                      state.idle_steps + idle_now, t, _i32(stall), state.max_steps, state.max_pushes, total_delivered,
                      state.spilled + jnp.sum(spilled), outside, state.initial_mass, state.initial_outside,
                      state.stop_at, stop != RUNNING, stop)

@@ -210,6 +210,39 @@ def plan_for_source(scene, params: FabricParams, ep: EpisodeParams, spill: spill
     """The mode and the route of one push from a given ``source: i32[2]`` (steps 2-4 of the module
     docstring). ``Plan.has_source`` says whether the source is an occupied cell. max_steps,
     evaluator: static, as in ``plan_tick``. Pure and jittable; ``vmap`` it over sources."""
+    source = jnp.asarray(source, jnp.int32)
+    anchor = source_anchor(scene, params, fabric, source)
+    return plan_with_connector(scene, params, ep, spill, fabric, source, anchor,
+                               anchor_connector(scene, params, fabric, anchor), max_steps, evaluator)
+
+
+def source_anchor(scene, params: FabricParams, fabric: Fabric, source):
+    """i32[]: flat index of the highway anchor h* of ``source: i32[2]`` (Eq. 12; -1 none)."""
+    centers = lattice.cell_centers(scene.shape, scene.cell_size, scene.origin)
+    return connectors.anchor_for(fabric.heat, fabric.highways, fabric.occupied, centers, params.anchor_lambda,
+                                 jnp.asarray(source, jnp.int32))
+
+
+def anchor_connector(scene, params: FabricParams, fabric: Fabric, anchor) -> Table:
+    """The K=1 connector table toward ``anchor`` (flat index); a one-entry empty table when it is -1,
+    without running the DP (under ``vmap`` both run: batch by distinct anchor instead)."""
+    h, w = scene.shape
+
+    def no_connector(_):
+        shape = (h, w, 1)
+        return Table(jnp.full(shape, -jnp.inf), jnp.full(shape, jnp.inf), jnp.full(shape, -1, jnp.int32),
+                     jnp.full(shape, -1, jnp.int32))
+
+    return jax.lax.cond(anchor >= 0, lambda _: connectors.connector_table(scene, fabric, params,
+                                                                         jnp.maximum(anchor, 0)),
+                        no_connector, None)
+
+
+def plan_with_connector(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.SpillParams,
+                        fabric: Fabric, source, anchor, ctable: Table, max_steps: int,
+                        evaluator: spillage.Evaluator = spillage.curvature_spill) -> Plan:
+    """``plan_for_source`` with the source's anchor (``source_anchor``) and its connector table
+    (``anchor_connector``) given, so that sources sharing an anchor share one connector DP."""
     h, w = scene.shape
     source = jnp.asarray(source, jnp.int32)
     has_source = fabric.occupied[source[0], source[1]]
@@ -217,19 +250,8 @@ def plan_for_source(scene, params: FabricParams, ep: EpisodeParams, spill: spill
                                   max_steps=max_steps, evaluator=evaluator)
     entry = sel.entry[0]
     direct = walk_table(fabric.table, source, entry, max_steps)
-
-    centers = lattice.cell_centers((h, w), scene.cell_size, scene.origin)
-    anchor = connectors.anchor_for(fabric.heat, fabric.highways, fabric.occupied, centers,
-                                   params.anchor_lambda, source)
     safe_anchor = jnp.maximum(anchor, 0)
     anchor_rc = jnp.stack([safe_anchor // w, safe_anchor % w]).astype(jnp.int32)
-    def no_connector(_):   # a source without an anchor: skip the connector DP
-        shape = (h, w, 1)
-        return Table(jnp.full(shape, -jnp.inf), jnp.full(shape, jnp.inf), jnp.full(shape, -1, jnp.int32),
-                     jnp.full(shape, -1, jnp.int32))
-
-    ctable = jax.lax.cond(anchor >= 0, lambda _: connectors.connector_table(scene, fabric, params, safe_anchor),
-                          no_connector, None)
     conn = walk_table(ctable, source, jnp.int32(0), max_steps)
     anchor_entry = fabric.selected[anchor_rc[0], anchor_rc[1]]
     tail = walk_table(fabric.table, anchor_rc, anchor_entry, max_steps)

@@ -66,7 +66,7 @@ def traced_run():
         states.append(state)
         records.append(rec)
     after, idle = jitted(state, PARAMS, SPILL, ep, config=config)
-    return dict(config=config, ep=ep, states=states, records=records, after=after, idle=idle)
+    return dict(config=config, ep=ep, states=states, records=records, after=after, idle=idle, jitted=jitted)
 
 
 def test_step_traces_once_and_a_done_state_stays_as_it_is(traced_run):
@@ -106,3 +106,21 @@ def test_rollout_scans_the_same_steps(traced_run):
     assert not np.any(np.asarray(scanned.valid)[len(records):])
     np.testing.assert_array_equal(np.asarray(final.pos), np.asarray(states[-1].pos))
     np.testing.assert_allclose(np.asarray(final.scene.obj), np.asarray(states[-1].scene.obj), atol=1e-6)
+
+
+def test_cached_candidates_change_nothing(traced_run):
+    """A longer run on the same compiled step, once reusing fresh candidates and once planning at
+    every assignment: the same positions, counts and reservations at every step."""
+    jitted, config, ep = traced_run["jitted"], traced_run["config"], traced_run["ep"]
+    cached = planned = reset(site(3, SITES[2], "two_targets"), PARAMS, SPILL, ep, config, max_steps=400,
+                             max_pushes=40)
+    reused = 0
+    while not bool(cached.done):
+        idle = np.any(np.asarray(cached.phase) == IDLE) and int(cached.started) < int(cached.max_pushes)
+        reused += int(idle and bool(cached.fresh))
+        cached, _ = jitted(cached, PARAMS, SPILL, ep, config=config)
+        planned, _ = jitted(planned._replace(fresh=np.bool_(False)), PARAMS, SPILL, ep, config=config)
+        for name in ("pos", "phase", "owner", "route", "pushes", "stop"):
+            chex.assert_trees_all_equal(getattr(cached, name), getattr(planned, name))
+        np.testing.assert_array_equal(np.asarray(cached.scene.obj), np.asarray(planned.scene.obj))
+    assert reused > 0
