@@ -6,6 +6,21 @@
   cell to 1 + its smallest neighbour; it stops when a round changes nothing, after at most the
   longest shortest path + 1 rounds). ``FAR`` marks cells that cannot reach c_0. ``distance_fields``
   vmaps it over rovers.
+- **Early stop** (``distance_field_to``): with unit steps, after k rounds every cell at distance
+  <= k holds its exact distance and every other cell holds ``FAR``. A rover only ever moves to a
+  neighbour whose value is strictly smaller than its own cell's, so its field only has to be *exact*
+  (equal to ``distance_field``) on the cells at distance <= d* = the distance of the rover's own
+  cell: the relaxation stops after round d*, as soon as the rover's cell is reached. Every cell
+  at distance <= d* is then exact and every other cell is ``FAR``; in such a field any walk through
+  strictly smaller neighbours from a cell of value v reaches c_0 in exactly v steps (a smaller
+  neighbour is exact, so it is at v - 1). When the rover's cell cannot reach c_0 no round reaches
+  it: the loop runs until nothing changes and the field equals ``distance_field`` (``FAR`` at the
+  rover's cell). It costs d* + 1 rounds instead of the longest shortest path + 1, each round on a
+  padded flat layout (``lattice.pad_flat``) with the 3 x 3 minimum taken as a column minimum, then a
+  row minimum of that: four slices, no per-direction pad.
+- **Field update** (``update_fields``): only the stale rovers' fields are recomputed (early stop, at
+  their own cells), ``chunk`` rovers at a time (vmapped; a chunk runs until its last rover is
+  done), so the cost grows with the number of stale rovers and is nothing when none is stale.
 - **One step** (``move_rovers``): rovers move one after another, lowest index first (priority). A
   rover that is not pushing (approaching its task's start, or idle and driving back to its home
   cell) moves to the neighbour with the smallest distance in its field that is strictly smaller than
@@ -25,7 +40,8 @@ import jax.numpy as jnp
 
 from jaxplan.core import lattice
 
-__all__ = ["APPROACH", "FAR", "IDLE", "PUSH", "distance_field", "distance_fields", "move_rovers"]
+__all__ = ["APPROACH", "FAR", "IDLE", "PUSH", "distance_field", "distance_field_to", "distance_fields", "move_rovers",
+           "update_fields"]
 
 FAR = 2 ** 30
 """Distance of a cell that cannot reach the goal (an int32 that one more step does not overflow)."""
@@ -54,6 +70,77 @@ def distance_field(goal, passable):
 
 distance_fields = jax.vmap(distance_field)
 """i32[N, H, W]: ``distance_field`` for ``goals: i32[N, 2]`` and ``passable: bool[N, H, W]``."""
+
+
+def _relax_flat(d, open_rows, width):
+    """One relaxation round on ``lattice.pad_flat``'s layout: ``(d, changed)``.
+
+    d: i32[(H + 2) * (W + 2)] distances, ``FAR`` on the border; open_rows: bool[H * (W + 2) - 2]
+    passable cells in the rows layout (``lattice.padded_rows``; False on its border positions, which
+    so stay ``FAR``); width: W. The 3 x 3 minimum is separable: a column minimum over the rows above
+    and below, then a row minimum of that (a cell's own value is in it: min(d, d + 1) = d).
+    """
+    stride = width + 2
+    n = d.shape[0]
+    column = jnp.minimum(jnp.minimum(d[:n - 2 * stride], d[stride:n - stride]), d[2 * stride:])
+    block = jnp.minimum(jnp.minimum(column[:-2], column[1:-1]), column[2:])
+    old = d[stride + 1:n - stride - 1]
+    new = jnp.where(open_rows, jnp.minimum(old, block + 1), FAR)        # FAR + 1 still fits an int32
+    return jnp.concatenate([d[:stride + 1], new, d[n - stride - 1:]]), jnp.any(new != old)
+
+
+def distance_field_to(goal, passable, stop_at):
+    """i32[H, W]: ``distance_field`` stopped once the cell ``stop_at: i32[2]`` is reached (module
+    docstring, "Early stop").
+
+    goal: i32[2] (row, col); passable: bool[H, W]; stop_at: i32[2], a cell of the grid. With d* the
+    distance of ``stop_at``: every cell at distance <= d* holds its exact distance (as
+    ``distance_field``), every other cell holds ``FAR``. When ``stop_at`` cannot reach the goal (or
+    the goal is not passable) the result equals ``distance_field``. Costs d* + 1 rounds.
+    """
+    h, w = passable.shape
+    stride = w + 2
+    open_rows = lattice.pad_flat(passable, False)[stride + 1:(h + 1) * stride - 1]
+    goal_open = passable[goal[0], goal[1]]
+    start = jnp.full((h + 2) * stride, FAR, jnp.int32).at[(goal[0] + 1) * stride + goal[1] + 1].set(
+        jnp.where(goal_open, 0, FAR))
+    stop = (stop_at[0] + 1) * stride + stop_at[1] + 1
+
+    def going(carry):
+        d, changed = carry
+        return changed & (d[stop] >= FAR)
+
+    # An impassable goal leaves everything FAR: no round at all.
+    d, _ = jax.lax.while_loop(going, lambda carry: _relax_flat(carry[0], open_rows, w), (start, goal_open))
+    return d.reshape(h + 2, stride)[1:-1, 1:-1]
+
+
+def update_fields(dist, goals, passable, pos, stale, *, chunk=8):
+    """i32[N, H, W]: the stale rovers' fields recomputed (``distance_field_to`` toward their goals,
+    stopped at their own cells), every other row of ``dist`` unchanged.
+
+    dist: i32[N, H, W] the current fields; goals: i32[N, 2]; passable: bool[N, H, W] (read only for
+    stale rovers); pos: i32[N, 2] rover cells; stale: bool[N]; chunk: rovers per batch (static).
+    The stale rovers are gathered in index order and run ``chunk`` at a time in a ``lax.while_loop``
+    over ceil(#stale / chunk) chunks, each chunk vmapped (it runs as many rounds as its slowest rover
+    needs; a finished rover's field is held), so nothing runs when no rover is stale.
+    """
+    n = stale.shape[0]
+    chunk = max(1, min(chunk, n))
+    rows = jnp.nonzero(stale, size=-(-n // chunk) * chunk, fill_value=n)[0].astype(jnp.int32).reshape(-1, chunk)
+    chunks = (jnp.sum(stale, dtype=jnp.int32) + chunk - 1) // chunk
+    fields_to = jax.vmap(distance_field_to)
+
+    def one_chunk(carry):
+        k, dist = carry
+        rover = rows[k]
+        real = rover < n                      # the last chunk is filled up with index n
+        take = jnp.where(real, rover, 0)
+        # A filler lane gets no passable cell, so it runs no round; its row n is dropped.
+        fields = fields_to(goals[take], passable[take] & real[:, None, None], pos[take])
+        return k + 1, dist.at[rover].set(fields, mode="drop")
+
+    return jax.lax.while_loop(lambda carry: carry[0] < chunks, one_chunk, (jnp.int32(0), dist))[1]
 
 
 def move_rovers(pos, phase, dist, owner, push_next):

@@ -2,6 +2,7 @@
 at a time, written from docs/fleet.md.
 
 - ``distance_field``: breadth-first search from the goal (a queue), 8-connected.
+- ``distance_field_to``: the same search, left once the stop cell's layer is labelled.
 - ``move_rovers``: the prioritised one-step move rule.
 - ``greedy_assign``: the coordinated strategy's greedy choice over (idle rover, candidate) pairs.
 - ``conflicts``: the invariant checker over recorded positions and reservations (no shared cell, no
@@ -31,6 +32,34 @@ def distance_field(goal, passable) -> np.ndarray:
     queue = deque([g])
     while queue:
         r, c = queue.popleft()
+        for dr, dc in DIRS:
+            q = (r + dr, c + dc)
+            if 0 <= q[0] < h and 0 <= q[1] < w and passable[q] and d[q] == FAR:
+                d[q] = d[r, c] + 1
+                queue.append(q)
+    return d
+
+
+def distance_field_to(goal, passable, stop_at) -> np.ndarray:
+    """i64[H, W]: ``distance_field`` with every cell farther from ``goal`` than ``stop_at`` set to FAR
+    (unchanged where ``stop_at`` cannot reach the goal).
+
+    The queue holds cells in order of distance, so the first cell popped at the stop cell's distance
+    d* means every cell at d* is labelled: the search ends there, before labelling d* + 1.
+    """
+    passable = np.asarray(passable, bool)
+    h, w = passable.shape
+    d = np.full((h, w), FAR, np.int64)
+    g = (int(goal[0]), int(goal[1]))
+    stop = (int(stop_at[0]), int(stop_at[1]))
+    if not passable[g]:
+        return d
+    d[g] = 0
+    queue = deque([g])
+    while queue:
+        r, c = queue.popleft()
+        if d[r, c] >= d[stop]:
+            break
         for dr, dc in DIRS:
             q = (r + dr, c + dc)
             if 0 <= q[0] < h and 0 <= q[1] < w and passable[q] and d[q] == FAR:

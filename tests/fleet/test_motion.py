@@ -1,5 +1,6 @@
 """The vectorised motion and assignment kernels equal their serial references
-(``jaxplan.reference.fleet``): BFS distance fields, the prioritised one-step move, the greedy choice."""
+(``jaxplan.reference.fleet``): BFS distance fields (full and stopped early), the stale-field update,
+the prioritised one-step move, the greedy choice."""
 from __future__ import annotations
 
 import jax
@@ -10,6 +11,7 @@ from hypothesis import strategies as st
 
 from jaxplan.fleet import assign, footprint, motion
 from jaxplan.reference import fleet as ref
+from jaxplan.reference.visibility import DIRS
 from jaxplan.transport import execute
 
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -19,6 +21,8 @@ M = 6          # greedy candidates
 C = 12         # core cells per candidate
 
 _fields = jax.jit(motion.distance_fields)
+_field_to = jax.jit(motion.distance_field_to)
+_update = jax.jit(motion.update_fields, static_argnames="chunk")
 _move = jax.jit(motion.move_rovers)
 
 
@@ -47,6 +51,86 @@ def test_distance_fields_equal_breadth_first_search(seed, density):
     got = np.asarray(_fields(jnp.asarray(goals), jnp.asarray(passable)))
     for r in range(N):
         np.testing.assert_array_equal(got[r], ref.distance_field(goals[r], passable[r]))
+
+
+def _field_case(rng, density):
+    """A random mask, goal and stop cell; sometimes the goal is blocked, or the stop cell is the goal
+    or blocked (then unreachable)."""
+    passable = rng.random(SHAPE) < density
+    goal, stop = _distinct_cells(rng, 2)
+    kind = rng.integers(0, 6)
+    if kind == 0:
+        passable[goal[0], goal[1]] = False
+    elif kind == 1:
+        stop = goal.copy()
+    elif kind == 2:
+        passable[stop[0], stop[1]] = False
+    return passable, goal, stop
+
+
+def _assert_exact_up_to_stop(got, goal, passable, stop):
+    """``got`` is the early-stopped field: the serial reference's, so exact at distance <= d(stop),
+    FAR or exact beyond, and the full field when ``stop`` cannot reach the goal."""
+    np.testing.assert_array_equal(got, ref.distance_field_to(goal, passable, stop))
+    full = ref.distance_field(goal, passable)
+    d_stop = full[stop[0], stop[1]]
+    near = full <= d_stop
+    np.testing.assert_array_equal(got[near], full[near])
+    assert np.all((got == full) | (got == motion.FAR))
+    if d_stop >= motion.FAR:
+        np.testing.assert_array_equal(got, full)
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2 ** 31 - 1), density=st.sampled_from((0.5, 0.7, 0.9, 1.0)))
+def test_early_stopped_field_is_exact_up_to_the_stop_cell(seed, density):
+    rng = np.random.default_rng(seed)
+    passable, goal, stop = _field_case(rng, density)
+    got = np.asarray(_field_to(jnp.asarray(goal), jnp.asarray(passable), jnp.asarray(stop)))
+    _assert_exact_up_to_stop(got, goal, passable, stop)
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2 ** 31 - 1), density=st.sampled_from((0.5, 0.7, 0.9, 1.0)),
+       stale_kind=st.sampled_from(("some", "all", "none")), chunk=st.sampled_from((2, 8)))
+def test_update_fields_recomputes_the_stale_rows_only(seed, density, stale_kind, chunk):
+    """N = 5 rovers: chunk 2 runs up to three chunks (the last one filled up), chunk 8 one."""
+    rng = np.random.default_rng(seed)
+    cases = [_field_case(rng, density) for _ in range(N)]
+    passable = np.stack([c[0] for c in cases])
+    goals = np.stack([c[1] for c in cases]).astype(np.int32)
+    pos = np.stack([c[2] for c in cases]).astype(np.int32)
+    stale = {"some": rng.random(N) < 0.5, "all": np.ones(N, bool), "none": np.zeros(N, bool)}[stale_kind]
+    dist = rng.integers(0, motion.FAR + 1, (N,) + SHAPE, dtype=np.int32)    # old rows: anything
+    got = np.asarray(_update(*(jnp.asarray(a) for a in (dist, goals, passable, pos, stale)), chunk=chunk))
+    for r in range(N):
+        if stale[r]:
+            _assert_exact_up_to_stop(got[r], goals[r], passable[r], pos[r])
+        else:
+            np.testing.assert_array_equal(got[r], dist[r])
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2 ** 31 - 1), density=st.sampled_from((0.6, 0.8, 1.0)))
+def test_strictly_decreasing_walk_in_the_early_stopped_field_reaches_the_goal(seed, density):
+    """Any walk through strictly smaller neighbours (here a random one) from the stop cell reaches
+    the goal in exactly its distance, as the move rule needs."""
+    rng = np.random.default_rng(seed)
+    passable, goal, stop = _field_case(rng, density)
+    field = np.asarray(_field_to(jnp.asarray(goal), jnp.asarray(passable), jnp.asarray(stop)))
+    d_stop = ref.distance_field(goal, passable)[stop[0], stop[1]]
+    here, steps = (int(stop[0]), int(stop[1])), 0
+    while field[here] > 0 and field[here] < motion.FAR:
+        closer = [q for q in ((here[0] + dr, here[1] + dc) for dr, dc in DIRS)
+                  if 0 <= q[0] < SHAPE[0] and 0 <= q[1] < SHAPE[1] and field[q] < field[here]]
+        assert closer, "stuck: no strictly smaller neighbour"
+        here = closer[rng.integers(0, len(closer))]
+        assert passable[here]
+        steps += 1
+    if d_stop >= motion.FAR:
+        assert field[here] == motion.FAR and steps == 0
+    else:
+        assert here == (int(goal[0]), int(goal[1])) and steps == d_stop
 
 
 @SETTINGS
