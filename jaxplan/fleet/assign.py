@@ -4,11 +4,8 @@ A **task** is one planned push (``Task``): ``episode.plan_for_source`` from a so
 fabric, the delivered mass the spill model predicts for its route, the push's steps and its
 footprint (``footprint``). A task may start only if its footprint is **free**: it meets no cell of a
 running task's footprint (the ownership map) and holds no rover's cell but the assigned rover's.
-Disjoint footprints are checked without painting a map per task: a footprint is its core grown by
-r cells (the clearance) outside the targets plus its path, so it meets the reserved cells R exactly
-when its core meets the non-target cells of R grown by r, or its path meets R (``footprint_free``);
-and a rover stands in it exactly when a rover off the targets is within r cells of its core, or a
-rover stands on its path.
+A task carries its footprint as a mask, so both checks are one masked reduction, and a rover
+stands in a footprint when the mask is set at its cell.
 
 - ``coordinated`` (``assign_greedy``): the top ``M`` sources by the source rule's score among the
   occupied cells outside every footprint, each planned (``vmap``); then, as long as a pair is left,
@@ -33,7 +30,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.core import lattice
 from jaxplan.fleet import footprint
 from jaxplan.transport import execute, spillage
 from jaxplan.transport.connectors import slot_anchors
@@ -50,25 +46,24 @@ from jaxplan.transport.episode import (
     source_anchor,
 )
 
-__all__ = ["BLOCKED", "Candidates", "Task", "assign_each", "assign_greedy", "assign_planned", "failure_rank",
-           "footprint_free", "greedy_choice", "plan_candidates", "plan_task", "reserve", "rover_maps", "sector_grid",
-           "sector_starts", "sectors", "spread_starts"]
+__all__ = ["BLOCKED", "PLAN_CHUNK", "Candidates", "Task", "assign_each", "assign_greedy", "assign_planned",
+           "failure_rank", "footprint_free", "greedy_choice", "plan_candidates", "plan_task", "reserve",
+           "rovers_inside", "sector_grid", "sector_starts", "sectors", "spread_starts", "wanted_candidates"]
 
 BLOCKED = 9
+PLAN_CHUNK = 8
+"""Candidates planned together (one ``vmap``) by ``plan_candidates``."""
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
 stop code "no_reachable_task" when nothing else runs)."""
 
-_BIG = 2 ** 30
-
 
 class Task(NamedTuple):
-    """One planned push (a leading batch axis when batched). C core cells.
+    """One planned push (a leading batch axis when batched). H x W grid.
 
     source: i32[2]; route: execute.Route; mode: i32[] (0 deliver, 1 rearrange); code: i32[] the
     episode's plan code (``RUNNING`` = pushable, ``CLEARED`` no source, ``NO_ROUTE``, ``WALK_CAP``);
-    predicted: f32[] objects the spill model delivers; steps: i32[] push steps; core: i32[C, 2],
-    core_valid, on_path: bool[C] the footprint's core and which of its rows are the push path
-    (``footprint.core_cells``).
+    predicted: f32[] objects the spill model delivers; steps: i32[] push steps; footprint: bool[H, W]
+    the cells it reserves (``footprint.mask_from_core``).
     """
 
     source: jax.Array
@@ -77,9 +72,7 @@ class Task(NamedTuple):
     code: jax.Array
     predicted: jax.Array
     steps: jax.Array
-    core: jax.Array
-    core_valid: jax.Array
-    on_path: jax.Array
+    footprint: jax.Array
 
 
 def plan_task(scene, params, ep, spill, fabric, source, has_source, cap: int, evaluator, clearance: int,
@@ -97,9 +90,9 @@ def plan_task(scene, params, ep, spill, fabric, source, has_source, cap: int, ev
     pickup, _ = execute.waypoint_pickup(scene, route)
     predicted, _, samples = spillage.evaluate_route(points, n_points, pickup, spill, evaluator,
                                                     chunk=execute.SPLINE_CHUNK)
-    core, valid, on_path = footprint.core_cells(scene, route, samples, clearance)
+    cells = footprint.core_cells(scene, route, samples, clearance)
     return Task(plan.source, route, plan.mode, plan_code(plan, cap, scene.shape), predicted,
-                footprint.push_steps(route), core, valid, on_path)
+                footprint.push_steps(route), footprint.mask_from_core(scene.target_mask, *cells, clearance))
 
 
 def failure_rank(code):
@@ -112,63 +105,21 @@ def _worse(a, b):
     return jnp.where(failure_rank(b) > failure_rank(a), b, a)
 
 
-def rover_maps(pos, target_mask, clearance: int):
-    """``(at, low, high)``, each i32[H, W]: the index of the rover on each cell (-1 none), and the
-    lowest / highest index of the rovers off the targets within Chebyshev distance ``clearance``
-    (static, 0 or 1) of each cell (``2**30`` / -1 none)."""
-    h, w = target_mask.shape
-    n = pos.shape[0]
-    at = jnp.full(h * w, -1, jnp.int32).at[pos[:, 0] * w + pos[:, 1]].set(jnp.arange(n, dtype=jnp.int32))
-    at = at.reshape(h, w)
-    off = jnp.where(target_mask, -1, at)
-    low0 = jnp.where(off >= 0, off, _BIG)
-    if clearance == 0:
-        return at, low0, off
-    low = jnp.minimum(low0, jnp.min(lattice.neighbours(low0, _BIG), 0))
-    high = jnp.maximum(off, jnp.max(lattice.neighbours(off, -1), 0))
-    return at, low, high
+def rovers_inside(mask, pos):
+    """bool[N]: which rovers (cells ``pos: i32[N, 2]``) stand in ``mask: bool[H, W]``."""
+    return mask[pos[:, 0], pos[:, 1]]
 
 
-def _take(a, cells, valid, fill):
-    """``a``'s values at ``cells: i32[C, 2]``, ``fill`` where not ``valid``."""
-    safe = jnp.maximum(cells, 0)
-    return jnp.where(valid, a[safe[:, 0], safe[:, 1]], fill)
-
-
-def _rovers_inside(task: Task, maps):
-    """``(low, high)``: lowest and highest index of the rovers standing in the task's footprint."""
-    at, low, high = maps
-    path = task.core_valid & task.on_path
-    on_path = _take(at, task.core, path, -1)
-    lo = jnp.minimum(jnp.min(_take(low, task.core, task.core_valid, _BIG)),
-                     jnp.min(jnp.where(on_path >= 0, on_path, _BIG)))
-    hi = jnp.maximum(jnp.max(_take(high, task.core, task.core_valid, -1)), jnp.max(on_path))
-    return lo, hi
-
-
-def _blocked(owner, target_mask, clearance: int):
-    """bool[H, W]: cells within ``clearance`` cells of a reserved cell off the targets."""
-    return footprint.dilate((owner >= 0) & ~target_mask, clearance)
-
-
-def _clear(task: Task, owner, blocked):
-    """bool[]: the task's footprint meets no reserved cell (``blocked``: ``_blocked(owner, ...)``)."""
-    hits = jnp.any(_take(blocked, task.core, task.core_valid, False))
-    return ~hits & ~jnp.any(_take(owner, task.core, task.core_valid & task.on_path, -1) >= 0)
-
-
-def footprint_free(task: Task, owner, target_mask, maps, rover, clearance: int):
+def footprint_free(task: Task, owner, pos, rover):
     """bool[]: ``task``'s footprint is free for ``rover`` (module docstring). owner: i32[H, W] (-1
-    free); maps: ``rover_maps`` of the rovers' cells; rover: i32[]; clearance: static."""
-    lo, hi = _rovers_inside(task, maps)
-    alone = (hi < 0) | ((lo == rover) & (hi == rover))
-    return _clear(task, owner, _blocked(owner, target_mask, clearance)) & alone
+    free); pos: i32[N, 2] the rovers' cells; rover: i32[]."""
+    others = rovers_inside(task.footprint, pos) & (jnp.arange(pos.shape[0]) != rover)
+    return ~jnp.any(task.footprint & (owner >= 0)) & ~jnp.any(others)
 
 
-def reserve(owner, task: Task, rover, target_mask, clearance: int):
+def reserve(owner, task: Task, rover):
     """i32[H, W]: ``owner`` with the task's footprint given to ``rover``."""
-    mask = footprint.mask_from_core(target_mask, task.core, task.core_valid, task.on_path, clearance)
-    return jnp.where(mask, rover, owner)
+    return jnp.where(task.footprint, rover, owner)
 
 
 def _source_score(scene, fabric, rule: str):
@@ -189,29 +140,46 @@ class Candidates(NamedTuple):
 
 
 def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int, cap: int, evaluator,
-                    clearance: int) -> Candidates:
+                    clearance: int, wanted=None) -> Candidates:
     """The top ``M = candidates`` sources by the source rule's score among the occupied cells outside
-    every footprint (``owner: i32[H, W]``, -1 free), each planned as a ``Task``.
+    every footprint (``owner: i32[H, W]``, -1 free); the first ``wanted`` of them (i32[], default M)
+    planned as ``Task`` s, the others left empty (``exists`` False).
 
-    Sources that share a highway anchor share its connector DP: the distinct anchors are listed
-    (at most M) and their tables computed one after another, skipping empty slots, so the cost
-    grows with the number of distinct anchors, not with M.
+    The tasks are planned ``PLAN_CHUNK`` at a time, chunks past ``wanted`` skipped, so a few idle
+    rovers cost a few chunks whatever M is. Within a chunk, sources that share a highway anchor share
+    its connector DP: the chunk's distinct anchors are listed and their tables computed one after
+    another, skipping empty slots.
     """
     h, w = scene.shape
     m = min(int(candidates), h * w)
+    wanted = m if wanted is None else jnp.clip(wanted, 1, m)
     score_src = _source_score(scene, fabric, ep.source_rule)
     vals = jnp.where(fabric.occupied & (owner < 0), score_src, -jnp.inf).reshape(-1)
     top, idx = jax.lax.top_k(vals, m)
-    exists = top > -jnp.inf
+    exists = (top > -jnp.inf) & (jnp.arange(m) < wanted)
     sources = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
     anchors = jax.vmap(lambda s: source_anchor(scene, params, fabric, s))(sources)
     anchors = jnp.where(exists, anchors, -1)
-    distinct = slot_anchors(anchors, m)
-    tables = jax.lax.map(lambda a: anchor_connector(scene, params, fabric, a), distinct)
-    slot = jnp.argmax(distinct[None] == anchors[:, None], -1)
-    tasks = jax.vmap(lambda s, e, a, k: plan_task(
-        scene, params, ep, spill, fabric, s, e, cap, evaluator, clearance,
-        connector=(a, jax.tree.map(lambda t: t[k], tables))))(sources, exists, anchors, slot)
+
+    def plan_chunk(args):
+        sources, exists, anchors = args
+        distinct = slot_anchors(anchors, anchors.shape[0])
+        tables = jax.lax.map(lambda a: anchor_connector(scene, params, fabric, a), distinct)
+        slot = jnp.argmax(distinct[None] == anchors[:, None], -1)
+        return jax.vmap(lambda s, e, a, k: plan_task(
+            scene, params, ep, spill, fabric, s, e, cap, evaluator, clearance,
+            connector=(a, jax.tree.map(lambda t: t[k], tables))))(sources, exists, anchors, slot)
+
+    chunk = min(PLAN_CHUNK, m)
+    pad = -m % chunk
+    args = jax.tree.map(lambda a: jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)).reshape((-1, chunk) + a.shape[1:]),
+                        (sources, exists, anchors))
+    empty = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
+                         jax.eval_shape(plan_chunk, jax.tree.map(lambda a: a[0], args)))
+    starts = jnp.arange(args[0].shape[0]) * chunk
+    tasks = jax.lax.map(lambda x: jax.lax.cond(x[0] < wanted, lambda a: plan_chunk(a), lambda a: empty, x[1]),
+                        (starts, args))
+    tasks = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:])[:m], tasks)
     return Candidates(tasks, exists, exists & (tasks.code == RUNNING))
 
 
@@ -226,15 +194,21 @@ def assign_greedy(scene, params, ep, spill, fabric, pos, idle, owner, budget, ro
     (``RUNNING`` when something was).
     """
     planned = plan_candidates(scene, params, ep, spill, fabric, owner, candidates=candidates, cap=cap,
-                              evaluator=evaluator, clearance=clearance)
-    return assign_planned(planned, scene.target_mask, pos, idle, owner, budget, routes, clearance)
+                              evaluator=evaluator, clearance=clearance, wanted=wanted_candidates(idle, candidates))
+    return assign_planned(planned, pos, idle, owner, budget, routes)
 
 
-def assign_planned(planned: Candidates, target_mask, pos, idle, owner, budget, routes, clearance: int):
+def wanted_candidates(idle, candidates: int):
+    """i32[]: candidates an assignment plans for ``idle: bool[N]`` rovers: two per idle rover, at least
+    ``PLAN_CHUNK`` and at most ``candidates`` (M)."""
+    return jnp.clip(2 * jnp.sum(idle, dtype=jnp.int32), min(PLAN_CHUNK, candidates), candidates)
+
+
+def assign_planned(planned: Candidates, pos, idle, owner, budget, routes):
     """``assign_greedy`` on candidates already planned (``plan_candidates`` on this fabric and this
     ``owner``); the same results."""
     tasks = planned.tasks
-    choice, owner, count = greedy_choice(pos, idle, owner, budget, planned.usable, tasks, target_mask, clearance)
+    choice, owner, count = greedy_choice(pos, idle, owner, budget, planned.usable, tasks)
     assigned = choice >= 0
     mine = jax.tree.map(lambda a: a[jnp.maximum(choice, 0)], (tasks.route, tasks.mode))
     route, mode = _keep_rows(assigned, mine, (routes, jnp.zeros(pos.shape[0], jnp.int32)))
@@ -248,48 +222,47 @@ def _keep_rows(mask, new, old):
     return jax.tree.map(lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
 
 
-def greedy_choice(pos, idle, owner, budget, usable, tasks: Task, target_mask, clearance: int = 1):
+def greedy_choice(pos, idle, owner, budget, usable, tasks: Task):
     """The greedy rounds of ``assign_greedy``: ``(choice i32[N], owner, count i32[])``.
 
     pos: i32[N, 2]; idle: bool[N]; owner: i32[H, W]; budget: i32[] most assignments; usable: bool[M]
-    candidates that may be assigned; tasks: Task[M] (its source, predicted, steps, core, core_valid,
-    on_path are read); target_mask: bool[H, W]; clearance: static. choice[r] is the candidate rover r took (-1 none);
-    owner has their footprints.
+    candidates that may be assigned; tasks: Task[M] (its source, predicted, steps and footprint are
+    read). choice[r] is the candidate rover r took (-1 none); owner has their footprints.
     Each round assigns the best-scoring free pair (module docstring; ties: lowest rover, then
-    candidate); rounds stop when no pair is left.
+    candidate); rounds stop when no pair is left. A chosen footprint rules out the candidates it
+    meets, so each round costs one masked reduction over the M footprints.
     """
     n = pos.shape[0]
     m = usable.shape[0]
-    maps = rover_maps(pos, target_mask, clearance)
-    lo, hi = jax.vmap(lambda t: _rovers_inside(t, maps))(tasks)
-    rovers = jnp.arange(n, dtype=jnp.int32)
-    alone = (hi < 0)[None] | ((lo == hi)[None] & (hi[None] == rovers[:, None]))          # [N, M]
+    inside = jax.vmap(lambda mask: rovers_inside(mask, pos))(tasks.footprint).T             # [N, M]
+    crowd = jnp.sum(inside, 0)
+    alone = (crowd == 0)[None] | ((crowd == 1)[None] & inside)
     approach = jnp.max(jnp.abs(pos[:, None, :] - tasks.source[None]), -1)
     score = tasks.predicted[None] / (approach + tasks.steps[None]).astype(jnp.float32)
     pairs = alone & usable[None]
+    clear = ~jnp.any(tasks.footprint & (owner >= 0)[None], (1, 2))
 
     def more(carry):
         return carry[-1]
 
     def round_(carry):
-        owner, idle, unused, choice, count, _ = carry
-        blocked = _blocked(owner, target_mask, clearance)
-        clear = jax.vmap(lambda t: _clear(t, owner, blocked))(tasks)
+        owner, idle, unused, clear, choice, count, _ = carry
         ok = pairs & idle[:, None] & (unused & clear)[None] & (count < budget)
         best = jnp.argmax(jnp.where(ok, score, -jnp.inf).reshape(-1))
         r, c = best // m, best % m
         found = jnp.any(ok)
-        chosen = jax.tree.map(lambda a: a[c], tasks)
-        owner = jnp.where(found, reserve(owner, chosen, r, target_mask, clearance), owner)
+        chosen = tasks.footprint[c] & found
+        owner = jnp.where(chosen, r, owner)
+        clear = clear & ~jnp.any(tasks.footprint & chosen[None], (1, 2))
         idle = idle.at[r].set(idle[r] & ~found)
         unused = unused.at[c].set(unused[c] & ~found)
         choice = choice.at[r].set(jnp.where(found, c, choice[r]))
         count = count + found
-        return owner, idle, unused, choice, count, found & jnp.any(idle) & (count < budget)
+        return owner, idle, unused, clear, choice, count, found & jnp.any(idle) & (count < budget)
 
-    start = (owner, idle, jnp.ones(m, bool), jnp.full(n, -1, jnp.int32), jnp.int32(0),
+    start = (owner, idle, jnp.ones(m, bool), clear, jnp.full(n, -1, jnp.int32), jnp.int32(0),
              jnp.any(idle) & (budget > 0))
-    owner, _, _, choice, count, _ = jax.lax.while_loop(more, round_, start)
+    owner, _, _, _, choice, count, _ = jax.lax.while_loop(more, round_, start)
     return choice, owner, count
 
 
@@ -303,7 +276,6 @@ def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, rout
     """
     h, w = scene.shape
     n = pos.shape[0]
-    maps = rover_maps(pos, scene.target_mask, clearance)
 
     def rover(r, carry):
         owner, tasks, assigned, count, failure = carry
@@ -320,8 +292,8 @@ def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, rout
                 source, has = choose_source(scene, fabric, ep.source_rule, mine & (owner < 0) & ~excluded)
                 task = plan_task(scene, params, ep, spill, fabric, source, has, cap, evaluator, clearance)
                 pushable = task.code == RUNNING
-                free = pushable & footprint_free(task, owner, scene.target_mask, maps, r, clearance)
-                owner = jnp.where(free, reserve(owner, task, r, scene.target_mask, clearance), owner)
+                free = pushable & footprint_free(task, owner, pos, r)
+                owner = jnp.where(free, reserve(owner, task, r), owner)
                 tasks = jax.tree.map(lambda all_, one: all_.at[r].set(jnp.where(free, one, all_[r])), tasks,
                                      (task.route, task.mode))
                 assigned = assigned.at[r].set(free)

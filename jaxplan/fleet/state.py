@@ -7,13 +7,15 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    ``EpisodeParams.max_pushes``, so that the compiled step does not depend on the budget, a static
    field of ``EpisodeParams``: ``step`` ignores ``episode.max_pushes``). A rover already on its task's
    start pushes at once, the others approach.
-2. **Distance fields**: when the ownership map or the set of parked rovers changed since they were
-   computed (a task started, ended or was dropped; an idle rover reached its home cell), every
-   rover's field is recomputed (``motion.distance_fields``): an approaching rover's to its task's
-   start, an idle rover's to its home cell (its start cell), over the cells outside other rovers'
-   footprints and off the cells of other idle rovers parked at home. An approaching rover that
-   cannot reach its start drops its task (footprint released, not counted against the budget) and
-   idles.
+2. **Distance fields**: a rover that drives (approaching, or idle and not parked at home) gets a new
+   field when its goal changed (a task assigned; its push ended or its task was dropped, sending it
+   home) or when cells it may not enter were added (a footprint reserved, an idle rover parked at
+   home); cells released keep every field usable, if no longer shortest. Only those rovers' fields
+   are recomputed (``motion.update_fields``, stopped once the rover's own cell is reached): an
+   approaching rover's to its task's start, an idle rover's to its home cell (its start cell), over
+   the cells outside other rovers' footprints and off the cells of other idle rovers parked at
+   home. An approaching rover that cannot reach its start drops its task (footprint released, not
+   counted against the budget) and idles.
 3. **Move**: every rover moves at most one cell, in index order (``motion.move_rovers``): rovers not
    pushing down their field, pushing rovers one cell along the push path. Idle rovers thus drive
    home, out of the way of tasks their cells would block. A rover that reaches its start pushes
@@ -67,6 +69,9 @@ STOP_REASONS = ("running", "done", "done", "budget", "no_material", "no_route", 
                 "deadlock", "no_reachable_task")
 MAX_ROVERS = 64
 MAX_CANDIDATES = 64
+# Stale rovers whose distance fields are computed together: a chunk runs as many rounds as its
+# farthest rover needs, so small chunks waste little when one or two rovers are stale.
+FIELD_CHUNK = 4
 DEFAULT_MAX_STEPS = 100_000
 
 
@@ -146,7 +151,8 @@ class FleetState(NamedTuple):
     owner: i32[H, W] the rover whose footprint holds the cell (-1 none).
     dist: i32[N, H, W] approach distance fields (``motion.FAR``: cannot reach).
     region: i32[H, W] partitioned sectors (-1 everywhere for the other strategies).
-    replan: bool[] the ownership map changed since the fields were computed.
+    stale: bool[N] the rover's goal changed or cells it may not enter were added since its field was
+      computed (step 2 recomputes it if the rover drives).
     candidates: ``assign.Candidates`` (M slots for ``coordinated``, none otherwise), the tasks the
       last coordinated assignment planned; fresh: bool[] they were planned on this fabric and this
       ownership map (no push ended, no task started or was dropped since), so the next assignment
@@ -172,7 +178,7 @@ class FleetState(NamedTuple):
     owner: jax.Array
     dist: jax.Array
     region: jax.Array
-    replan: jax.Array
+    stale: jax.Array
     candidates: assign.Candidates
     fresh: jax.Array
     pushes: jax.Array
@@ -290,7 +296,7 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
     candidates = _no_candidates(scene, params, ep, spill, fabric, cfg)
     return FleetState(scene, fabric, pos, pos, zeros_n, route, zeros_n, zeros_n, zeros_n,
                       jnp.full(shape, -1, jnp.int32), jnp.full((n,) + shape, FAR, jnp.int32), region,
-                      jnp.bool_(False), candidates, jnp.bool_(False), zeros_n, _i32(0), zeros_n,
+                      jnp.ones(n, bool), candidates, jnp.bool_(False), zeros_n, _i32(0), zeros_n,
                       _i32(0), _i32(0), _i32(limit), budget, _f32(0.0),
                       _f32(0.0), outside, _f32(jnp.sum(scene.obj)), outside, stop_at, stop != RUNNING, stop)
 
@@ -330,9 +336,10 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
         if cfg.strategy == "coordinated":
             planned = jax.lax.cond(state.fresh, lambda _: state.candidates, lambda _: assign.plan_candidates(
                 scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
-                evaluator=evaluator, clearance=cfg.clearance), None)
-            return assign.assign_planned(planned, scene.target_mask, state.pos, idle, state.owner, budget,
-                                         state.route, cfg.clearance) + (planned, jnp.bool_(True))
+                evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates)),
+                None)
+            return assign.assign_planned(planned, state.pos, idle, state.owner, budget,
+                                         state.route) + (planned, jnp.bool_(True))
         return assign.assign_each(scene, params, ep, spill, state.fabric, state.pos, idle, state.owner, budget,
                                   state.route, state.region, retries=cfg.retries, cap=cfg.walk_cap,
                                   evaluator=evaluator, clearance=cfg.clearance) + (state.candidates, state.fresh)
@@ -349,17 +356,20 @@ def _parked(pos, home, phase):
     return (phase == IDLE) & jnp.all(pos == home, -1)
 
 
-def _fields(pos, home, phase, route, owner):
-    """Step 2: i32[N, H, W] distance fields (module docstring); ``FAR`` for pushing rovers."""
+def _fields(dist, pos, home, phase, route, owner, stale):
+    """Step 2: ``(dist i32[N, H, W], computed bool[N])``: the distance fields (module docstring),
+    recomputed for the ``stale: bool[N]`` rovers that drive (``computed``); the other rows kept."""
     n = pos.shape[0]
     h, w = owner.shape
+    parked_rover = _parked(pos, home, phase)
     parked = jnp.full(h * w, -1, jnp.int32).at[pos[:, 0] * w + pos[:, 1]].set(
-        jnp.where(_parked(pos, home, phase), jnp.arange(n, dtype=jnp.int32), -1)).reshape(h, w)
+        jnp.where(parked_rover, jnp.arange(n, dtype=jnp.int32), -1)).reshape(h, w)
     rovers = jnp.arange(n, dtype=jnp.int32)[:, None, None]
     passable = ((owner[None] < 0) | (owner[None] == rovers)) & ((parked[None] < 0) | (parked[None] == rovers))
-    passable = passable & (phase != PUSH)[:, None, None]
     goals = jnp.where((phase == APPROACH)[:, None], route.cells[:, 0], home)
-    return motion.distance_fields(goals, passable)
+    drives = (phase == APPROACH) | ((phase == IDLE) & ~parked_rover)
+    computed = stale & drives
+    return motion.update_fields(dist, goals, passable, pos, computed, chunk=FIELD_CHUNK), computed
 
 
 def _conflicts(before, after, moved, owner):
@@ -407,8 +417,8 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     task_step = jnp.where(assigned, step_no, state.task_step)
     progress = jnp.where(assigned, 0, state.progress)
     # 2. distance fields, unreachable starts dropped
-    dist = jax.lax.cond(state.replan | jnp.any(assigned), lambda _: _fields(state.pos, state.home, phase, route, owner),
-                        lambda _: state.dist, None)
+    stale = state.stale | assigned | jnp.any(assigned)      # a new goal, or new footprints in the way
+    dist, computed = _fields(state.dist, state.pos, state.home, phase, route, owner, stale)
     here = dist[jnp.arange(n), state.pos[:, 0], state.pos[:, 1]]
     dropped = (phase == APPROACH) & (here >= FAR)
     owner = jnp.where((owner >= 0) & dropped[jnp.maximum(owner, 0)], -1, owner)
@@ -446,10 +456,13 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
         [outside <= state.stop_at, ~has_task & (started >= state.max_pushes), stuck, stall >= cfg.stall_steps,
          t >= state.max_steps],
         [DONE, BUDGET, failure, jnp.where(has_task, DEADLOCK, NO_REACHABLE), MAX_STEPS], RUNNING))
-    replan = jnp.any(ended) | jnp.any(dropped) | jnp.any(parked_now & ~_parked(state.pos, state.home, phase))
+    newly_parked = jnp.any(parked_now & ~_parked(state.pos, state.home, phase))
+    # a field stays stale until the rover drives and gets a new one; a new goal or a parked obstacle
+    # makes it stale
+    stale = (stale & ~computed) | ended | dropped | newly_parked
     fresh = fresh & ~(jnp.any(assigned) | jnp.any(dropped) | jnp.any(ended))
     new = FleetState(scene, fabric, pos, state.home, phase, route, mode, task_step, progress, owner, dist,
-                     state.region, replan, candidates, fresh, state.pushes + ended, started,
+                     state.region, stale, candidates, fresh, state.pushes + ended, started,
                      state.idle_steps + idle_now, t, _i32(stall), state.max_steps, state.max_pushes, total_delivered,
                      state.spilled + jnp.sum(spilled), outside, state.initial_mass, state.initial_outside,
                      state.stop_at, stop != RUNNING, stop)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import chex
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -82,7 +83,7 @@ def test_the_step_without_jit_equals_the_jitted_step(traced_run):
     states, records, ep = traced_run["states"], traced_run["records"], traced_run["ep"]
     busy = [t for t in range(len(records) - 1)
             if (np.all(np.asarray(states[t].phase) != IDLE) or int(states[t].started) >= ep.max_pushes)
-            and not bool(states[t].replan) and not np.any(np.asarray(records[t].ended))
+            and not np.any(np.asarray(states[t].stale)) and not np.any(np.asarray(records[t].ended))
             and np.any(np.asarray(records[t].pos != states[t].pos))]
     assert busy
     t = busy[0]
@@ -124,3 +125,31 @@ def test_cached_candidates_change_nothing(traced_run):
             chex.assert_trees_all_equal(getattr(cached, name), getattr(planned, name))
         np.testing.assert_array_equal(np.asarray(cached.scene.obj), np.asarray(planned.scene.obj))
     assert reused > 0
+
+
+def test_candidates_share_connectors_and_plan_only_what_is_wanted():
+    """``plan_candidates`` (chunked, one connector DP per distinct anchor of a chunk) gives each source
+    the task ``plan_task`` plans alone; with ``wanted`` = k only the first k slots are planned."""
+    from jaxplan import build_fabric
+    from jaxplan.fleet import assign
+    from jaxplan.transport import execute, spillage
+
+    scene = site(1, SITES[3], "two_targets")
+    scene = scene.with_obj(execute.quantize(scene.obj))
+    ep, cap, m = EpisodeParams(), 64, 10
+    fabric = build_fabric(scene, PARAMS)
+    owner = np.full(SITES[3], -1, np.int32)
+    plan = jax.jit(lambda wanted: assign.plan_candidates(
+        scene, PARAMS, ep, SPILL, fabric, owner, candidates=m, cap=cap, evaluator=spillage.curvature_spill,
+        clearance=0, wanted=wanted))
+    full, part = plan(jnp.int32(m)), plan(jnp.int32(3))
+    alone = jax.jit(jax.vmap(lambda s: assign.plan_task(scene, PARAMS, ep, SPILL, fabric, s, True, cap,
+                                                         spillage.curvature_spill, 0)))(full.tasks.source)
+    exists = np.asarray(full.exists)
+    assert exists.sum() > 3 and len(set(map(tuple, np.asarray(full.tasks.source)[exists].tolist()))) == exists.sum()
+    for name in ("route", "mode", "code", "predicted", "steps", "footprint"):
+        chex.assert_trees_all_equal(jax.tree.map(lambda a: a[exists], getattr(full.tasks, name)),
+                                    jax.tree.map(lambda a: a[exists], getattr(alone, name)))
+        chex.assert_trees_all_equal(jax.tree.map(lambda a: a[:3], getattr(part.tasks, name)),
+                                    jax.tree.map(lambda a: a[:3], getattr(full.tasks, name)))
+    assert np.array_equal(np.asarray(part.exists), exists & (np.arange(m) < 3))

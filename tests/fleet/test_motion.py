@@ -153,8 +153,9 @@ def test_one_step_equals_the_serial_move_rule(seed):
     assert not ref.conflicts(np.stack([pos, after]), [])                   # nor a swap or a jump
 
 
-def _tasks(rng):
-    """M synthetic candidates: a random walk of C cells (some invalid; the first few the path), scores."""
+def _tasks(rng, clearance):
+    """M synthetic candidates: footprints grown from a random walk of C cells (some invalid; the first
+    few the path), scores."""
     h, w = SHAPE
     core = np.zeros((M, C, 2), np.int32)
     for c in range(M):
@@ -169,36 +170,36 @@ def _tasks(rng):
     route = execute.Route(jnp.zeros((M, 1, 2), jnp.int32), jnp.ones(M, jnp.int32), jnp.zeros(M, bool),
                           jnp.zeros((M, 2)))
     zeros = jnp.zeros(M, jnp.int32)
+    masks = jax.vmap(lambda *core: footprint.mask_from_core(jnp.asarray(TARGET), *core, clearance))(
+        jnp.asarray(core), jnp.asarray(valid), jnp.asarray(on_path))
     return assign.Task(jnp.asarray(core[:, 0]), route, zeros, zeros, jnp.asarray(predicted), jnp.asarray(steps),
-                       jnp.asarray(core), jnp.asarray(valid), jnp.asarray(on_path))
+                       masks)
 
 
 TARGET = np.zeros(SHAPE, bool)
 TARGET[3:6, 4:8] = True          # target cells: in a footprint only where its path runs
 
 
-def _footprint_set(task, c, clearance):
-    mask = np.asarray(footprint.mask_from_core(jnp.asarray(TARGET), task.core[c], task.core_valid[c],
-                                               task.on_path[c], clearance))
-    return {tuple(p) for p in np.argwhere(mask).tolist()}
+def _footprint_set(task, c):
+    return {tuple(p) for p in np.argwhere(np.asarray(task.footprint[c])).tolist()}
 
 
-_greedy = jax.jit(assign.greedy_choice, static_argnums=7)
+_greedy = jax.jit(assign.greedy_choice)
 
 
 @SETTINGS
 @given(seed=st.integers(0, 2 ** 31 - 1), clearance=st.sampled_from(footprint.CLEARANCES))
 def test_greedy_choice_equals_the_serial_greedy(seed, clearance):
     rng = np.random.default_rng(seed)
-    tasks = _tasks(rng)
+    tasks = _tasks(rng, clearance)
     pos = _distinct_cells(rng, N)
     idle = rng.random(N) < 0.7
     usable = rng.random(M) < 0.8
     owner = np.where(rng.random() < 0.5, _owner_map(rng), -1).astype(np.int32)
     budget = int(rng.integers(0, N + 1))
     choice, new_owner, count = _greedy(jnp.asarray(pos), jnp.asarray(idle), jnp.asarray(owner), jnp.int32(budget),
-                                       jnp.asarray(usable), tasks, jnp.asarray(TARGET), clearance)
-    footprints = [_footprint_set(tasks, c, clearance) for c in range(M)]
+                                       jnp.asarray(usable), tasks)
+    footprints = [_footprint_set(tasks, c) for c in range(M)]
     reserved = {tuple(p) for p in np.argwhere(owner >= 0).tolist()}
     want = ref.greedy_assign(idle, pos, np.asarray(tasks.source), np.asarray(tasks.steps),
                              np.asarray(tasks.predicted), usable, footprints, reserved)[:budget]
