@@ -46,8 +46,8 @@ from jaxplan.transport.episode import (
     source_anchor,
 )
 
-__all__ = ["BLOCKED", "PLAN_CHUNK", "Candidates", "Task", "assign_each", "assign_greedy", "assign_planned",
-           "failure_rank", "footprint_free", "greedy_choice", "plan_candidates", "plan_task", "reserve",
+__all__ = ["BLOCKED", "PLAN_CHUNK", "Attempts", "Candidates", "Task", "assign_each", "assign_greedy", "assign_planned",
+           "failure_rank", "footprint_free", "greedy_choice", "no_attempts", "plan_candidates", "plan_task", "reserve",
            "rovers_inside", "sector_grid", "sector_starts", "sectors", "spread_starts", "wanted_candidates"]
 
 BLOCKED = 9
@@ -266,29 +266,66 @@ def greedy_choice(pos, idle, owner, budget, usable, tasks: Task):
     return choice, owner, count
 
 
-def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, routes, region, *, retries: int,
-                cap: int, evaluator, clearance: int):
-    """The independent and partitioned strategies (module docstring); arguments and results as
-    ``assign_greedy``.
+class Attempts(NamedTuple):
+    """What each rover's last failed attempt of ``assign_each`` depended on, so that an attempt
+    whose inputs did not change is not planned again. N rovers, H x W grid.
+
+    tried: bool[N, H, W] the footprints it planned that met no reservation (the only ones rovers
+    standing in them could have blocked), together; seen: i32[N, N, 2] every rover's
+    cell at the time; failure: i32[N] the attempt's code; valid: bool[N] the rover's last attempt
+    failed and nothing is recorded to have changed since.
+    """
+
+    tried: jax.Array
+    seen: jax.Array
+    failure: jax.Array
+    valid: jax.Array
+
+
+def no_attempts(n: int, shape) -> Attempts:
+    """An ``Attempts`` record with nothing recorded (``n`` = 0 for a strategy that keeps none)."""
+    return Attempts(jnp.zeros((n,) + tuple(shape), bool), jnp.zeros((n, n, 2), jnp.int32),
+                    jnp.zeros(n, jnp.int32), jnp.zeros(n, bool))
+
+
+def _same_outcome(attempts: Attempts, r, pos):
+    """bool[]: rover r's recorded attempt would fail again the same way with the rovers at ``pos``
+    (on the same fabric and reservations): no other rover entered, left or moved inside the
+    footprints it tried, the only way rovers enter its outcome."""
+    tried, then = attempts.tried[r], attempts.seen[r]
+    others = jnp.arange(pos.shape[0]) != r
+    moved = jnp.any(pos != then, -1)
+    touches = rovers_inside(tried, pos) | rovers_inside(tried, then)
+    return attempts.valid[r] & ~jnp.any(others & moved & touches)
+
+
+def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, routes, region, attempts: Attempts,
+                unchanged, *, retries: int, cap: int, evaluator, clearance: int):
+    """The independent and partitioned strategies (module docstring): ``assign_greedy``'s results and
+    the updated ``Attempts``.
 
     region: i32[H, W] the sector each cell belongs to, -1 everywhere for ``independent`` (rover r
-    takes sources where region is -1 or r); retries (static): sources tried per rover and step.
+    takes sources where region is -1 or r); attempts: the rovers' last failed attempts; unchanged:
+    bool[] the fabric and the reservations are those they were made on. An idle rover whose
+    recorded attempt would fail the same way (``_same_outcome``, while no rover before it was
+    assigned this step) is not planned again: the same result, without its cost. retries
+    (static): sources tried per rover and step.
     """
     h, w = scene.shape
     n = pos.shape[0]
 
     def rover(r, carry):
-        owner, tasks, assigned, count, failure = carry
+        owner, tasks, assigned, count, failure, attempts = carry
         mine = (region < 0) | (region == r)
 
         def attempt(carry):
-            owner, tasks, assigned, count, failure = carry
+            owner, tasks, assigned, count, failure, attempts = carry
 
             def more(c):
                 return c[-1]
 
             def try_(c):
-                excluded, tries, owner, tasks, assigned, failure, _ = c
+                excluded, tries, owner, tasks, assigned, failure, tried, _ = c
                 source, has = choose_source(scene, fabric, ep.source_rule, mine & (owner < 0) & ~excluded)
                 task = plan_task(scene, params, ep, spill, fabric, source, has, cap, evaluator, clearance)
                 pushable = task.code == RUNNING
@@ -300,17 +337,29 @@ def assign_each(scene, params, ep, spill, fabric, pos, idle, owner, budget, rout
                 failure = jnp.where(free, failure, jnp.where(pushable, BLOCKED, task.code))
                 excluded = excluded.at[source[0], source[1]].set(True)
                 again = pushable & ~free & (tries + 1 < retries)
-                return excluded, tries + 1, owner, tasks, assigned, failure, again
+                # only a footprint free of reservations can be blocked by rovers standing in it
+                reserved = jnp.any(task.footprint & (owner >= 0))
+                return excluded, tries + 1, owner, tasks, assigned, failure, tried | (task.footprint & ~reserved), again
 
-            start = (jnp.zeros((h, w), bool), jnp.int32(0), owner, tasks, assigned, jnp.int32(RUNNING), jnp.bool_(True))
-            _, _, owner, tasks, assigned, mine_failure, _ = jax.lax.while_loop(more, try_, start)
-            return owner, tasks, assigned, count + assigned[r], _worse(failure, mine_failure)
+            start = (jnp.zeros((h, w), bool), jnp.int32(0), owner, tasks, assigned, jnp.int32(RUNNING),
+                     jnp.zeros((h, w), bool), jnp.bool_(True))
+            _, _, owner, tasks, assigned, mine_failure, tried, _ = jax.lax.while_loop(more, try_, start)
+            attempts = Attempts(attempts.tried.at[r].set(tried), attempts.seen.at[r].set(pos),
+                                attempts.failure.at[r].set(mine_failure), attempts.valid.at[r].set(~assigned[r]))
+            return owner, tasks, assigned, count + assigned[r], _worse(failure, mine_failure), attempts
 
-        return jax.lax.cond(idle[r] & (count < budget), attempt, lambda c: c, carry)
+        def recall(carry):
+            owner, tasks, assigned, count, failure, attempts = carry
+            return owner, tasks, assigned, count, _worse(failure, attempts.failure[r]), attempts
 
-    start = (owner, (routes, jnp.zeros(n, jnp.int32)), jnp.zeros(n, bool), jnp.int32(0), jnp.int32(RUNNING))
-    owner, (route, mode), assigned, count, failure = jax.lax.fori_loop(0, n, rover, start)
-    return route, mode, assigned, owner, jnp.where(count > 0, RUNNING, failure).astype(jnp.int32)
+        repeat = unchanged & (count == 0) & _same_outcome(attempts, r, pos)
+        return jax.lax.cond(idle[r] & (count < budget),
+                            lambda c: jax.lax.cond(repeat, recall, attempt, c), lambda c: c, carry)
+
+    attempts = attempts._replace(valid=attempts.valid & unchanged)
+    start = (owner, (routes, jnp.zeros(n, jnp.int32)), jnp.zeros(n, bool), jnp.int32(0), jnp.int32(RUNNING), attempts)
+    owner, (route, mode), assigned, count, failure, attempts = jax.lax.fori_loop(0, n, rover, start)
+    return route, mode, assigned, owner, jnp.where(count > 0, RUNNING, failure).astype(jnp.int32), attempts
 
 
 # ------------------------------------------------------------------------------------ sectors, starts

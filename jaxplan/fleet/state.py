@@ -157,6 +157,9 @@ class FleetState(NamedTuple):
       last coordinated assignment planned; fresh: bool[] they were planned on this fabric and this
       ownership map (no push ended, no task started or was dropped since), so the next assignment
       reuses them instead of planning again: the same tasks, at the cost of the greedy rounds only.
+    attempts: ``assign.Attempts`` (N rovers for ``independent`` and ``partitioned``, none for
+      ``coordinated``): each rover's last failed attempt, not planned again while fresh and no rover
+      moved through the footprints it tried.
     pushes: i32[N] pushes applied per rover. started: i32[] tasks started and not dropped.
     idle_steps: i32[N] steps each rover had no task.
     t: i32[] steps done. stall: i32[] consecutive steps without a move or push. max_steps: i32[] the
@@ -180,6 +183,7 @@ class FleetState(NamedTuple):
     region: jax.Array
     stale: jax.Array
     candidates: assign.Candidates
+    attempts: assign.Attempts
     fresh: jax.Array
     pushes: jax.Array
     started: jax.Array
@@ -294,9 +298,10 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
     zeros_n = jnp.zeros(n, jnp.int32)
     limit = DEFAULT_MAX_STEPS if max_steps is None else max_steps
     candidates = _no_candidates(scene, params, ep, spill, fabric, cfg)
+    attempts = assign.no_attempts(0 if cfg.strategy == "coordinated" else n, shape)
     return FleetState(scene, fabric, pos, pos, zeros_n, route, zeros_n, zeros_n, zeros_n,
                       jnp.full(shape, -1, jnp.int32), jnp.full((n,) + shape, FAR, jnp.int32), region,
-                      jnp.ones(n, bool), candidates, jnp.bool_(False), zeros_n, _i32(0), zeros_n,
+                      jnp.ones(n, bool), candidates, attempts, jnp.bool_(False), zeros_n, _i32(0), zeros_n,
                       _i32(0), _i32(0), _i32(limit), budget, _f32(0.0),
                       _f32(0.0), outside, _f32(jnp.sum(scene.obj)), outside, stop_at, stop != RUNNING, stop)
 
@@ -325,9 +330,9 @@ def _select_rows(mask, new, old):
 
 
 def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
-    """Step 1: ``(route, mode, assigned bool[N], owner, failure, candidates, fresh)``
-    (``assign.assign_greedy``, on the cached candidates while they are fresh); nothing runs when no
-    rover is idle or the budget is spent."""
+    """Step 1: ``(route, mode, assigned bool[N], owner, failure, candidates, attempts, fresh)``
+    (``assign.assign_greedy`` on the cached candidates while they are fresh, or ``assign_each``);
+    nothing runs when no rover is idle or the budget is spent."""
     idle = state.phase == IDLE
     budget = state.max_pushes - state.started
     scene = state.scene
@@ -339,14 +344,16 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
                 evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates)),
                 None)
             return assign.assign_planned(planned, state.pos, idle, state.owner, budget,
-                                         state.route) + (planned, jnp.bool_(True))
-        return assign.assign_each(scene, params, ep, spill, state.fabric, state.pos, idle, state.owner, budget,
-                                  state.route, state.region, retries=cfg.retries, cap=cfg.walk_cap,
-                                  evaluator=evaluator, clearance=cfg.clearance) + (state.candidates, state.fresh)
+                                         state.route) + (planned, state.attempts, jnp.bool_(True))
+        *out, attempts = assign.assign_each(scene, params, ep, spill, state.fabric, state.pos, idle, state.owner,
+                                            budget, state.route, state.region, state.attempts, state.fresh,
+                                            retries=cfg.retries, cap=cfg.walk_cap, evaluator=evaluator,
+                                            clearance=cfg.clearance)
+        return (*out, state.candidates, attempts, jnp.bool_(True))
 
     def skip(_):
         return (state.route, state.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING), state.candidates,
-                state.fresh)
+                state.attempts, state.fresh)
 
     return jax.lax.cond(jnp.any(idle) & (budget > 0), run, skip, None)
 
@@ -408,8 +415,8 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     n = state.pos.shape[0]
     step_no = state.t + 1
     # 1. assign
-    new_route, new_mode, assigned, owner, failure, candidates, fresh = _assign(state, params, spill, ep, cfg,
-                                                                               evaluator)
+    new_route, new_mode, assigned, owner, failure, candidates, attempts, fresh = _assign(
+        state, params, spill, ep, cfg, evaluator)
     route = _select_rows(assigned, new_route, state.route)
     at_start = jnp.all(state.pos == route.cells[:, 0], -1)
     phase = jnp.where(assigned, jnp.where(at_start, PUSH, APPROACH), state.phase)
@@ -462,7 +469,7 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     stale = (stale & ~computed) | ended | dropped | newly_parked
     fresh = fresh & ~(jnp.any(assigned) | jnp.any(dropped) | jnp.any(ended))
     new = FleetState(scene, fabric, pos, state.home, phase, route, mode, task_step, progress, owner, dist,
-                     state.region, stale, candidates, fresh, state.pushes + ended, started,
+                     state.region, stale, candidates, attempts, fresh, state.pushes + ended, started,
                      state.idle_steps + idle_now, t, _i32(stall), state.max_steps, state.max_pushes, total_delivered,
                      state.spilled + jnp.sum(spilled), outside, state.initial_mass, state.initial_outside,
                      state.stop_at, stop != RUNNING, stop)

@@ -109,21 +109,25 @@ def test_rollout_scans_the_same_steps(traced_run):
     np.testing.assert_allclose(np.asarray(final.scene.obj), np.asarray(states[-1].scene.obj), atol=1e-6)
 
 
-def test_cached_candidates_change_nothing(traced_run):
-    """A longer run on the same compiled step, once reusing fresh candidates and once planning at
-    every assignment: the same positions, counts and reservations at every step."""
-    jitted, config, ep = traced_run["jitted"], traced_run["config"], traced_run["ep"]
-    cached = planned = reset(site(3, SITES[2], "two_targets"), PARAMS, SPILL, ep, config, max_steps=400,
-                             max_pushes=40)
+@pytest.mark.parametrize("strategy", ["coordinated", "partitioned"])
+def test_what_is_not_planned_again_changes_nothing(traced_run, strategy):
+    """A longer run, once reusing fresh candidates (coordinated) or failed attempts (the others) and
+    once planning at every assignment: the same positions, counts and reservations at every step."""
+    config, ep = FleetConfig(2, strategy), traced_run["ep"]
+    jitted = traced_run["jitted"] if strategy == "coordinated" else \
+        jax.jit(step, static_argnames=("config", "evaluator"))
+    kept = planned = reset(site(3, SITES[2], "two_targets"), PARAMS, SPILL, ep, config, max_steps=400,
+                           max_pushes=40)
     reused = 0
-    while not bool(cached.done):
-        idle = np.any(np.asarray(cached.phase) == IDLE) and int(cached.started) < int(cached.max_pushes)
-        reused += int(idle and bool(cached.fresh))
-        cached, _ = jitted(cached, PARAMS, SPILL, ep, config=config)
+    while not bool(kept.done):
+        idle = np.any(np.asarray(kept.phase) == IDLE) and int(kept.started) < int(kept.max_pushes)
+        recorded = strategy == "coordinated" or bool(np.any(np.asarray(kept.attempts.valid)))
+        reused += int(idle and bool(kept.fresh) and recorded)
+        kept, _ = jitted(kept, PARAMS, SPILL, ep, config=config)
         planned, _ = jitted(planned._replace(fresh=np.bool_(False)), PARAMS, SPILL, ep, config=config)
         for name in ("pos", "phase", "owner", "route", "pushes", "stop"):
-            chex.assert_trees_all_equal(getattr(cached, name), getattr(planned, name))
-        np.testing.assert_array_equal(np.asarray(cached.scene.obj), np.asarray(planned.scene.obj))
+            chex.assert_trees_all_equal(getattr(kept, name), getattr(planned, name))
+        np.testing.assert_array_equal(np.asarray(kept.scene.obj), np.asarray(planned.scene.obj))
     assert reused > 0
 
 
