@@ -4,8 +4,9 @@ For every site and fleet size N and strategy, ``run_fleet`` runs until the mass 
 at most 2% of its start or ``--max-steps`` pass. Speed-up S(N) = T90(1) / T90(N) within a strategy
 (T90: the first step by which 90% of the mass that started outside the targets was delivered; "-"
 when not reached). Planning ms per event: the median wall time of the steps in which tasks were
-assigned (assignment, motion and any fabric refresh); beside it, the median time of one full fabric
-build of the site, measured in the same run. Writes ``experiments/results/fleet.{json,md}``.
+assigned and no push ended (assignment, distance fields and motion; the shared fabric's refresh
+apart); beside it, the median time of one full fabric build of the site, measured in the same run.
+Writes ``experiments/results/NAME.{json,md}`` (``--name``, default fleet) after every run.
 
     python experiments/fleet.py                                   # site128, N = 1, 2, 4, 8
     python experiments/fleet.py --sites site128 site256 --rovers 1 2 4 8 16 32 64
@@ -47,7 +48,8 @@ def _row(name, scene, n, strategy, params, episode, max_steps) -> dict:
     s = summary_of(run)
     return {"site": name, "rovers": n, "strategy": strategy, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
             "pushes": s["pushes"], "delivered_per_rover_step": s["delivered_per_rover_step"],
-            "conflicts": s["conflicts"], "plan_ms_median": s["plan_ms_median"], "plan_events": s["plan_events"],
+            "conflicts": s["conflicts"], "plan_ms_median": s["plan_ms_median"], "plan_ms_p95": s["plan_ms_p95"],
+            "plan_events": s["plan_events"],
             "idle_fraction_mean": statistics.fmean(s["idle_fraction"]), "stop_reason": s["stop_reason"],
             "wall_s": round(wall, 2)}
 
@@ -87,13 +89,17 @@ def main(argv=None) -> None:
         scenes = {name: site(name) for name in args.sites}
     params, episode = FabricParams(), EpisodeParams(max_pushes=1_000_000)
     builds = {name: _build_ms(scene, params) for name, scene in scenes.items()}
-    rows = [_row(name, scene, n, strategy, params, episode, args.max_steps)
-            for name, scene in scenes.items() for strategy in args.strategies for n in args.rovers]
     meta = (f"{_dt.datetime.now(_dt.UTC).isoformat(timespec='seconds')}, {platform.platform()}, "
             f"jax {jax.__version__} ({jax.default_backend()}), {platform.processor() or platform.machine()}; "
             f"stop at 2% of the mass outside the targets or {args.max_steps} steps.")
-    write_results(RESULTS_DIR, args.name, {"meta": meta, "full_build_ms": builds, "rows": rows},
-                  _markdown(rows, builds, meta))
+    rows = []
+    for name, scene in scenes.items():
+        for strategy in args.strategies:
+            for n in args.rovers:
+                rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps))
+                # rewritten after every run: an interrupted benchmark keeps the rows it finished
+                write_results(RESULTS_DIR, args.name, {"meta": meta, "full_build_ms": builds, "rows": rows},
+                              _markdown(rows, builds, meta))
 
 
 if __name__ == "__main__":

@@ -83,7 +83,7 @@ def summary_of(run: FleetRun) -> dict:
     spilled: sum of the pushes' spills (spilled mass stays on the site and may be pushed again);
     remaining: mass outside the targets at the end. idle_fraction: ``idle_steps / steps`` per rover.
     delivered_per_rover_step: delivered / (N * T). plan_ms: per planning event (a step in which an
-    assignment happened), median and p95 (None without events).
+    assignment happened and no push ended, so no fabric refresh), median and p95 (None without events).
     """
     t, n = _check_run(run)
     delivered = float(run.delivered[-1]) - float(run.delivered[0])

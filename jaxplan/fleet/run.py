@@ -35,8 +35,8 @@ class FleetRun:
     was assigned), last_step (the step it was applied), cells [[r, c], ...] (the route), collected,
     delivered, spilled (objects), mode ("deliver" / "rearrange").
     rover_pushes: i32[N]; idle_steps: i32[N] steps each rover had no task.
-    plan_ms: wall ms of each step in which a task was assigned (the whole step: assignment, motion
-    and any fabric refresh). conflicts: invariant violations the serial checker
+    plan_ms: wall ms of each step in which a task was assigned and no push ended (the whole step:
+    assignment, distance fields and motion, without a fabric refresh). conflicts: invariant violations the serial checker
     (``jaxplan.reference.fleet.conflicts``) found in ``pos`` and the reserved footprints (must be 0).
     stop_reason: one of ``STOP_REASONS``; message: a sentence for people.
     frames: with ``record=True``, T+1 dicts (0 = start) {"obj": f32[H, W], "heat": f32[H, W],
@@ -196,7 +196,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
             outside.append(float(rec.outside))
             kernel_conflicts += int(rec.conflicts)
             assigned, ended, gone = np.asarray(rec.assigned), np.asarray(rec.ended), np.asarray(rec.dropped)
-            if assigned.any():
+            if assigned.any() and not ended.any():
                 plan_ms.append(ms)
                 routes = jax.device_get(state.route)
                 modes = np.asarray(state.mode)
