@@ -198,6 +198,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
             assigned, ended, gone = np.asarray(rec.assigned), np.asarray(rec.ended), np.asarray(rec.dropped)
             if assigned.any() and not ended.any():
                 plan_ms.append(ms)
+            if assigned.any():
                 routes = jax.device_get(state.route)
                 modes = np.asarray(state.mode)
                 for r in np.flatnonzero(assigned):
