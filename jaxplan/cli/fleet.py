@@ -39,7 +39,7 @@ def _cmd_fleet(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from jaxplan.fleet import FLEET_OUTPUTS, run_fleet, summary_of, write_fleet_outputs
+    from jaxplan.fleet import FLEET_OUTPUTS, FleetConfig, run_fleet, summary_of, write_fleet_outputs
 
     params, spill, ep = fabric_params(args), spill_params(args), _episode_params(args)
     scene = _fleet_scene(args.scene)
@@ -49,10 +49,12 @@ def _cmd_fleet(args) -> int:
                        "outside the targets; use fewer rovers or a larger scene.")
     outputs = (*FLEET_OUTPUTS, "physics.json") if args.physics else FLEET_OUTPUTS
     with run_folder(args, outputs) as run:
+        config = FleetConfig(args.rovers, args.strategy, clearance=args.clearance)
         fleet = run_fleet(scene, n_rovers=args.rovers, strategy=args.strategy, params=params, spill=spill,
-                          episode=ep, max_steps=args.max_steps, record=not args.no_animation, progress=True)
+                          episode=ep, max_steps=args.max_steps, record=not args.no_animation, progress=True,
+                          config=config)
         extra = {"params": {"theta_tol_deg": float(params.theta_tol_deg), "k": int(params.k)},
-                 "spill": spill_dict(spill), "max_steps": args.max_steps}
+                 "spill": spill_dict(spill), "max_steps": args.max_steps, "clearance": args.clearance}
         try:
             written = write_fleet_outputs(fleet, run, animate=not args.no_animation, fps=args.fps,
                                           extra_summary=extra)
@@ -118,6 +120,9 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                         "route; >= 0, 'inf' never; default 0.1")
     add_theta_option(p)
     add_spill_options(p)
+    p.add_argument("--clearance", type=int, choices=(0, 1, 2), default=0,
+                   help="cells a task reserves: 0 the cells its push changes, 1 one more cell around its "
+                        "route, 2 the rover's body (no rover-rover contact in physics); default 0")
     p.add_argument("--physics", action="store_true",
                    help="drive the first round of concurrent pushes in one MuJoCo world with gravel and report "
                         "rover-rover contacts and simulated vs predicted delivery (DIR/physics.json)")

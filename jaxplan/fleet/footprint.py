@@ -21,14 +21,22 @@ boundary (``route.end``), which the spline, and so the spill, follows.
     clearance around every route. The route's cells grown by one alone would not: a sharp turn next
     to a long straight segment makes the spline overshoot a cell, and its spill lands two cells
     from the route.
-  ``tests/fleet/test_footprint.py`` checks both on ``execute``'s real changes. Target cells are only
+  - r = 2 (**body**): the cells the rover's body passes over, target cells included: the push
+    path, the spline's samples, the points up to ``BODY_BEHIND`` cells behind the spline's start
+    (where the physical rover starts) and up to
+    ``BODY_AHEAD`` cells past its end (the shovel rover of ``transport.rover.model`` drives its blade
+    past the route's end), all grown by one cell (the blade is one cell wide). It holds the r = 1
+    footprint's cells outside the targets; it is what two rovers need so that their bodies never
+    touch in physics (``jaxplan.fleet.physics``), at the price of serialising pushes into a target
+    from nearby directions.
+  ``tests/fleet/test_footprint.py`` checks r = 0 and r = 1 on ``execute``'s real changes. Target cells are only
   ever added to (the delivered load, on ``execute.deposit_cell``), never collected, so pushes that
   deposit on the same target cell commute: footprints reserve no target cell the rover does not
   drive on (reserving the margin inside a small target serialised every push into it).
 
 Static sizes: a route of S slots has a push path of ``P = S + max(H, W)`` slots and ``S *
 samples_per_step`` spline samples, so a core list of ``C = P + S samples_per_step`` cells (the
-first P rows are the path).
+first P rows are the path), and ``BODY_POINTS`` more for r = 2.
 """
 from __future__ import annotations
 
@@ -40,8 +48,18 @@ from jaxplan.transport import execute, spillage
 __all__ = ["CLEARANCES", "core_cells", "dilate", "footprint_mask", "mask_from_core", "path_cell", "path_length",
            "path_slots", "push_steps", "route_samples"]
 
-CLEARANCES = (0, 1)
-"""Allowed clearances: cells around a route reserved beyond the cells its push changes."""
+CLEARANCES = (0, 1, 2)
+"""Allowed clearances: cells around a route reserved beyond the cells its push changes (2: the
+rover's body, module docstring)."""
+BODY = 2
+BODY_BEHIND = 2.75
+"""Cells the rover reaches behind its route's first point: the bridge starts it with the side plates'
+tips a gap behind the source (``bridge.route_path``), so its back stands about 2.5 cells behind."""
+BODY_AHEAD = 2.5
+"""Cells the rover reaches past its route's end: the bridge's push-in (1 cell), axle to blade (0.44)
+and the side plates (0.98), rounded up."""
+_BODY_STEP = 0.25
+BODY_POINTS = 1 + int(BODY_BEHIND / _BODY_STEP) + int(BODY_AHEAD / _BODY_STEP)
 
 
 def path_slots(route_slots: int, shape) -> int:
@@ -95,11 +113,37 @@ def core_cells(scene, route, samples: spillage.PathSamples, clearance: int = 1):
         flat = execute.spill_cells(scene, route, samples)
         beside = jnp.stack([flat // w, flat % w], -1).astype(jnp.int32)
     else:
-        rc = jnp.floor((samples.pos - jnp.asarray(scene.origin, jnp.float32)) / scene.cell_size).astype(jnp.int32)
-        beside = jnp.stack([jnp.clip(rc[:, 1], 0, h - 1), jnp.clip(rc[:, 0], 0, w - 1)], -1)
+        beside = _cells_of(scene, samples.pos)
     beside = jnp.where(samples.valid[:, None], beside, -1)
     on_path = jnp.concatenate([path_valid, jnp.zeros_like(samples.valid)])
-    return jnp.concatenate([path, beside]), jnp.concatenate([path_valid, samples.valid]), on_path
+    cells, valid = jnp.concatenate([path, beside]), jnp.concatenate([path_valid, samples.valid])
+    if clearance == BODY:
+        body, body_valid = _body_points(samples, scene.cell_size)
+        cells = jnp.concatenate([cells, jnp.where(body_valid[:, None], _cells_of(scene, body), -1)])
+        valid = jnp.concatenate([valid, body_valid])
+        on_path = jnp.concatenate([on_path, jnp.zeros_like(body_valid)])
+    return cells, valid, on_path
+
+
+def _cells_of(scene, points):
+    """i32[K, 2]: the (row, col) of world ``points: f32[K, 2]``, clipped to the grid."""
+    h, w = scene.shape
+    rc = jnp.floor((points - jnp.asarray(scene.origin, jnp.float32)) / scene.cell_size).astype(jnp.int32)
+    return jnp.stack([jnp.clip(rc[:, 1], 0, h - 1), jnp.clip(rc[:, 0], 0, w - 1)], -1)
+
+
+def _body_points(samples: spillage.PathSamples, cell_size):
+    """``(points f32[BODY_POINTS, 2], valid bool[BODY_POINTS])``: world points of the rover's body
+    beyond the spline: its back behind the first sample, and its blade and side plates past the last,
+    ``_BODY_STEP`` cells apart (module docstring)."""
+    n = samples.valid.shape[0]
+    last = jnp.clip(jnp.sum(samples.valid) - 1, 0, n - 1)
+    any_ = jnp.any(samples.valid)
+    back = _BODY_STEP * jnp.arange(int(BODY_BEHIND / _BODY_STEP) + 1, dtype=jnp.float32)
+    ahead = _BODY_STEP * jnp.arange(1, int(BODY_AHEAD / _BODY_STEP) + 1, dtype=jnp.float32)
+    behind = samples.pos[0] - cell_size * back[:, None] * samples.tangent[0]
+    tail = samples.pos[last] + cell_size * ahead[:, None] * samples.tangent[last]
+    return jnp.concatenate([behind, tail]), jnp.full(BODY_POINTS, any_)
 
 
 def _path_cells(route, k):
@@ -120,6 +164,7 @@ def _path_cells(route, k):
 
 def dilate(mask, radius: int = 1):
     """bool[H, W]: ``mask`` grown by ``radius`` (static, 0 or 1) cells in all 8 directions (Chebyshev)."""
+    radius = min(radius, 1)
     if radius == 0:
         return mask
     return mask | jnp.any(lattice.neighbours(mask, False), 0)
@@ -134,6 +179,8 @@ def _mark(shape, cells, valid):
 def mask_from_core(target_mask, cells, valid, on_path, clearance: int = 1):
     """bool[H, W]: the footprint of a core list (``core_cells``) on a grid with ``target_mask``."""
     core = _mark(target_mask.shape, cells, valid)
+    if clearance == BODY:
+        return dilate(core, 1)
     return (dilate(core, clearance) & ~target_mask) | _mark(target_mask.shape, cells, valid & on_path)
 
 

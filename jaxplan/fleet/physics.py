@@ -417,12 +417,17 @@ def _masses(scene, routes, world: rover_mod.World, roll: dict, owner, masks, spi
 
 
 def first_round(run) -> list:
-    """The pushes of a fleet run's first round: those whose task started at the run's first assignment,
-    one per rover (dicts of ``FleetRun.pushes``, in rover order)."""
+    """The pushes of a fleet run's first full round: the most pushes whose tasks were all running at
+    one step (the earliest such step), so their footprints were pairwise disjoint; dicts of
+    ``FleetRun.pushes``, in rover order (at most one per rover)."""
     if not run.pushes:
         return []
-    start = min(p["first_step"] for p in run.pushes)
-    return sorted((p for p in run.pushes if p["first_step"] == start), key=lambda p: p["rover"])
+    first = np.asarray([p["first_step"] for p in run.pushes])
+    last = np.asarray([p["last_step"] for p in run.pushes])
+    steps = np.unique(first)
+    running = (first[None] <= steps[:, None]) & (steps[:, None] <= last[None])
+    at = int(np.argmax(running.sum(1)))          # the first step with the most tasks running
+    return sorted((p for p, on in zip(run.pushes, running[at]) if on), key=lambda p: p["rover"])
 
 
 def routes_of(scene, pushes) -> execute.Route:

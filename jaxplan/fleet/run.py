@@ -36,7 +36,8 @@ class FleetRun:
     delivered, spilled (objects), mode ("deliver" / "rearrange").
     rover_pushes: i32[N]; idle_steps: i32[N] steps each rover had no task.
     plan_ms: wall ms of each step in which a task was assigned and no push ended (the whole step:
-    assignment, distance fields and motion, without a fabric refresh). conflicts: invariant violations the serial checker
+    assignment, distance fields and motion, without a fabric refresh). conflicts: invariant
+    violations the serial checker
     (``jaxplan.reference.fleet.conflicts``) found in ``pos`` and the reserved footprints (must be 0).
     stop_reason: one of ``STOP_REASONS``; message: a sentence for people.
     frames: with ``record=True``, T+1 dicts (0 = start) {"obj": f32[H, W], "heat": f32[H, W],

@@ -89,7 +89,8 @@ class FleetConfig:
     ``episode.default_walk_cap``); routes have S = 2 (walk_cap + 1) slots. stall_steps: steps without
     any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an
     independent or partitioned rover tries per step when footprints are taken. clearance: cells
-    reserved around a route beyond the cells its push changes: 0 (default) or 1 (``footprint``).
+    reserved around a route beyond the cells its push changes: 0 (default), 1 or 2, the rover's body
+    (``footprint``).
 
     ``step`` reads only whether the strategy is "coordinated": independent and partitioned fleets
     differ in their state (``FleetState.region`` and ``home``, made by ``reset``), so both run the

@@ -47,6 +47,20 @@ def _observe(scene, route, clearance):
 def _check(scene, route):
     for clearance in footprint.CLEARANCES:
         _check_one(scene, route, clearance)
+    if int(route.n_cells) > 1 or bool(route.fallback):     # a route with a spline to follow
+        _check_body(scene, route)
+
+
+def _check_body(scene, route):
+    """The body footprint holds the clearance-1 footprint and every cell the physics rover's centre
+    line passes over (``physics.route_footprint(swept=True)``, not grown), start pose included."""
+    from jaxplan.fleet.physics import route_footprint
+
+    body = np.asarray(_observe(scene, route, footprint.BODY)[1])
+    one = np.asarray(_observe(scene, route, 1)[1])
+    assert not np.any(one & ~body)
+    swept = route_footprint(scene, route, 0, swept=True)
+    assert not np.any(swept & ~body), np.argwhere(swept & ~body)
 
 
 def _check_one(scene, route, clearance):
@@ -61,7 +75,8 @@ def _check_one(scene, route, clearance):
     assert np.all(mask[path[:, 0], path[:, 1]])
     on_path = np.zeros(SHAPE, bool)
     on_path[path[:, 0], path[:, 1]] = True
-    assert not np.any(mask & np.asarray(scene.target_mask) & ~on_path)   # target cells: only where it drives
+    if clearance < footprint.BODY:      # target cells: only where it drives
+        assert not np.any(mask & np.asarray(scene.target_mask) & ~on_path)
 
 
 @SETTINGS

@@ -26,7 +26,7 @@ SCENE = site(0, (12, 12), "uniform")
     (dict(n_rovers=2, starts=[[0, 0], [0, 0]]), "starts"),
     (dict(n_rovers=2, starts=[[0, 0], [12, 0]]), "starts"),
     (dict(n_rovers=1, starts=[[6, 6]]), "starts"),                     # the target's centre
-    (dict(config=FleetConfig(1, "coordinated", clearance=2)), "FleetConfig.clearance"),
+    (dict(config=FleetConfig(1, "coordinated", clearance=3)), "FleetConfig.clearance"),
     (dict(config=FleetConfig(2, "coordinated")), "config"),
     (dict(scene="site"), "scene"),
 ])

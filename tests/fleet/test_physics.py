@@ -156,3 +156,15 @@ def test_bad_inputs_name_the_field(kwargs, field):
     scene = _scene()
     with pytest.raises(ValueError, match=field):
         fp.check_concurrent_pushes(scene, _crossing(scene), spill=SPILL, **kwargs)
+
+
+def test_the_first_round_is_the_first_step_with_the_most_tasks_running():
+    class Run:
+        pushes = [dict(rover=0, first_step=1, last_step=5), dict(rover=1, first_step=3, last_step=9),
+                  dict(rover=0, first_step=6, last_step=8), dict(rover=2, first_step=7, last_step=12),
+                  dict(rover=1, first_step=10, last_step=11)]
+
+    picked = fp.first_round(Run())
+    assert [(p["rover"], p["first_step"]) for p in picked] == [(0, 6), (1, 3), (2, 7)]   # all running at step 7
+    Run.pushes = []
+    assert fp.first_round(Run()) == []
