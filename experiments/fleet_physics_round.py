@@ -50,13 +50,13 @@ def _markdown(result) -> str:
     for r in result["rows"]:
         lines.append(f"| {r['clearance']} | {r['rovers']} | {r['round']} | {r['contacts']} | "
                      f"{r['within']}/{r['round']} | {r['physics_s']} |")
-    lines += ["", "| clearance | rover | cells | predicted | simulated | rel. error | within |",
-              "|---:|---:|---:|---:|---:|---:|---|"]
+    lines += ["", "| clearance | rover | predicted | simulated | rel. error | within |",
+              "|---:|---:|---:|---:|---:|---|"]
     for r in result["rows"]:
         for p in r["pushes"]:
-            lines.append(f"| {r['clearance']} | {p['rover']} | {p.get('cells', '-')} | "
-                         f"{p['predicted_delivered']:.1f} | {p['delivered']:.0f} | {p['rel_error']:.2f} | "
-                         f"{p['within']} |")
+            err = "-" if p["relative_error"] is None else f"{p['relative_error']:.2f}"
+            lines.append(f"| {r['clearance']} | {p['rover']} | {p['predicted_delivered']:.1f} | "
+                         f"{p['delivered']:.0f} | {err} | {p['within']} |")
     return "\n".join(lines) + "\n"
 
 

@@ -164,7 +164,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     config = config.resolved(scene.shape)
 
     # the compiled programs do not depend on the budget (a static field): reset copies it into the state
-    planning = episode.replace(max_pushes=0, rebuild="full")
+    planning = episode.replace(max_pushes=0)
     state = _reset_jit(scene, params, spill, planning, config=config, starts=starts, max_steps=int(max_steps),
                        max_pushes=int(episode.max_pushes))
     initial = state

@@ -22,7 +22,9 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    from the next step on.
 4. **Apply**: pushes that reached their path's last cell this step are applied to the counts with
    ``execute`` in rover order, on the counts at that moment, their footprints released; then one
-   full ``build_fabric`` refreshes the shared fabric.
+   rebuild refreshes the shared fabric: ``episode.rebuild`` as ``episode.rebuild_mode`` resolves it,
+   the selective update for the cells the pushes changed (their union) or a full build, the same
+   fabric either way.
 5. **Stop** (first that holds): the mass outside the targets is at most ``stop_fraction`` of its start
    ("done"); no task runs and the budget is spent ("budget"); no task runs, none could be assigned
    and the next step would be the same (the assignment's reason: "done" when no source is left,
@@ -57,9 +59,10 @@ from jaxplan.transport.episode import (
 )
 from jaxplan.transport.fabric import Fabric, build_fabric
 from jaxplan.transport.params import FabricParams
+from jaxplan.transport.rebuild import selective_rebuild
 
 __all__ = ["DEADLOCK", "MAX_STEPS", "NO_REACHABLE", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord",
-           "FleetState", "max_rovers", "reset", "rollout", "step"]
+           "FleetState", "fleet_rebuild", "max_rovers", "reset", "rollout", "step"]
 
 STRATEGIES = ("coordinated", "independent", "partitioned")
 # Stop codes: the episode's (0-6: running, done, done (no source left), budget, no_material,
@@ -412,8 +415,28 @@ def _apply(scene, route, ended, spill, evaluator):
     return jax.lax.fori_loop(0, n, one, (scene.obj, zeros, zeros, zeros))
 
 
+def fleet_rebuild(rebuild: str) -> str:
+    """The fleet's fabric refresh for ``EpisodeParams.rebuild``: "selective" or "full" as asked;
+    "auto" is "full". Inside the fleet's one compiled step the selective update is traced with every
+    dirty-buffer size behind a ``lax.switch``: on ``site128`` with 4 rovers it compiles in minutes
+    against half a minute for the whole step with the full build, more than it saves in a run
+    (``experiments/fleet_rebuild.py``)."""
+    return "selective" if rebuild == "selective" else "full"
+
+
+def _refresh(scene, params, fabric, before, rebuild: str):
+    """Step 4's rebuild of the shared fabric for ``scene``'s counts (``before``: f32[H, W] the counts
+    it was built for). rebuild (static): "selective" updates the cells the pushes changed (the same
+    fabric as a full build, ``transport.rebuild``), "full" builds it anew."""
+    if rebuild == "selective":
+        changed = (scene.obj != before) & ~scene.target_mask
+        return selective_rebuild(scene, params, fabric, changed)[0]
+    return build_fabric(scene, params)
+
+
 def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
     n = state.pos.shape[0]
+    rebuild = fleet_rebuild(ep.rebuild)
     step_no = state.t + 1
     # 1. assign
     new_route, new_mode, assigned, owner, failure, candidates, attempts, fresh = _assign(
@@ -447,7 +470,8 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     scene = state.scene.with_obj(obj)
     owner = jnp.where((owner >= 0) & ended[jnp.maximum(owner, 0)], -1, owner)
     phase = jnp.where(ended, IDLE, phase)
-    fabric = jax.lax.cond(jnp.any(ended), lambda s: build_fabric(s, params), lambda s: state.fabric, scene)
+    fabric = jax.lax.cond(jnp.any(ended), lambda s: _refresh(s, params, state.fabric, state.scene.obj, rebuild),
+                          lambda s: state.fabric, scene)
     # 5. totals and stop
     t = step_no
     outside = _f32(outside_mass(scene))
@@ -484,8 +508,8 @@ def step(state: FleetState, params: FabricParams, spill: spillage.SpillParams, e
          config: FleetConfig, evaluator: spillage.Evaluator = spillage.curvature_spill):
     """One step of the fleet (module docstring): ``(state, FleetRecord)``. Pure, one jittable program;
     config and evaluator are static. A done state is returned as it is, with an invalid record. The
-    push budget is ``state.max_pushes`` (``episode.max_pushes`` and ``episode.rebuild`` are not read:
-    the fleet always rebuilds in full)."""
+    push budget is ``state.max_pushes`` (``episode.max_pushes`` is not read); ``episode.rebuild``
+    picks the fabric's refresh (step 4)."""
     _check_static(params, episode, config, "step")
     cfg = config.resolved(state.scene.shape)
     return jax.lax.cond(state.done, lambda s: (s, _idle_record(s)),

@@ -157,3 +157,15 @@ def test_candidates_share_connectors_and_plan_only_what_is_wanted():
         chex.assert_trees_all_equal(jax.tree.map(lambda a: a[:3], getattr(part.tasks, name)),
                                     jax.tree.map(lambda a: a[:3], getattr(full.tasks, name)))
     assert np.array_equal(np.asarray(part.exists), exists & (np.arange(m) < 3))
+
+
+def test_the_selective_refresh_gives_the_full_refresh_run():
+    """``EpisodeParams.rebuild="selective"`` updates the shared fabric selectively inside the step:
+    the same run as the full build, step by step."""
+    scene = site(2, SITES[2], "piles")
+    runs = [run_fleet(scene, 2, "coordinated", PARAMS, SPILL, EpisodeParams(max_pushes=6, rebuild=mode),
+                      max_steps=300) for mode in ("full", "selective")]
+    assert len(runs[0].pushes) > 2
+    np.testing.assert_array_equal(runs[0].pos, runs[1].pos)
+    np.testing.assert_array_equal(runs[0].delivered, runs[1].delivered)
+    np.testing.assert_array_equal(np.asarray(runs[0].final_scene.obj), np.asarray(runs[1].final_scene.obj))
