@@ -25,7 +25,7 @@ import jax
 
 from experiments._results import write_results
 from jaxplan import FabricParams, build_fabric, random_scene
-from jaxplan.fleet import STRATEGIES, run_fleet, site, summary_of
+from jaxplan.fleet import STRATEGIES, FleetConfig, run_fleet, site, summary_of
 from jaxplan.transport.episode import EpisodeParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -41,12 +41,14 @@ def _build_ms(scene, params, repeats: int = 5) -> float:
     return statistics.median(runs)
 
 
-def _row(name, scene, n, strategy, params, episode, max_steps) -> dict:
+def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="value") -> dict:
     start = time.perf_counter()
-    run = run_fleet(scene, n, strategy, params, episode=episode, max_steps=max_steps, progress=True)
+    config = FleetConfig(n, strategy, candidates_by=candidates_by)
+    run = run_fleet(scene, n, strategy, params, episode=episode, max_steps=max_steps, progress=True, config=config)
     wall = time.perf_counter() - start
     s = summary_of(run)
-    return {"site": name, "rovers": n, "strategy": strategy, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
+    label = strategy if strategy != "coordinated" or candidates_by == "value" else f"coordinated ({candidates_by})"
+    return {"site": name, "rovers": n, "strategy": label, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
             "pushes": s["pushes"], "delivered_per_rover_step": s["delivered_per_rover_step"],
             "conflicts": s["conflicts"], "plan_ms_median": s["plan_ms_median"], "plan_ms_p95": s["plan_ms_p95"],
             "plan_events": s["plan_events"],
@@ -78,6 +80,8 @@ def main(argv=None) -> None:
     parser.add_argument("--sites", nargs="+", default=["site128"], help="built-in fleet sites; default site128")
     parser.add_argument("--rovers", nargs="+", type=int, default=[1, 2, 4, 8], help="fleet sizes; default 1 2 4 8")
     parser.add_argument("--strategies", nargs="+", default=list(STRATEGIES), choices=STRATEGIES)
+    parser.add_argument("--candidates-by", choices=("value", "rate"), default="value",
+                        help="the coordinated strategy's candidates (FleetConfig.candidates_by); default value")
     parser.add_argument("--max-steps", type=int, default=20_000, help="step limit per run; default 20000")
     parser.add_argument("--quick", action="store_true", help="a 24x24 piles scene, N = 1 and 2 (a smoke test)")
     parser.add_argument("--name", default="fleet", help="results file stem; default fleet")
@@ -96,7 +100,7 @@ def main(argv=None) -> None:
     for name, scene in scenes.items():
         for strategy in args.strategies:
             for n in args.rovers:
-                rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps))
+                rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps, args.candidates_by))
                 # rewritten after every run: an interrupted benchmark keeps the rows it finished
                 write_results(RESULTS_DIR, args.name, {"meta": meta, "full_build_ms": builds, "rows": rows},
                               _markdown(rows, builds, meta))

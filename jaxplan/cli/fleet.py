@@ -49,12 +49,13 @@ def _cmd_fleet(args) -> int:
                        "outside the targets; use fewer rovers or a larger scene.")
     outputs = (*FLEET_OUTPUTS, "physics.json") if args.physics else FLEET_OUTPUTS
     with run_folder(args, outputs) as run:
-        config = FleetConfig(args.rovers, args.strategy, clearance=args.clearance)
+        config = FleetConfig(args.rovers, args.strategy, clearance=args.clearance, candidates_by=args.candidates)
         fleet = run_fleet(scene, n_rovers=args.rovers, strategy=args.strategy, params=params, spill=spill,
                           episode=ep, max_steps=args.max_steps, record=not args.no_animation, progress=True,
                           config=config)
         extra = {"params": {"theta_tol_deg": float(params.theta_tol_deg), "k": int(params.k)},
-                 "spill": spill_dict(spill), "max_steps": args.max_steps, "clearance": args.clearance}
+                 "spill": spill_dict(spill), "max_steps": args.max_steps, "clearance": args.clearance,
+                 "candidates": args.candidates}
         try:
             written = write_fleet_outputs(fleet, run, animate=not args.no_animation, fps=args.fps,
                                           extra_summary=extra)
@@ -120,6 +121,9 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                         "route; >= 0, 'inf' never; default 0.1")
     add_theta_option(p)
     add_spill_options(p)
+    p.add_argument("--candidates", choices=("value", "rate"), default="value",
+                   help="coordinated candidates: the top sources by J (value), or each idle rover's best "
+                        "sources by J over its approach and route length (rate); default value")
     p.add_argument("--clearance", type=int, choices=(0, 1, 2), default=0,
                    help="cells a task reserves: 0 the cells its push changes, 1 one more cell around its "
                         "route, 2 the rover's body (no rover-rover contact in physics); default 0")

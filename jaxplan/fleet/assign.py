@@ -47,8 +47,9 @@ from jaxplan.transport.episode import (
 )
 
 __all__ = ["BLOCKED", "PLAN_CHUNK", "Attempts", "Candidates", "Task", "assign_each", "assign_greedy", "assign_planned",
-           "failure_rank", "footprint_free", "greedy_choice", "no_attempts", "plan_candidates", "plan_task", "reserve",
-           "rovers_inside", "sector_grid", "sector_starts", "sectors", "spread_starts", "wanted_candidates"]
+           "failure_rank", "footprint_free", "greedy_choice", "no_attempts", "plan_candidates", "plan_task",
+           "rate_sources", "reserve", "rovers_inside", "sector_grid", "sector_starts", "sectors", "spread_starts",
+           "wanted_candidates"]
 
 BLOCKED = 9
 PLAN_CHUNK = 8
@@ -139,11 +140,35 @@ class Candidates(NamedTuple):
     usable: jax.Array
 
 
+def rate_sources(fabric, owner, pos, idle, m: int, cell_size, per_rover: int = 2):
+    """``(flat i32[m], ok bool[m])``: each idle rover's ``per_rover`` best sources by the rate the
+    fabric promises it, ``J / (Chebyshev distance from the rover + route length in cells + 1)``,
+    among occupied cells outside every footprint; rank by rank (every idle rover's best, then every
+    second best, ...), each cell once, the first m kept."""
+    h, w = owner.shape
+    rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    far = jnp.maximum(jnp.abs(rows[None] - pos[:, 0, None, None]), jnp.abs(cols[None] - pos[:, 1, None, None]))
+    rate = fabric.value[None] / (far + fabric.length[None] / cell_size + 1.0)
+    allowed = (fabric.occupied & (owner < 0))[None] & idle[:, None, None]
+    best, flat = jax.lax.top_k(jnp.where(allowed, rate, -jnp.inf).reshape(pos.shape[0], -1), per_rover)
+    best, flat = best.T.reshape(-1), flat.T.reshape(-1).astype(jnp.int32)       # rank-major
+    k = flat.shape[0]
+    earlier = jnp.tril(flat[:, None] == flat[None], -1)
+    ok = (best > -jnp.inf) & ~jnp.any(earlier, 1)
+    order = jnp.argsort(~ok, stable=True)
+    flat, ok = flat[order], ok[order]
+    if k < m:
+        flat, ok = jnp.pad(flat, (0, m - k)), jnp.pad(ok, (0, m - k))
+    return flat[:m], ok[:m]
+
+
 def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int, cap: int, evaluator,
-                    clearance: int, wanted=None) -> Candidates:
+                    clearance: int, wanted=None, by_rate=None) -> Candidates:
     """The top ``M = candidates`` sources by the source rule's score among the occupied cells outside
     every footprint (``owner: i32[H, W]``, -1 free); the first ``wanted`` of them (i32[], default M)
-    planned as ``Task`` s, the others left empty (``exists`` False).
+    planned as ``Task`` s, the others left empty (``exists`` False). by_rate: optional ``(pos
+    i32[N, 2], idle bool[N])``: the candidates are the idle rovers' best sources by rate instead
+    (``rate_sources``).
 
     The tasks are planned ``PLAN_CHUNK`` at a time, chunks past ``wanted`` skipped, so a few idle
     rovers cost a few chunks whatever M is. Within a chunk, sources that share a highway anchor share
@@ -153,10 +178,14 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     h, w = scene.shape
     m = min(int(candidates), h * w)
     wanted = m if wanted is None else jnp.clip(wanted, 1, m)
-    score_src = _source_score(scene, fabric, ep.source_rule)
-    vals = jnp.where(fabric.occupied & (owner < 0), score_src, -jnp.inf).reshape(-1)
-    top, idx = jax.lax.top_k(vals, m)
-    exists = (top > -jnp.inf) & (jnp.arange(m) < wanted)
+    if by_rate is None:
+        score_src = _source_score(scene, fabric, ep.source_rule)
+        vals = jnp.where(fabric.occupied & (owner < 0), score_src, -jnp.inf).reshape(-1)
+        top, idx = jax.lax.top_k(vals, m)
+        found = top > -jnp.inf
+    else:
+        idx, found = rate_sources(fabric, owner, *by_rate, m, scene.cell_size)
+    exists = found & (jnp.arange(m) < wanted)
     sources = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
     anchors = jax.vmap(lambda s: source_anchor(scene, params, fabric, s))(sources)
     anchors = jnp.where(exists, anchors, -1)

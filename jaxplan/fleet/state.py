@@ -71,6 +71,7 @@ MAX_STEPS, DEADLOCK, NO_REACHABLE = 7, 8, assign.BLOCKED
 STOP_REASONS = ("running", "done", "done", "budget", "no_material", "no_route", "walk_cap", "max_steps",
                 "deadlock", "no_reachable_task")
 MAX_ROVERS = 64
+CANDIDATE_RULES = ("value", "rate")
 MAX_CANDIDATES = 64
 # Stale rovers whose distance fields are computed together: a chunk runs as many rounds as its
 # farthest rover needs, so small chunks waste little when one or two rovers are stale.
@@ -93,7 +94,9 @@ class FleetConfig:
     any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an
     independent or partitioned rover tries per step when footprints are taken. clearance: cells
     reserved around a route beyond the cells its push changes: 0 (default), 1 or 2, the rover's body
-    (``footprint``).
+    (``footprint``). candidates_by: the coordinated strategy's candidates, "value" (the top sources
+    by the source rule) or "rate" (each idle rover's two best sources by the rate the fabric
+    promises it, ``assign.rate_sources``).
 
     ``step`` reads only whether the strategy is "coordinated": independent and partitioned fleets
     differ in their state (``FleetState.region`` and ``home``, made by ``reset``), so both run the
@@ -107,6 +110,7 @@ class FleetConfig:
     stall_steps: int | None = None
     retries: int = 3
     clearance: int = 0
+    candidates_by: str = "value"
 
     def resolved(self, shape) -> FleetConfig:
         """This config with every None replaced by its value for a grid of ``shape``."""
@@ -137,6 +141,9 @@ class FleetConfig:
             if value is not None and (not is_int(value) or not low <= value <= high):
                 raise ValueError(f"FleetConfig.{name}: {value!r} is out of range; it must be an int in "
                                  f"[{low}, {high}] (or None for the default).")
+        if self.candidates_by not in CANDIDATE_RULES:
+            raise ValueError(f"FleetConfig.candidates_by: {self.candidates_by!r} is not a rule; use one of "
+                             f"{CANDIDATE_RULES}.")
         if self.clearance not in footprint.CLEARANCES:
             raise ValueError(f"FleetConfig.clearance: {self.clearance!r} is not allowed; use one of "
                              f"{footprint.CLEARANCES} (cells reserved around a route).")
@@ -345,8 +352,8 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
         if cfg.strategy == "coordinated":
             planned = jax.lax.cond(state.fresh, lambda _: state.candidates, lambda _: assign.plan_candidates(
                 scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
-                evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates)),
-                None)
+                evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates),
+                by_rate=(state.pos, idle) if cfg.candidates_by == "rate" else None), None)
             return assign.assign_planned(planned, state.pos, idle, state.owner, budget,
                                          state.route) + (planned, state.attempts, jnp.bool_(True))
         *out, attempts = assign.assign_each(scene, params, ep, spill, state.fabric, state.pos, idle, state.owner,

@@ -5,6 +5,7 @@ at a time, written from docs/fleet.md.
 - ``distance_field_to``: the same search, left once the stop cell's layer is labelled.
 - ``move_rovers``: the prioritised one-step move rule.
 - ``greedy_assign``: the coordinated strategy's greedy choice over (idle rover, candidate) pairs.
+- ``rate_sources``: the idle rovers' best sources by rate (``FleetConfig.candidates_by="rate"``).
 - ``conflicts``: the invariant checker over recorded positions and reservations (no shared cell, no
   swap, no rover inside another rover's reserved footprint).
 """
@@ -188,3 +189,32 @@ def conflicts(positions, reservations) -> list:
                 if not held[cell]:
                     del held[cell]
     return found
+
+
+def rate_sources(value, length, occupied, owner, pos, idle, m: int, cell_size: float, per_rover: int = 2):
+    """The flat cell indices (a list of at most m) of the idle rovers' ``per_rover`` best sources by
+    ``value / (Chebyshev distance from the rover + length / cell_size + 1)`` among occupied cells
+    with ``owner < 0``: every idle rover's best (rovers in index order), then every second best, and
+    so on, each cell listed once. Ties go to the lowest flat index. Computed in float32, as the
+    kernel."""
+    h, w = owner.shape
+    ranked = []
+    for r in range(len(pos)):
+        if not idle[r]:
+            ranked.append([])
+            continue
+        scored = []
+        for i in range(h):
+            for j in range(w):
+                if occupied[i, j] and owner[i, j] < 0:
+                    far = max(abs(i - int(pos[r][0])), abs(j - int(pos[r][1])))
+                    rate = np.float32(value[i, j]) / (np.float32(far) + np.float32(length[i, j]) /
+                                                      np.float32(cell_size) + np.float32(1.0))
+                    scored.append((-float(rate), i * w + j))
+        ranked.append([cell for _, cell in sorted(scored)[:per_rover]])
+    out = []
+    for k in range(per_rover):
+        for r in range(len(pos)):
+            if k < len(ranked[r]) and ranked[r][k] not in out:
+                out.append(ranked[r][k])
+    return out[:m]

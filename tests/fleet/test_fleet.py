@@ -23,15 +23,16 @@ PARAMS = FabricParams()
 SPILL = SpillParams(lam=0.1)
 
 
-@pytest.mark.parametrize("strategy", STRATEGIES)
-@pytest.mark.parametrize("n", sorted(SITES))
+@pytest.mark.parametrize("n, strategy, candidates_by", [(n, s, "value") for s in STRATEGIES for n in sorted(SITES)]
+                         + [(3, "coordinated", "rate")])
 @settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=False)
 @given(seed=st.integers(0, 10 ** 6), layout=st.sampled_from(LAYOUTS), fraction=st.sampled_from((0.02, 0.4)),
        pushes=st.integers(0, 12))
-def test_random_fleets_keep_every_invariant(n, strategy, seed, layout, fraction, pushes):
+def test_random_fleets_keep_every_invariant(n, strategy, candidates_by, seed, layout, fraction, pushes):
     scene = site(seed, SITES[n], layout)
     ep = EpisodeParams(max_pushes=pushes, stop_fraction=fraction, rebuild="full")
-    run = run_fleet(scene, n, strategy, PARAMS, SPILL, ep, max_steps=1_000)
+    run = run_fleet(scene, n, strategy, PARAMS, SPILL, ep, max_steps=1_000,
+                    config=FleetConfig(n, strategy, candidates_by=candidates_by))
     assert run.conflicts == 0 and run.kernel_conflicts == 0
     assert run.stop_reason in STOP_REASONS and run.stop_reason not in ("running", "max_steps"), run.message
     t = run.steps

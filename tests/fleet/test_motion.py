@@ -3,6 +3,8 @@
 the prioritised one-step move, the greedy choice."""
 from __future__ import annotations
 
+import collections
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -218,3 +220,25 @@ def test_the_checker_finds_every_kind_of_violation():
     assert {(t, kind) for t, kind, _ in found} == {(2, "overlap"), (2, "footprint"), (3, "jump"), (3, "swap"),
                                                    (4, "same cell")}
     assert ref.conflicts(pos[:2], [(1, 0, 1, [(5, 5)])]) == []        # a rover in its own footprint is fine
+
+
+_rate = jax.jit(assign.rate_sources, static_argnums=4)
+_RateFields = collections.namedtuple("_RateFields", "value length occupied")   # what rate_sources reads
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2 ** 31 - 1), m=st.integers(1, 2 * N + 2))
+def test_rate_sources_equal_the_serial_ranking(seed, m):
+    rng = np.random.default_rng(seed)
+    occupied = rng.random(SHAPE) < 0.4
+    value = np.where(occupied, rng.integers(1, 40, SHAPE), 0).astype(np.float32)      # ties happen
+    length = np.where(occupied, rng.integers(1, 20, SHAPE), 0).astype(np.float32)
+    owner = np.where(rng.random() < 0.5, _owner_map(rng), -1).astype(np.int32)
+    pos = _distinct_cells(rng, N)
+    idle = rng.random(N) < 0.7
+
+    fabric = _RateFields(jnp.asarray(value), jnp.asarray(length), jnp.asarray(occupied))
+    flat, ok = _rate(fabric, jnp.asarray(owner), jnp.asarray(pos), jnp.asarray(idle), m, 1.0)
+    want = ref.rate_sources(value, length, occupied, owner, pos, idle, m, 1.0)
+    assert np.asarray(flat)[np.asarray(ok)].tolist() == want
+    assert not np.any(np.asarray(ok)[len(want):])
