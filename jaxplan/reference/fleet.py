@@ -21,18 +21,27 @@ FAR = 2 ** 30          # as jaxplan.fleet.motion.FAR
 IDLE, APPROACH, PUSH = 0, 1, 2
 
 
-def distance_field(goal, passable) -> np.ndarray:
-    """i64[H, W]: 8-connected steps to ``goal`` (row, col) through ``passable`` cells; FAR elsewhere."""
+def distance_field(goal, passable, stop_at=None) -> np.ndarray:
+    """i64[H, W]: 8-connected steps to ``goal`` (row, col) through ``passable`` cells; FAR elsewhere.
+
+    With ``stop_at``: every cell farther from ``goal`` than ``stop_at`` is left FAR (nothing changes
+    where ``stop_at`` cannot reach the goal). The queue holds cells in order of distance, so the
+    first cell popped at the stop cell's distance d* means every cell at d* is labelled: the search
+    ends there, before labelling d* + 1.
+    """
     passable = np.asarray(passable, bool)
     h, w = passable.shape
     d = np.full((h, w), FAR, np.int64)
     g = (int(goal[0]), int(goal[1]))
+    stop = None if stop_at is None else (int(stop_at[0]), int(stop_at[1]))
     if not passable[g]:
         return d
     d[g] = 0
     queue = deque([g])
     while queue:
         r, c = queue.popleft()
+        if stop is not None and d[r, c] >= d[stop]:
+            break
         for dr, dc in DIRS:
             q = (r + dr, c + dc)
             if 0 <= q[0] < h and 0 <= q[1] < w and passable[q] and d[q] == FAR:
@@ -42,31 +51,8 @@ def distance_field(goal, passable) -> np.ndarray:
 
 
 def distance_field_to(goal, passable, stop_at) -> np.ndarray:
-    """i64[H, W]: ``distance_field`` with every cell farther from ``goal`` than ``stop_at`` set to FAR
-    (unchanged where ``stop_at`` cannot reach the goal).
-
-    The queue holds cells in order of distance, so the first cell popped at the stop cell's distance
-    d* means every cell at d* is labelled: the search ends there, before labelling d* + 1.
-    """
-    passable = np.asarray(passable, bool)
-    h, w = passable.shape
-    d = np.full((h, w), FAR, np.int64)
-    g = (int(goal[0]), int(goal[1]))
-    stop = (int(stop_at[0]), int(stop_at[1]))
-    if not passable[g]:
-        return d
-    d[g] = 0
-    queue = deque([g])
-    while queue:
-        r, c = queue.popleft()
-        if d[r, c] >= d[stop]:
-            break
-        for dr, dc in DIRS:
-            q = (r + dr, c + dc)
-            if 0 <= q[0] < h and 0 <= q[1] < w and passable[q] and d[q] == FAR:
-                d[q] = d[r, c] + 1
-                queue.append(q)
-    return d
+    """``distance_field`` stopped at ``stop_at`` (the serial twin of ``motion.distance_field_to``)."""
+    return distance_field(goal, passable, stop_at)
 
 
 def move_rovers(pos, phase, dist, owner, push_next):
