@@ -22,9 +22,9 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    from the next step on.
 4. **Apply**: pushes that reached their path's last cell this step are applied to the counts with
    ``execute`` in rover order, on the counts at that moment, their footprints released; then one
-   rebuild refreshes the shared fabric: ``episode.rebuild`` as ``episode.rebuild_mode`` resolves it,
-   the selective update for the cells the pushes changed (their union) or a full build, the same
-   fabric either way.
+   rebuild refreshes the shared fabric (``fleet_rebuild``: the selective update of the cells the
+   pushes changed with ``episode.rebuild="selective"``, else a full build; the same fabric either
+   way).
 5. **Stop** (first that holds): the mass outside the targets is at most ``stop_fraction`` of its start
    ("done"); no task runs and the budget is spent ("budget"); no task runs, none could be assigned
    and the next step would be the same (the assignment's reason: "done" when no source is left,
