@@ -164,7 +164,6 @@ def _path_cells(route, k):
 
 def dilate(mask, radius: int = 1):
     """bool[H, W]: ``mask`` grown by ``radius`` (static, 0 or 1) cells in all 8 directions (Chebyshev)."""
-    radius = min(radius, 1)
     if radius == 0:
         return mask
     return mask | jnp.any(lattice.neighbours(mask, False), 0)
