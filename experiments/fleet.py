@@ -83,6 +83,9 @@ def main(argv=None) -> None:
     parser.add_argument("--candidates-by", choices=("value", "rate"), default="value",
                         help="the coordinated strategy's candidates (FleetConfig.candidates_by); default value")
     parser.add_argument("--max-steps", type=int, default=20_000, help="step limit per run; default 20000")
+    parser.add_argument("--stop-fraction", type=float, default=0.02,
+                        help="stop once this fraction of the mass that started outside the targets is left; "
+                             "0.1 stops at T90; default 0.02")
     parser.add_argument("--quick", action="store_true", help="a 24x24 piles scene, N = 1 and 2 (a smoke test)")
     parser.add_argument("--name", default="fleet", help="results file stem; default fleet")
     args = parser.parse_args(argv)
@@ -91,11 +94,11 @@ def main(argv=None) -> None:
         args.rovers, args.max_steps = [1, 2], 2000
     else:
         scenes = {name: site(name) for name in args.sites}
-    params, episode = FabricParams(), EpisodeParams(max_pushes=1_000_000)
+    params, episode = FabricParams(), EpisodeParams(max_pushes=1_000_000, stop_fraction=args.stop_fraction)
     builds = {name: _build_ms(scene, params) for name, scene in scenes.items()}
     meta = (f"{_dt.datetime.now(_dt.UTC).isoformat(timespec='seconds')}, {platform.platform()}, "
             f"jax {jax.__version__} ({jax.default_backend()}), {platform.processor() or platform.machine()}; "
-            f"stop at 2% of the mass outside the targets or {args.max_steps} steps.")
+            f"stop at {args.stop_fraction:.0%} of the mass outside the targets or {args.max_steps} steps.")
     rows = []
     for name, scene in scenes.items():
         for strategy in args.strategies:
