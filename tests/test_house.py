@@ -4,8 +4,9 @@
   ``from jaxplan import _x``, or ``module._y`` on an imported jaxplan module).
 - Layers only import downward: ``core`` imports no other jaxplan package; the systems
   (``transport``, ``pusharound``, ``teams``) and ``physics`` never import each other's packages, the
-  CLI, sweeps or tuning; ``fleet`` builds on ``transport`` (and counts conflicts with the serial
-  checker of ``reference``); nothing but the CLI imports ``jaxplan.cli``.
+  CLI, sweeps or tuning (tuning imports the systems it fits); ``fleet`` builds on ``transport``
+  (and counts conflicts with the serial checker of ``reference``); nothing but the CLI imports
+  ``jaxplan.cli``.
 - Each package lists its public API in ``__all__``, every listed name exists, and the names users
   call are importable from ``jaxplan``.
 """
@@ -71,7 +72,7 @@ ALLOWED = {
     "transport": {"physics"},
     "pusharound": {"physics"},
     "teams": set(),
-    "tune": {"transport"},
+    "tune": {"transport", "pusharound"},   # fits the fabric's and the gap ranking's parameters
     "sweep": {"transport"},
     "fleet": {"transport", "reference"},
     "cli": {"transport", "pusharound", "teams", "physics", "sweep", "tune", "fleet"},

@@ -241,6 +241,9 @@ def _leaf_mask(status: np.ndarray) -> tuple:
 
 def gap_costs(params: RankingParams, feats: PresearchFeatures):
     """Eq. 9 for every first-hop gap: f[K]. Pure JAX in the traced weights (jit / vmap / grad)."""
+    # As JAX arrays (numpy float64 features become JAX's default float, which the fill value below
+    # must fit).
+    feats = PresearchFeatures(*(jnp.asarray(x) for x in feats))
     lt, lp, eta = params.lambda_t, params.lambda_p, params.eta
     one_hop = lt * feats.first[:, 0] + lp * feats.first[:, 1]
     tail = lt * feats.tail[..., 0] + lp * feats.tail[..., 1] + eta * feats.tail[..., 2]

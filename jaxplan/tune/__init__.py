@@ -4,8 +4,21 @@
 (route, delivered, spilled) data.
 ``jaxplan.tune.fabric``: tune the fabric's ``theta_tol``, ``tau_h`` and anchor ``lambda`` through the
 soft kernels (``FabricParams(temperature=...)``) and check the result with the hard episode loop.
+``jaxplan.tune.ranking``: fit PushAround's gap-ranking weights (``RankingParams``: lambda_t, lambda_p,
+eta of Eqs. 8-9) to the search's own records (``plan_pushes(..., record=True)``) by a listwise loss.
 """
 from jaxplan.tune import fabric
+from jaxplan.tune.ranking import (
+    RankingData,
+    RankingFit,
+    fit_ranking,
+    ranking_data,
+    ranking_logits,
+    ranking_loss,
+    synthetic_ranking_data,
+)
 from jaxplan.tune.spill import SpillData, SpillFit, fit_spill, predict_spill, spill_loss, synthetic_spill_data
 
-__all__ = ["fabric", "SpillData", "SpillFit", "fit_spill", "predict_spill", "spill_loss", "synthetic_spill_data"]
+__all__ = ["fabric", "RankingData", "RankingFit", "SpillData", "SpillFit", "fit_ranking", "fit_spill", "predict_spill",
+           "ranking_data", "ranking_logits", "ranking_loss", "spill_loss", "synthetic_ranking_data",
+           "synthetic_spill_data"]

@@ -47,12 +47,14 @@ Modules: ``config`` (:class:`SearchConfig`, input checks), ``results`` (:class:`
 its parts), ``nodes`` (node, target and candidate types; Eq. 10's priority), ``context`` (a run's
 fixed inputs and its mutable counters and caches), ``facegraph`` (the "graph" presearch),
 ``evaluation`` (Eq. 7 and the targets of a node), ``candidates`` (candidate pushes and their order),
-``expansion`` (quick-pass, physics, children), ``loop`` (the best-first loop, :func:`plan_pushes`).
+``expansion`` (quick-pass, physics, children), ``loop`` (the best-first loop, :func:`plan_pushes`),
+``records`` (the optional gap recorder: :class:`ExpansionRecord`, one per expansion).
 """
 from jaxplan.pusharound.search.config import SEARCH_RANKING, SearchConfig
 from jaxplan.pusharound.search.facegraph import FaceGraph, face_graph
 from jaxplan.pusharound.search.loop import plan_pushes
+from jaxplan.pusharound.search.records import ExpansionRecord, TargetTerms
 from jaxplan.pusharound.search.results import ScheduledPush, SearchResult, SearchStats
 
-__all__ = ["SEARCH_RANKING", "FaceGraph", "ScheduledPush", "face_graph", "SearchConfig", "SearchResult", "SearchStats",
-           "plan_pushes"]
+__all__ = ["SEARCH_RANKING", "ExpansionRecord", "FaceGraph", "ScheduledPush", "TargetTerms", "face_graph",
+           "SearchConfig", "SearchResult", "SearchStats", "plan_pushes"]

@@ -80,16 +80,20 @@ class SearchRun:
     batch that failed to widen it); corrections: node origin -> error of the estimate seen on an
     evaluated sibling; tail_memo: gap bodies -> (Eq. 9 tail, crossing it is predicted to connect),
     the "beam" presearch's cache; n_nodes: nodes made; t0: ``time.perf_counter()`` at the start;
-    progress: the caller's callback or None.
+    progress: the caller's callback or None; records: None, or the gap recorder's list of
+    ``ExpansionRecord`` (``plan_pushes(..., record=True)``); leaf_memo: gap bodies -> (tail f[P, 3],
+    mask bool[P]) of the "beam" presearch's leaves, kept only while recording.
     """
 
     rng: np.random.Generator
     progress: Callable[[dict], None] | None = None
+    records: list | None = None
     stats: dict = dataclasses.field(default_factory=lambda: dict(_STATS))
     seen: set = dataclasses.field(default_factory=set)
     stuck: dict = dataclasses.field(default_factory=dict)
     corrections: dict = dataclasses.field(default_factory=dict)
     tail_memo: dict = dataclasses.field(default_factory=dict)
+    leaf_memo: dict = dataclasses.field(default_factory=dict)
     n_nodes: int = 0
     t0: float = dataclasses.field(default_factory=time.perf_counter)
 

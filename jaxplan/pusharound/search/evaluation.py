@@ -15,6 +15,7 @@ from jaxplan.pusharound.search.bodies import unit
 from jaxplan.pusharound.search.context import SearchContext, SearchRun
 from jaxplan.pusharound.search.facegraph import face_graph
 from jaxplan.pusharound.search.nodes import EMPTY_CHECK, Eq7Check, SearchNode, Target, remaining_estimate
+from jaxplan.pusharound.search.records import TargetTerms
 from jaxplan.pusharound.wccg import build_wccg, connectivity, w_clear_path
 
 __all__ = ["check_node", "endpoint_targets", "evaluate_node", "refresh_stuck", "scene_at"]
@@ -55,7 +56,7 @@ def evaluate_node(ctx: SearchContext, run: SearchRun, node: SearchNode):
         if not conn.same_face:
             targets = _gap_targets(ctx, run, node, g, sk, candidate_gaps(g, conn.frontier))
         else:
-            targets = endpoint_targets(ctx, node.poses)
+            targets = endpoint_targets(ctx, node.poses, terms=run.records is not None)
         _set_targets(run, node, targets)
         node.check = EMPTY_CHECK      # the WCCG is not needed any more
     return None
@@ -77,31 +78,44 @@ def _one_hop(ctx: SearchContext, gap: Gap, robots, width: float) -> float:
 
 def _gap_targets(ctx: SearchContext, run: SearchRun, node: SearchNode, g, sk, gaps: list) -> list:
     """The frontier's ``gaps`` as targets, cheapest first: ``Cost(g)`` = the one-hop cost plus the
-    stuck penalty, plus the presearch's tail."""
-    tails = _tails(ctx, run, node, g, sk, gaps)
+    stuck penalty, plus the presearch's tail. When the search records gaps, each target carries its
+    :class:`TargetTerms`."""
+    tails, leaves = _tails(ctx, run, node, g, sk, gaps)
     targets = []
     for gap in gaps:
         one = _one_hop(ctx, gap, node.robots, g.width) + run.stuck.get(gap.bodies, 0.0)
         tail, final = tails.get(gap.bodies, (0.0, False))
-        targets.append(_gap_target(ctx, g, gap, node.poses, one + tail, tail, one, final))
+        tg = _gap_target(ctx, g, gap, node.poses, one + tail, tail, one, final)
+        if leaves is not None:
+            first = np.asarray(one_hop_terms(gap, node.robots, g.width, ctx.params.mass_ref), np.float64)
+            tg = tg._replace(terms=TargetTerms(first, *leaves.get(gap.bodies, _NO_TAIL)))
+        targets.append(tg)
     targets.sort(key=lambda tg: tg.cost)
     return targets
 
 
-def _tails(ctx: SearchContext, run: SearchRun, node: SearchNode, g, sk, gaps: list) -> dict:
-    """gap bodies -> (Eq. 9's tail ``Cost(g) - C(g)``, crossing it is predicted to connect); empty
-    without presearch (one-hop costs only)."""
+# The tail terms of a target without a presearch continuation: one leaf of zeros.
+_NO_TAIL = (np.zeros((1, 3)), np.ones(1, bool))
+
+
+def _tails(ctx: SearchContext, run: SearchRun, node: SearchNode, g, sk, gaps: list) -> tuple:
+    """(gap bodies -> (Eq. 9's tail ``Cost(g) - C(g)``, crossing it is predicted to connect), and
+    when recording gap bodies -> the tail's leaves (tail f[P, 3], mask bool[P]), else None); both
+    empty without presearch (one-hop costs only)."""
+    leaves = {} if run.records is not None else None
     if not (ctx.cfg.presearch and gaps):
-        return {}
+        return {}, leaves
     if ctx.cfg.presearch_mode == "graph":
-        return _graph_tails(ctx, run, g, sk)
-    return _beam_tails(ctx, run, node, g, gaps)
+        return _graph_tails(ctx, run, g, sk, leaves)
+    return _beam_tails(ctx, run, node, g, gaps), (None if leaves is None else run.leaf_memo)
 
 
-def _graph_tails(ctx: SearchContext, run: SearchRun, g, sk) -> dict:
+def _graph_tails(ctx: SearchContext, run: SearchRun, g, sk, leaves: dict | None) -> tuple:
     run.stats["rank_calls"] += 1
-    fg = face_graph(g, ctx.scene.goal, ctx.params, run.stuck, skeleton=sk)
-    return {pair: (t if math.isfinite(t) else DEAD_END_PENALTY, fg.final[pair]) for pair, t in fg.tail.items()}
+    fg = face_graph(g, ctx.scene.goal, ctx.params, run.stuck, skeleton=sk, terms=leaves is not None)
+    if leaves is not None:
+        leaves.update({pair: (t[None], np.ones(1, bool)) for pair, t in fg.terms.items()})
+    return {pair: (t if math.isfinite(t) else DEAD_END_PENALTY, fg.final[pair]) for pair, t in fg.tail.items()}, leaves
 
 
 def _beam_tails(ctx: SearchContext, run: SearchRun, node: SearchNode, g, gaps: list) -> dict:
@@ -115,6 +129,9 @@ def _beam_tails(ctx: SearchContext, run: SearchRun, node: SearchNode, g, gaps: l
             cost = float(rk.cost[k])
             run.tail_memo[gap.bodies] = (max(cost - _one_hop(ctx, gap, node.robots, g.width), 0.0),
                                          len(rk.sequences[k]) == 0 and cost < DEAD_END_PENALTY)
+            if run.records is not None:
+                run.leaf_memo[gap.bodies] = (np.asarray(rk.features.tail[k], np.float64),
+                                             np.asarray(rk.features.mask[k], bool))
     return run.tail_memo
 
 
@@ -136,9 +153,10 @@ def _gap_target(ctx: SearchContext, g, gap: Gap, poses, cost, tail, one, final) 
                   float(gap.width), float(cost), float(tail), float(one), away, bool(final))
 
 
-def endpoint_targets(ctx: SearchContext, poses) -> list:
+def endpoint_targets(ctx: SearchContext, poses, *, terms: bool = False) -> list:
     """Remark 5: the movables (at ``poses`` f[M, 3]) within W/2 of the start or the goal, cheapest
-    first; each is pushed away from its endpoint at the cost of Eq. 8's widening term."""
+    first; each is pushed away from its endpoint at the cost of Eq. 8's widening term. terms: attach
+    each target's :class:`TargetTerms` (the gap recorder)."""
     r = 0.5 * float(ctx.scene.width)
     out = []
     for ep in (ctx.scene.start, ctx.scene.goal):
@@ -147,8 +165,11 @@ def endpoint_targets(ctx: SearchContext, poses) -> list:
             d = ctx.bodies.movable(m, poses[m]).distance(pt)
             if d < r:
                 away = unit(np.asarray(poses[m][:2]) - np.asarray(ep, np.float64))
+                c_p = (r - d) * ctx.scene.movables[m].mass / ctx.params.mass_ref
                 cost = float(ctx.params.lambda_p) * (r - d) * ctx.scene.movables[m].mass / ctx.params.mass_ref
-                out.append(Target("endpoint", (m,), (m,), float(d), cost + 1e-3, 0.0, cost + 1e-3, {m: away}, True))
+                tt = TargetTerms(np.array([0.0, c_p]), *_NO_TAIL) if terms else None
+                out.append(Target("endpoint", (m,), (m,), float(d), cost + 1e-3, 0.0, cost + 1e-3, {m: away}, True,
+                                  tt))
     out.sort(key=lambda tg: tg.cost)
     return out
 

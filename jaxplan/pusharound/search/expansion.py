@@ -12,6 +12,7 @@ from jaxplan.pusharound.search.candidates import candidate_task, candidates
 from jaxplan.pusharound.search.context import SearchContext, SearchRun
 from jaxplan.pusharound.search.evaluation import check_node
 from jaxplan.pusharound.search.nodes import Candidate, SearchNode, Target, priority, state_key
+from jaxplan.pusharound.search.records import expansion_record
 from jaxplan.pusharound.search.results import ScheduledPush
 
 __all__ = ["expand", "next_batch"]
@@ -82,6 +83,8 @@ def expand(ctx: SearchContext, run: SearchRun, node: SearchNode) -> tuple:
         if child is not None:
             children.append(child)
     node.children += len(children)
+    if run.records is not None:
+        run.records.append(expansion_record(ctx.params, node, batch, children))
     _penalise_stuck(ctx, run, node, batch, children)
     run.stats["children"] += len(children)
     found = _terminal_checks(ctx, run, children)

@@ -23,7 +23,11 @@ class FaceGraph(NamedTuple):
     start_face, goal_face: the faces of the endpoints (-1: outside every ring, -2: inside an
     obstacle cluster); tail: per gap, the least cost of the gap sequence after crossing it to reach
     the goal face (Eq. 9's continuation, minimised by Dijkstra instead of a beam of limited depth;
-    inf when no sequence reaches the goal); final: per gap, crossing it reaches the goal face.
+    inf when no sequence reaches the goal); final: per gap, crossing it reaches the goal face;
+    terms: None unless asked for (``face_graph(..., terms=True)``), else per gap the Eq. 8-9 terms
+    of its least tail, f64[3] = (sum of ``|m - m'|`` [m], sum of ``C_p``, sum of ``|m' - goal|`` [m]):
+    ``tail = lambda_t t[0] + lambda_p t[1] + eta t[2]`` plus the ``extra`` costs on the way (zeros
+    where the tail is 0 or inf).
     """
 
     faces: dict
@@ -31,10 +35,11 @@ class FaceGraph(NamedTuple):
     goal_face: int
     tail: dict
     final: dict
+    terms: dict | None = None
 
 
 def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, *,
-               skeleton: Skeleton | None = None) -> FaceGraph:
+               skeleton: Skeleton | None = None, terms: bool = False) -> FaceGraph:
     """Eq. 9's continuation costs for every gap of the scene, without beam or depth limit.
 
     Faces are the rings of the skeleton's clusters (a point lies in the face of the smallest ring
@@ -49,6 +54,8 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
     query) and a point location per bridge side. ``extra``: an added
     cost per gap (body pair), e.g. the search's penalty for gaps its pushes failed to widen.
     skeleton: :func:`faces.build_skeleton` of ``g`` to reuse (built when None). goal: (x, y) [m].
+    terms: also return each tail's decomposition into Eq. 8-9 terms (``FaceGraph.terms``; the search's
+    gap recorder asks for it). The tails are the same either way.
     """
     lt, lp, eta = (float(np.asarray(v)) for v in (params.lambda_t, params.lambda_p, params.eta))
     goal = np.asarray(goal, np.float64)
@@ -57,14 +64,17 @@ def face_graph(g: WCCG, goal, params: RankingParams, extra: dict | None = None, 
     locate = _face_locator(g, sk)
     goal_face = int(locate(goal[None])[0])
     faces, narrowest = _gap_faces(g, sk, locate)
-    where = {}
+    where, parts = {}, ({} if terms else None)
     for pair, (width_p, m) in narrowest.items():
         mass = min(g.body_mass[b] for b in pair if g.body_kind[b] == MOVABLE)
         where[pair] = (m, lp * max(float(g.width) - width_p, 0.0) * mass / params.mass_ref
                        + eta * float(np.linalg.norm(m - goal)) + (extra or {}).get(pair, 0.0))
-    tail = _tails_to_goal(faces, where, goal_face, lt)
+        if terms:
+            parts[pair] = np.array([0.0, max(float(g.width) - width_p, 0.0) * mass / params.mass_ref,
+                                    float(np.linalg.norm(m - goal))])
+    tail, sums = _tails_to_goal(faces, where, goal_face, lt, parts)
     final = {pair: goal_face in fs for pair, fs in faces.items()}
-    return FaceGraph(faces, -1, goal_face, tail, final)
+    return FaceGraph(faces, -1, goal_face, tail, final, sums)
 
 
 def _face_locator(g: WCCG, sk: Skeleton):
@@ -121,15 +131,18 @@ def _gap_faces(g: WCCG, sk: Skeleton, locate) -> tuple:
     return faces, narrowest
 
 
-def _tails_to_goal(faces: dict, where: dict, goal_face: int, lt: float) -> dict:
+def _tails_to_goal(faces: dict, where: dict, goal_face: int, lt: float, parts: dict | None = None) -> tuple:
     """Reverse Dijkstra from the gaps bordering the goal face: gap -> least cost of a gap sequence
     after it (``where``: gap -> (midpoint f[2], widening + goal cost); ``lt`` per metre between
-    midpoints); inf where none reaches the goal face."""
+    midpoints); inf where none reaches the goal face. ``parts``: gap -> f[3] its own (0, C_p,
+    distance to the goal) or None; returns (tails, None or gap -> f[3] the summed terms of each least
+    tail, the metres between midpoints in slot 0)."""
     by_face: dict = {}
     for pair, fs in faces.items():
         for f in fs:
             by_face.setdefault(f, []).append(pair)
     tail = {pair: math.inf for pair in faces}
+    sums = None if parts is None else {pair: np.zeros(3) for pair in faces}
     heap = []
     for pair in by_face.get(goal_face, []):
         tail[pair] = 0.0
@@ -142,8 +155,11 @@ def _tails_to_goal(faces: dict, where: dict, goal_face: int, lt: float) -> dict:
         m, c = where[pair]
         for f in faces[pair]:
             for q in by_face[f]:
-                nd = dist + c + lt * float(np.linalg.norm(where[q][0] - m))
+                step = float(np.linalg.norm(where[q][0] - m))
+                nd = dist + c + lt * step
                 if nd < tail[q] - 1e-12:
                     tail[q] = nd
+                    if sums is not None:
+                        sums[q] = sums[pair] + parts[pair] + np.array([step, 0.0, 0.0])
                     heapq.heappush(heap, (nd, q))
-    return tail
+    return tail, sums

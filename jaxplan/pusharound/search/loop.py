@@ -18,6 +18,7 @@ from jaxplan.pusharound.search.context import SearchContext, SearchRun, new_cont
 from jaxplan.pusharound.search.evaluation import evaluate_node, refresh_stuck, scene_at
 from jaxplan.pusharound.search.expansion import expand
 from jaxplan.pusharound.search.nodes import SearchNode, priority, remaining_estimate, state_key
+from jaxplan.pusharound.search.records import label_records
 from jaxplan.pusharound.search.results import SearchResult, SearchStats
 
 __all__ = ["OpenList", "plan_pushes"]
@@ -49,7 +50,7 @@ class OpenList:
 
 def plan_pushes(scene: PushScene, config: SearchConfig | None = None, ranking: RankingParams = SEARCH_RANKING,
                 *, world: PushWorld | None = None, sim=None, mode_table: ModeTable | None = None,
-                progress: Callable[[dict], None] | None = None) -> SearchResult:
+                progress: Callable[[dict], None] | None = None, record: bool = False) -> SearchResult:
     """Plan a pushing schedule that opens a W-clear corridor (Algorithm 1; docstring of
     :mod:`jaxplan.pusharound.search`).
 
@@ -57,7 +58,10 @@ def plan_pushes(scene: PushScene, config: SearchConfig | None = None, ranking: R
     presearch's beam / depth; world / sim: a prebuilt :func:`build_push_world` of ``scene`` and its
     :func:`make_push_simulator` (built here when None; pass them to reuse across calls); mode_table: a
     :class:`ModeTable` to read and update (a fresh one when None); progress: called with a dict after
-    every expansion (``event``, ``elapsed_s``, ``queue``, the counters of :class:`SearchStats`, ...).
+    every expansion (``event``, ``elapsed_s``, ``queue``, the counters of :class:`SearchStats`, ...);
+    record: keep an ``ExpansionRecord`` of every expansion (the ranked targets with their Eq. 8-9
+    terms, what the batch did on each, and which target led to the solution) in
+    ``SearchResult.records`` (:mod:`jaxplan.pusharound.search.records`); the plan is the same either way.
 
     Returns a :class:`SearchResult`. If Eq. 7 already holds: success with an empty schedule.
     """
@@ -65,7 +69,9 @@ def plan_pushes(scene: PushScene, config: SearchConfig | None = None, ranking: R
         config = SearchConfig()
     check_inputs(scene, config, ranking, mode_table, world, sim)
     ctx = new_context(scene, config, ranking, world, sim, mode_table)
-    run = SearchRun(np.random.default_rng(config.seed), progress)
+    if not isinstance(record, (bool, np.bool_)):
+        raise ValueError(f"record: must be a bool; got {record!r}.")
+    run = SearchRun(np.random.default_rng(config.seed), progress, records=[] if record else None)
     return _search(ctx, run)
 
 
@@ -173,4 +179,6 @@ def _result(ctx: SearchContext, run: SearchRun, queue: OpenList, success: bool, 
     stats = SearchStats(planning_time_s=time.perf_counter() - run.t0, **run.stats)
     final = scene_at(ctx, node)
     run.emit("done", len(queue), success=success, reason=reason, pushes=node.depth)
-    return SearchResult(bool(success), list(node.schedule), final, path, stats, reason)
+    records = (None if run.records is None
+               else label_records(run.records, bool(success), node.nid, node.chi, node.depth))
+    return SearchResult(bool(success), list(node.schedule), final, path, stats, reason, records)

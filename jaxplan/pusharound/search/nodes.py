@@ -21,7 +21,9 @@ class Target(NamedTuple):
     """What an expansion tries to open: a gap (bodies = WCCG body pair) or an endpoint disk
     (bodies = (body,)). movables: the movables to push; width: current gap width [m] (endpoint: the
     intruder's clearance [m]); cost: Cost(g); tail: Cost(g) - C(g); one_hop: C(g); away: per movable a
-    unit world direction away from the gap; final: crossing it is predicted to connect."""
+    unit world direction away from the gap; final: crossing it is predicted to connect; terms: the
+    :class:`~jaxplan.pusharound.search.records.TargetTerms` of its cost when the search records gaps
+    (``plan_pushes(..., record=True)``), else None."""
 
     kind: str
     bodies: tuple
@@ -32,6 +34,7 @@ class Target(NamedTuple):
     one_hop: float
     away: dict
     final: bool
+    terms: Any = None
 
 
 class Candidate(NamedTuple):

@@ -59,7 +59,9 @@ class SearchResult(NamedTuple):
     """success; schedule: list of :class:`ScheduledPush` (on failure: the partial schedule of the
     node closest to the goal by its estimate); final_scene: the scene after the schedule (poses and
     robots); path: f64[P, 2] W-clear path (None on failure); stats; reason: "" on success, else why
-    the search stopped ("time limit", "expansion limit", "exhausted")."""
+    the search stopped ("time limit", "expansion limit", "exhausted"); records: None, or with
+    ``plan_pushes(..., record=True)`` a tuple of ``ExpansionRecord`` (one per expansion, labelled
+    with the solution's path: ``jaxplan.pusharound.search.records``)."""
 
     success: bool
     schedule: list
@@ -67,3 +69,4 @@ class SearchResult(NamedTuple):
     path: np.ndarray | None
     stats: SearchStats
     reason: str
+    records: tuple | None = None
