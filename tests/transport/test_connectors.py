@@ -22,7 +22,7 @@ def _anchor_near_tie(ref, cell_size, anchor_lambda, rel=1e-5) -> bool:
     return bool(np.any(top2[:, 0] - top2[:, 1] <= rel * (1.0 + np.abs(top2[:, 0]))))
 
 
-@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scene=scenes(max_side=16, integer_counts=False), theta=st.sampled_from((45.0, 60.0, 90.0)),
        lam=st.sampled_from((0.0, 0.5, 2.0)), tau_h=st.sampled_from((0.3, 0.6)))
 def test_anchors_and_connectors_equal_reference(scene, theta, lam, tau_h):

@@ -12,7 +12,7 @@ from jaxplan import FabricParams, Scene, build_fabric, circle, extract_paths
 from jaxplan.transport import fabric as fabric_module
 from tests._scenes import ANGLES, has_borderline_step, reference_of, scenes
 
-SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 def _tables_equal(fab, ref):
@@ -64,7 +64,7 @@ def test_psi_heat_highways_equal_reference_where_unique(scene, theta):
     np.testing.assert_array_equal(np.asarray(fab.highways)[~near_threshold], ref.highways[~near_threshold])
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=12, deadline=None)
 @given(scene=scenes(max_side=5), theta=st.sampled_from((60.0, 90.0, 120.0, 150.0)))
 def test_without_monotone_rule_matches_reference_or_bounds_it(scene, theta):
     if has_borderline_step(scene, theta):
@@ -84,7 +84,7 @@ def test_without_monotone_rule_matches_reference_or_bounds_it(scene, theta):
         assert np.all(value[reachable] >= ref.value[reachable])
 
 
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=10, deadline=None)
 @given(scene=scenes(), theta=st.sampled_from(ANGLES), k=st.sampled_from((1, 2, 4)))
 def test_policy_solver_equals_wavefront_solver(scene, theta, k):
     fast = build_fabric(scene, FabricParams(theta_tol_deg=theta, k=k, solver="policy"))
@@ -97,7 +97,7 @@ def test_policy_solver_equals_wavefront_solver(scene, theta, k):
 
 # ---------------------------------------------------------------------------------- paths
 
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=10, deadline=None)
 @given(scene=scenes(max_side=20))
 def test_extracted_paths_reproduce_table_scores(scene):
     fab = build_fabric(scene, FabricParams())

@@ -17,7 +17,7 @@ from jaxplan.transport import spillage as sp
 from jaxplan.transport.fabric import first_hops, hop_lengths
 from tests._scenes import ANGLES, scenes
 
-SETTINGS = settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 # lengths are sums of s and s*sqrt(2) in a different order in each solver: equal up to rounding
 _FLOAT_FIELDS = {"length"}

@@ -11,7 +11,7 @@ from jaxplan.reference import execute as ref_ex
 from jaxplan.transport import execute as ex
 from jaxplan.transport import spillage as sp
 
-SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 @SETTINGS
