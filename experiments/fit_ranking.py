@@ -347,7 +347,7 @@ def main(argv=None) -> dict:
         return tqdm(items, desc=desc, disable=args.no_progress, dynamic_ncols=True)
 
     fit_info = {"weights": None, "temperature": None, "expansions": 0, "training_runs": 0, "training_scenes": 0,
-                "losses": None, "args": {k: v for k, v in vars(args).items()}}
+                "losses": None, "args": {k: v for k, v in vars(args).items() if k != "out"}}
     if args.weights:
         lt, lp, eta = (float(x) for x in args.weights.split(","))
         tuned = RankingParams(lambda_t=lt, lambda_p=lp, eta=eta)

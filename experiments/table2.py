@@ -516,7 +516,8 @@ def main(argv=None) -> int:
     probes = [memory_probe(n, args) for n in args.sizes]
     sizes = list(args.sizes) + list(args.big_sizes)
     result = {
-        "environment": env, "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+        "environment": env,
+        "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k != "results_dir"},
         "paper": {k: ({str(kk): vv for kk, vv in v.items()} if isinstance(v, dict) else v) for k, v in PAPER.items()},
         "summary": summarise(rows, sizes), "instances": rows,
         "slope_fit": loglog_fit([r["objects"] for r in rows], [r["full_ms"] for r in rows]),
