@@ -81,7 +81,10 @@ AGGREGATES = ("job", "source")
 
 class ObjectiveConfig(NamedTuple):
     """Static settings of the objective: spill_lam (fraction per radian, as ``SpillParams.lam``),
-    rearrange_margin (as ``EpisodeParams``), temperature of the soft kernels.
+    rearrange_margin (as ``EpisodeParams``), temperature of the soft kernels (dimensionless,
+    docs/conventions.md "Soft kernels"; 0.5: the cone gate's logit is ``x / (t^2 CONE_SCALE)``, so
+    theta's gradient comes from the steps within a few ``t^2 CONE_SCALE`` cosine of the cone's edge,
+    0.0125 at t = 0.5 but 0.0005 at t = 0.1, where the objective is nearly flat in theta).
 
     approach: charge every route the drive back from the target to its source (``d(C, T)``), as the
     episode's distance driven does. aggregate: ``"job"`` (default) delivered per driven over the
@@ -92,7 +95,7 @@ class ObjectiveConfig(NamedTuple):
     cones whose many short routes the mean of ratios over-rewards).
     """
 
-    temperature: float = 0.1
+    temperature: float = 0.5
     spill_lam: float = 0.05
     rearrange_margin: float = 0.1
     approach: bool = True
