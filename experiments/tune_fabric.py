@@ -73,7 +73,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--side", type=int, default=16, help="grid side (cells)")
     ap.add_argument("--steps", type=int, default=80, help="Adam steps")
     ap.add_argument("--lr", type=float, default=0.05)
-    ap.add_argument("--temperature", type=float, default=0.1)
+    ap.add_argument("--temperature", type=float, default=0.5)
     ap.add_argument("--spill-lam", type=float, default=0.05)
     ap.add_argument("--max-pushes", type=int, default=200)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])

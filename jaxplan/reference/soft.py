@@ -61,7 +61,7 @@ def _log_softmax(options, t):
     return [x - lse for x in z]
 
 
-CONE_SCALE, HIGHWAY_SCALE, LENGTH_EXPONENT, ORDER_EXPONENT = 0.05, 0.1, 0.75, 1.75
+CONE_SCALE, HIGHWAY_SCALE, LENGTH_EXPONENT, ORDER_EXPONENT = 0.05, 0.1, 1.5, 2.25
 
 
 def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, theta_tol_deg, tau_h,
@@ -162,7 +162,7 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
                 opts = options(value, r, c)
                 _, pi = weights(opts)
                 tie = [o[0] - (order * o[2] if o[2] < 8 else 0.0) for o in opts]
-                for p, ls, (_, _, k) in zip(pi, _log_softmax(tie, temp * t), opts):
+                for p, ls, (_, _, k) in zip(pi, _log_softmax(tie, temp * t * t), opts):
                     policy[r, c, k] = p
                     log_sharp[(r, c, k)] = ls
 

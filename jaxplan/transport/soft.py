@@ -22,7 +22,7 @@ open one (``x`` a few ``t^2 CONE_SCALE`` inside) costs nothing.
 The dynamic program is a fixed-round **soft Bellman recursion** (``soft_rounds``, static). Ties in
 mass go to the shorter path, then to the lower first-step index, through costs that vanish relative
 to ``M``. psi and the heatmap follow the **sharpened policy** (the policy's scores at temperature
-``t T``) and reduce their options by a softmax-weighted mean (``soft_mean``), which lies between the
+``t^2 T``) and reduce their options by a softmax-weighted mean (``soft_mean``), which lies between the
 mean and the max, so no upward log-sum-exp bias accumulates along paths. Target membership,
 occupancy (``obj > 0``), grid edges and the monotone rule stay hard (they carry no parameter);
 counts enter the values smoothly.
@@ -48,11 +48,13 @@ CONE_SCALE = 0.05
 """Cosine units of the cone gate: its logit is ``(t(C) . step - cos theta_tol) / (t^2 CONE_SCALE)``."""
 HIGHWAY_SCALE = 0.1
 """Fractions of the heat scale of the highway gate: logit ``(H - tau_h k) / (t * HIGHWAY_SCALE * k)``."""
-LENGTH_EXPONENT = 0.75
-"""The length tie-break costs ``M t^LENGTH_EXPONENT`` per cell size of path: ``t^-1/4`` per cell in
-the policy's softmax units, ``t^-5/4`` in the sharpened policy's (which psi and heat follow)."""
-ORDER_EXPONENT = 1.75
-"""The direction-index tie-break (of the first step only) costs ``M t^ORDER_EXPONENT`` per index."""
+LENGTH_EXPONENT = 1.5
+"""The length tie-break costs ``M t^LENGTH_EXPONENT`` per cell size of path: ``t^(1/2)`` per cell in
+the policy's softmax units (small: mass decides), ``t^(-3/2)`` in the sharpened policy's (which psi
+and heat follow: exact ties in mass go to the shorter path)."""
+ORDER_EXPONENT = 2.25
+"""The direction-index tie-break (of the first step only) costs ``M t^ORDER_EXPONENT`` per index:
+``t^(-3/4)`` per index in the sharpened policy's units, below the length tie-break."""
 
 
 class SoftFabric(NamedTuple):
@@ -177,8 +179,8 @@ def soft_dp(obj, occupied, goal, dist, z, allowed, cell_size, t, mass, rounds: i
     Per occupied cell C, options: step i (allowed) with score
     ``Q_i = V(N_i) - eta |step_i| + (M / t) log sigmoid(z_i)`` (``V = 0`` for a goal neighbour:
     entering it ends the path) and the fallback with ``Q_fb = (M / t) sum_i log sigmoid(-z_i) - eta d(C)``
-    (every step closed); ``eta = M t^0.75 / s`` (length tie-break). ``V(C) = obj(C) + T logsumexp(Q / T)``;
-    the policy ``pi = softmax((Q - o i) / T)``, ``o = M t^1.75`` per direction index i (the hard
+    (every step closed); ``eta = M t^1.5 / s`` (length tie-break). ``V(C) = obj(C) + T logsumexp(Q / T)``;
+    the policy ``pi = softmax((Q - o i) / T)``, ``o = M t^2.25`` per direction index i (the hard
     kernel's tie-break by the first step's index: in the policy only, not in V). Expected raw
     ``R(C) = obj(C) + sum_i pi_i [N_i not goal] R(N_i)``, expected length
     ``L(C) = sum_i pi_i (|step_i| + [N_i not goal] L(N_i)) + pi_fb d(C)``, and the expected costs
@@ -188,7 +190,7 @@ def soft_dp(obj, occupied, goal, dist, z, allowed, cell_size, t, mass, rounds: i
     obj: f32[H, W] objects; occupied, goal: bool[H, W]; dist: f32[H, W] world units; z, allowed:
     from ``edge_logits``; t: f32[] temperature; mass: f32[] the mass scale M (objects).
     Returns ``(V + B, raw, length, policy f32[9, H, W], log_sharp f32[9, H, W])``: log_sharp is the
-    log of the sharpened policy ``softmax((Q - o i) / (t T))``, 0 where masked.
+    log of the sharpened policy ``softmax((Q - o i) / (t^2 T))``, 0 where masked.
     """
     obj = jnp.where(occupied, obj, 0.0)
     temp = t * mass
@@ -229,7 +231,7 @@ def soft_dp(obj, occupied, goal, dist, z, allowed, cell_size, t, mass, rounds: i
     (value, raw, length, cost), _ = jax.lax.scan(body, start, None, length=rounds)
     final = scores(value) - order                    # the policy of the final values
     _, pi = soft_max(final, mask, temp)
-    _, _, log_sharp = _soft_max_log(final, mask, temp * t, 0)
+    _, _, log_sharp = _soft_max_log(final, mask, temp * t * t, 0)
     return (value + cost, raw, length, jnp.where(occupied[None], pi, 0.0),
             jnp.where(mask & occupied[None], log_sharp, 0.0))
 

@@ -221,7 +221,7 @@ def test_gradients_agree_with_finite_differences():
     x = (jnp.float32(55.0), jnp.float32(0.4), jnp.float32(0.5), jnp.asarray(small.obj), jnp.float32(0.5))
     grads = _grad(small, *x)
     rng = np.random.default_rng(0)
-    for eps in (1e-2,):
+    for eps in (3e-3,):
         for _ in range(3):
             v = tuple(jnp.asarray(rng.normal(size=np.shape(a)), jnp.float32) for a in x)
             plus = _value(small, *(a + eps * d for a, d in zip(x, v)))
