@@ -33,6 +33,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxplan.core import lattice
 from jaxplan.core.compilation import grid_jit
@@ -79,6 +80,12 @@ class SoftFabric(NamedTuple):
       scores for every occupied cell as root (rows sum to 1; 0 where not occupied).
     temperature: f32[], the temperature used (after the floor).
     mass_scale: f32[], objects: the scene's mass scale M (``mass_scale``).
+    delivered: f32[H, W], objects: the predicted delivered mass of each source's route under the
+      policy (``soft_select``; equal to ``raw`` without ``SpillParams``).
+
+    With ``SpillParams`` (Eq. 6, ``soft_select``) ``policy``, ``heading``, ``psi``, ``heat``,
+    ``highways``, ``root``, ``candidate`` and ``anchor_weights`` follow the spill-aware choice, as the
+    hard fabric's do after ``selection.reselect``; ``value``, ``raw`` and ``length`` stay Eq. 5's.
     """
 
     value: jax.Array
@@ -96,6 +103,7 @@ class SoftFabric(NamedTuple):
     anchor_weights: jax.Array
     temperature: jax.Array
     mass_scale: jax.Array
+    delivered: jax.Array
 
 
 # ----------------------------------------------------------------------------------------------
@@ -237,6 +245,78 @@ def soft_dp(obj, occupied, goal, dist, z, allowed, cell_size, t, mass, rounds: i
 
 
 # ----------------------------------------------------------------------------------------------
+# Eq. 6: the choice among each source's candidates by predicted delivered mass
+
+
+def _turn_matrix():
+    """``f32[8, 8]``: the angle (radians) between step directions i and j."""
+    unit = lattice.STEP_UNIT.astype("float64")
+    return jnp.asarray(np.arccos(np.clip(unit @ unit.T, -1.0, 1.0)), jnp.float32)
+
+
+def option_turning(policy, target, tvec, rounds: int):
+    """``(theta f32[H, W], theta_opt f32[8, H, W])`` radians: the expected total turning of the
+    policy's path from every cell, and of option i's path (step i, then the neighbour's policy).
+
+    ``theta_i(C) = [N_i continues] (sum_j pi_j(N_i) angle(i, j) + pi_fb(N_i) angle(i, t(N_i)) +
+    theta(N_i))``, ``theta(C) = sum_i pi_i(C) theta_i(C)``; fixed ``rounds`` (static).
+    policy: f32[9, H, W]; target: bool[H, W]; tvec: f32[H, W, 2].
+    """
+    nb_goal = lattice.neighbours(target, False)
+    unit = jnp.asarray(lattice.STEP_UNIT)
+    nb_pol = lattice.neighbours(jnp.moveaxis(policy, 0, -1), 0.0)            # [8 (i), H, W, 9 (j)]
+    nb_t = lattice.neighbours(tvec, 0.0)                                     # [8, H, W, 2]
+    fb_angle = jnp.arccos(jnp.clip(jnp.einsum("ihwx,ix->ihw", nb_t, unit), -1.0, 1.0))
+    local = jnp.einsum("ihwj,ij->ihw", nb_pol[..., :8], _turn_matrix()) + nb_pol[..., 8] * fb_angle
+    cont = ~nb_goal & (policy[:8] > 0)
+
+    def options(theta):
+        return jnp.where(cont, local + lattice.neighbours(theta, 0.0), 0.0)
+
+    def body(theta, _):
+        return jnp.sum(policy[:8] * options(theta), 0), None
+
+    theta, _ = jax.lax.scan(body, jnp.zeros(target.shape), None, length=rounds)
+    return theta, options(theta)
+
+
+def soft_select(obj, occupied, target, tvec, raw, z, allowed, policy, spill, slack_tau, t, mass, rounds: int):
+    """Eq. 6 softened: ``(policy6 f32[9, H, W], log_sharp6 f32[9, H, W], delivered f32[H, W])``.
+
+    Each source's candidates are its first-step options (step i then the Eq. 5 policy, or the
+    fallback), option i with raw mass ``R_i = obj(C) + [N_i continues] R(N_i)``. Its predicted spill
+    ``S_i = R_i (1 - exp(-lam theta_i))`` (``option_turning``: the curvature model's fraction ``lam``
+    per radian over the expected turning) counts above ``threshold`` objects through
+    ``sigmoid((S_i - threshold) / T)`` (the route's total spill rather than each spline sample's),
+    so ``D_i = R_i - S_i sigmoid(...)``. Candidate weight (Eq. 6's slack set):
+    ``c_i = sigmoid((R_i - max_j R_j + slack_tau) / T)``. The choice is
+    ``softmax((D_i + gate_i) / T + log(c_i) / t)`` (gate_i: the cone gate's penalty, as in
+    ``soft_dp``), its sharpened form at ``t^2`` of those units. spill: ``SpillParams`` (lam,
+    threshold traced); the rest as in ``soft_dp``; policy: the Eq. 5 policy f32[9, H, W].
+    """
+    temp = t * mass
+    obj = jnp.where(occupied, obj, 0.0)
+    nb_goal = lattice.neighbours(target, False)
+    cont = allowed & ~nb_goal
+    r_opt = jnp.concatenate([obj[None] + jnp.where(cont, lattice.neighbours(raw, 0.0), 0.0), obj[None]], 0)
+    _, theta_opt = option_turning(policy, target, tvec, rounds)
+    theta_opt = jnp.concatenate([theta_opt, jnp.zeros((1,) + obj.shape)], 0)
+    spilled = r_opt * -jnp.expm1(-spill.lam * theta_opt)
+    d_opt = r_opt - spilled * jax.nn.sigmoid((spilled - spill.threshold) / temp)
+    mask = jnp.concatenate([allowed, occupied[None]], 0)
+    best = jnp.max(jnp.where(mask, r_opt, -jnp.inf), 0)
+    best = jnp.where(jnp.isfinite(best), best, 0.0)
+    log_c = jax.nn.log_sigmoid((r_opt - best[None] + slack_tau) / temp)
+    gate = jnp.concatenate([(mass / t) * jax.nn.log_sigmoid(z),
+                            ((mass / t) * jnp.sum(jnp.where(allowed, jax.nn.log_sigmoid(-z), 0.0), 0))[None]], 0)
+    score = (d_opt + gate) / temp + log_c / t
+    _, pi = soft_max(score, mask, 1.0)
+    _, _, log_sharp = _soft_max_log(score, mask, t * t, 0)
+    pi = jnp.where(occupied[None], pi, 0.0)
+    return pi, jnp.where(mask & occupied[None], log_sharp, 0.0), jnp.where(occupied, jnp.sum(pi * d_opt, 0), 0.0)
+
+
+# ----------------------------------------------------------------------------------------------
 # Soft psi, heatmap, highways, anchors
 
 
@@ -357,7 +437,7 @@ def soft_anchors(heat_map, candidate, occupied, centers, anchor_lambda, t):
 # The soft fabric
 
 
-def _soft_build(scene, params: FabricParams) -> SoftFabric:
+def _soft_build(scene, params: FabricParams, spill=None) -> SoftFabric:
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
     occupied = ~target & (obj > 0)
@@ -368,10 +448,16 @@ def _soft_build(scene, params: FabricParams) -> SoftFabric:
                              params.monotone, scene.cell_size, t)
     value, raw, length, policy, log_sharp = soft_dp(obj, occupied, target, scene.dist, z, allowed,
                                                     scene.cell_size, t, mass, rounds)
+    delivered = raw
+    if spill is not None and spill.enabled:
+        policy, log_sharp, delivered = soft_select(obj, occupied, target, scene.tvec, raw, z, allowed, policy, spill,
+                                                   params.slack_tau, t, mass, rounds)
     fb_dir = visibility.fallback_direction(scene.tvec)
     fb_unit = jnp.where((fb_dir >= 0)[..., None], jnp.asarray(lattice.STEP_UNIT)[jnp.maximum(fb_dir, 0)], 0.0)
     heading = jnp.einsum("ihw,ix->hwx", policy[:8], jnp.asarray(lattice.STEP_UNIT)) + policy[8][..., None] * fb_unit
-    psi = soft_psi(raw, occupied, allowed, log_sharp, t, mass, rounds)
+    # Phi(R): the raw mass of the selected route (Eq. 5: R; Eq. 6: the policy's expected option raw)
+    own = raw if spill is None or not spill.enabled else _selected_raw(obj, occupied, target, raw, allowed, policy)
+    psi = soft_psi(own, occupied, allowed, log_sharp, t, mass, rounds)
     options = jnp.concatenate([allowed, occupied[None]], 0)
     sharp = jnp.where(options, jnp.exp(log_sharp), 0.0)
     heat = soft_heat(psi, occupied, sharp, scene.tvec, target, t, mass)
@@ -382,15 +468,24 @@ def _soft_build(scene, params: FabricParams) -> SoftFabric:
     anchors = soft_anchors(heat, candidate, occupied, centers, params.anchor_lambda, t)
     feasible = jnp.where(allowed, jax.nn.sigmoid(z), 0.0)
     return SoftFabric(value, raw, length, jnp.moveaxis(policy, 0, -1), heading, jnp.moveaxis(feasible, 0, -1),
-                      occupied, psi, heat, highways, occupied * (1.0 - highways), candidate, anchors, t, mass)
+                      occupied, psi, heat, highways, occupied * (1.0 - highways), candidate, anchors, t, mass,
+                      delivered)
+
+
+def _selected_raw(obj, occupied, target, raw, allowed, policy):
+    """``f32[H, W]``: the policy's expected raw mass over the first-step options (step i then R(N_i))."""
+    cont = allowed & ~lattice.neighbours(target, False)
+    r_opt = jnp.where(occupied, obj, 0.0)[None] + jnp.where(cont, lattice.neighbours(raw, 0.0), 0.0)
+    return jnp.where(occupied, jnp.sum(policy[:8] * r_opt, 0) + policy[8] * obj, 0.0)
 
 
 _soft_build_jit = grid_jit(_soft_build)
 
 
-def build_soft_fabric(scene, params: FabricParams) -> SoftFabric:
+def build_soft_fabric(scene, params: FabricParams, spill=None) -> SoftFabric:
     """The soft fabric of ``scene`` (jitted; one trace per grid shape and static options, whatever
-    the temperature). Call through ``jaxplan.build_fabric`` with ``FabricParams(temperature=t)``."""
+    the temperature). Call through ``jaxplan.build_fabric`` with ``FabricParams(temperature=t)``.
+    spill: None (Eq. 5) or ``SpillParams`` (Eq. 6 softened, ``soft_select``; lam and threshold traced)."""
     if params.temperature is None:
         raise ValueError("FabricParams.temperature: the soft kernels need a temperature > 0; got None.")
-    return _soft_build_jit(scene, params)
+    return _soft_build_jit(scene, params, spill)

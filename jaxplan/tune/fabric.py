@@ -5,7 +5,9 @@ soft **delivered mass per unit driven** over the whole job. Every cell's objects
 that cell's own route, which costs its length plus the drive back from the target (``d(C, T)``), so
 the job's ratio is the total count over the count-weighted sum of cost per delivered object. For
 every occupied source C the soft fabric gives the expected raw mass ``R(C)``, length ``L(C)`` and
-first-step distribution; the curvature spill idea (``jaxplan.transport.spillage``: a fraction
+first-step distribution, the policy choosing among each source's first steps by predicted delivered
+mass (Eq. 6 through the soft fabric, ``build_fabric(..., SpillParams(lam=spill_lam))``, so heat,
+highways and anchors depend on the spill lambda); the curvature spill idea (``jaxplan.transport.spillage``: a fraction
 ``spill_lam`` of the load per radian of turning) turns the policy's expected total turning ``Θ(C)``
 into a kept fraction ``exp(-spill_lam Θ(C))``. A root may instead go via a highway (Eq. 12): its
 soft anchor weights give the expected via route (straight approach to the anchor, then the
@@ -30,6 +32,7 @@ from jaxplan.transport.fabric import build_fabric
 from jaxplan.transport.params import FabricParams
 from jaxplan.transport.scene import Scene, stack_scenes
 from jaxplan.transport.scenes import random_scene
+from jaxplan.transport.spillage import SpillParams
 
 TUNED = ("theta_tol_deg", "tau_h", "anchor_lambda")
 
@@ -113,7 +116,8 @@ def soft_efficiency(scene: Scene, params: FabricParams, config: ObjectiveConfig 
     if config.aggregate not in AGGREGATES:
         raise ValueError(f"ObjectiveConfig.aggregate: must be one of {AGGREGATES}; got {config.aggregate!r}.")
     t = config.temperature
-    f = build_fabric(scene, params.replace(temperature=t))
+    # spill through the fabric: Eq. 6 picks each source's first step by predicted delivered mass
+    f = build_fabric(scene, params.replace(temperature=t), SpillParams(lam=config.spill_lam))
     obj = jnp.where(f.occupied, jnp.asarray(scene.obj, jnp.float32), 0.0)
     rounds = params.resolved_soft_rounds(obj.shape)
     keep = jnp.exp(-config.spill_lam * expected_turning(f, scene, rounds))
@@ -213,7 +217,6 @@ def evaluate_hard(scenes: list[Scene], params: FabricParams, *, max_pushes: int 
     """Run the hard episode loop on every scene; one dict per scene with delivered mass, distance
     driven, pushes and delivered per unit driven (objects per world unit)."""
     from jaxplan.transport.episode import EpisodeParams, run_episode
-    from jaxplan.transport.spillage import SpillParams
 
     hard = params.replace(temperature=None)
     rows = []
