@@ -65,11 +65,13 @@ CONE_SCALE, HIGHWAY_SCALE, LENGTH_EXPONENT, ORDER_EXPONENT = 0.05, 0.1, 1.5, 2.2
 
 
 def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, theta_tol_deg, tau_h,
-                          anchor_lambda, temperature, monotone=True, rounds=None, highway_relative=True):
+                          anchor_lambda, temperature, monotone=True, rounds=None, highway_relative=True,
+                          spill_lam=None, spill_threshold=1e-3, slack_tau=0.0):
     """A dict with the ``SoftFabric`` fields (no smoothing / non-max suppression) for one grid.
 
     obj: f[H, W] objects; target_mask: bool[H, W]; dist: f[H, W] and tvec: f[H, W, 2] the scene's
-    geometry; cell_size, origin: world units. Keyword parameters as in ``FabricParams``.
+    geometry; cell_size, origin: world units. Keyword parameters as in ``FabricParams``; spill_lam
+    (None: Eq. 5) and spill_threshold as in ``SpillParams`` select by predicted delivered mass (Eq. 6).
     """
     obj = np.asarray(obj, np.float64)
     target = np.asarray(target_mask, bool)
@@ -166,9 +168,14 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
                     policy[r, c, k] = p
                     log_sharp[(r, c, k)] = ls
 
-    # soft psi: 0, the own expected raw mass and every allowed predecessor P of U, lowered by
-    # M log of P's sharpened step into U; a softmax-weighted mean at T
+    delivered = raw.copy()
     own = np.where(occ, raw, 0.0)
+    if spill_lam is not None:
+        policy, log_sharp, delivered, own = _select(obj, occ, target, tvec, raw, policy, logit, mass, t, rounds,
+                                                     float(spill_lam), float(spill_threshold), float(slack_tau))
+
+    # soft psi: 0, the own (selected) expected raw mass and every allowed predecessor P of U, lowered by
+    # M log of P's sharpened step into U; a softmax-weighted mean at T
     psi = own.copy()
     for _ in range(rounds):
         new = np.zeros_like(psi)
@@ -239,4 +246,64 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
             for q, wt in zip(idx, wts):
                 anchors[r, c, q] = wt
     return dict(value=value + cost, raw=raw, length=length, policy=policy, psi=psi, heat=heat, highways=hw,
-                candidate=cand, anchor_weights=anchors)
+                candidate=cand, anchor_weights=anchors, delivered=delivered)
+
+
+def _turn(i, j):
+    ux, uy = step_unit(i)
+    vx, vy = step_unit(j)
+    return math.acos(max(-1.0, min(1.0, ux * vx + uy * vy)))
+
+
+def _select(obj, occ, target, tvec, raw, policy, logit, mass, t, rounds, lam, threshold, slack):
+    """Eq. 6 softened, one cell at a time: ``(policy, log_sharp, delivered, own)`` (``soft.soft_select``)."""
+    h, w = obj.shape
+    temp = t * mass
+
+    def local(r, c, i):
+        """Expected turning right after stepping from (r, c) in direction i into N."""
+        nr, nc = r + DIRS[i][0], c + DIRS[i][1]
+        ux, uy = step_unit(i)
+        fb = math.acos(max(-1.0, min(1.0, tvec[nr, nc, 0] * ux + tvec[nr, nc, 1] * uy)))
+        return sum(policy[nr, nc, j] * _turn(i, j) for j in range(8)) + policy[nr, nc, 8] * fb
+
+    def option_theta(theta, r, c, i):
+        nr, nc = r + DIRS[i][0], c + DIRS[i][1]
+        return 0.0 if target[nr, nc] else local(r, c, i) + theta[nr, nc]
+
+    theta = np.zeros((h, w))
+    for _ in range(rounds):
+        new = np.zeros((h, w))
+        for (r, c, i) in logit:
+            new[r, c] += policy[r, c, i] * option_theta(theta, r, c, i)
+        theta = new
+
+    new_policy, log_sharp = np.zeros_like(policy), {}
+    delivered, own = np.zeros((h, w)), np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            if not occ[r, c]:
+                continue
+            opts, log_fb = [], 0.0
+            for i in range(8):
+                if (r, c, i) not in logit:
+                    continue
+                nr, nc = r + DIRS[i][0], c + DIRS[i][1]
+                r_i = obj[r, c] + (0.0 if target[nr, nc] else raw[nr, nc])
+                opts.append((i, r_i, option_theta(theta, r, c, i), mass / t * _log_sigmoid(logit[(r, c, i)])))
+                log_fb += mass / t * _log_sigmoid(-logit[(r, c, i)])
+            opts.append((8, obj[r, c], 0.0, log_fb))
+            best = max(o[1] for o in opts)
+            scores, d_opts = [], []
+            for _, r_i, th, gate in opts:
+                spilled = r_i * -math.expm1(-lam * th)
+                d_i = r_i - spilled * _sigmoid((spilled - threshold) / temp)
+                d_opts.append(d_i)
+                scores.append((d_i + gate) / temp + _log_sigmoid((r_i - best + slack) / temp) / t)
+            _, pi = _soft_max(scores, 1.0)
+            for (k, r_i, _, _), p, ls, d_i in zip(opts, pi, _log_softmax(scores, t * t), d_opts):
+                new_policy[r, c, k] = p
+                log_sharp[(r, c, k)] = ls
+                delivered[r, c] += p * d_i
+                own[r, c] += p * r_i
+    return new_policy, log_sharp, delivered, own

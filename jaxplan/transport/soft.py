@@ -254,13 +254,13 @@ def _turn_matrix():
     return jnp.asarray(np.arccos(np.clip(unit @ unit.T, -1.0, 1.0)), jnp.float32)
 
 
-def option_turning(policy, target, tvec, rounds: int):
+def option_turning(policy, allowed, target, tvec, rounds: int):
     """``(theta f32[H, W], theta_opt f32[8, H, W])`` radians: the expected total turning of the
     policy's path from every cell, and of option i's path (step i, then the neighbour's policy).
 
     ``theta_i(C) = [N_i continues] (sum_j pi_j(N_i) angle(i, j) + pi_fb(N_i) angle(i, t(N_i)) +
     theta(N_i))``, ``theta(C) = sum_i pi_i(C) theta_i(C)``; fixed ``rounds`` (static).
-    policy: f32[9, H, W]; target: bool[H, W]; tvec: f32[H, W, 2].
+    policy: f32[9, H, W]; allowed: bool[8, H, W] (``edge_logits``); target: bool[H, W]; tvec: f32[H, W, 2].
     """
     nb_goal = lattice.neighbours(target, False)
     unit = jnp.asarray(lattice.STEP_UNIT)
@@ -268,7 +268,7 @@ def option_turning(policy, target, tvec, rounds: int):
     nb_t = lattice.neighbours(tvec, 0.0)                                     # [8, H, W, 2]
     fb_angle = jnp.arccos(jnp.clip(jnp.einsum("ihwx,ix->ihw", nb_t, unit), -1.0, 1.0))
     local = jnp.einsum("ihwj,ij->ihw", nb_pol[..., :8], _turn_matrix()) + nb_pol[..., 8] * fb_angle
-    cont = ~nb_goal & (policy[:8] > 0)
+    cont = ~nb_goal & allowed
 
     def options(theta):
         return jnp.where(cont, local + lattice.neighbours(theta, 0.0), 0.0)
@@ -299,7 +299,7 @@ def soft_select(obj, occupied, target, tvec, raw, z, allowed, policy, spill, sla
     nb_goal = lattice.neighbours(target, False)
     cont = allowed & ~nb_goal
     r_opt = jnp.concatenate([obj[None] + jnp.where(cont, lattice.neighbours(raw, 0.0), 0.0), obj[None]], 0)
-    _, theta_opt = option_turning(policy, target, tvec, rounds)
+    _, theta_opt = option_turning(policy, allowed, target, tvec, rounds)
     theta_opt = jnp.concatenate([theta_opt, jnp.zeros((1,) + obj.shape)], 0)
     spilled = r_opt * -jnp.expm1(-spill.lam * theta_opt)
     d_opt = r_opt - spilled * jax.nn.sigmoid((spilled - spill.threshold) / temp)
