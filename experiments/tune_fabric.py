@@ -40,15 +40,15 @@ def run_one(seed: int, variant: str, args) -> dict:
     default = FabricParams()
     t0 = time.perf_counter()
     fit = tune.fit_fabric(train, default, steps=args.steps, learning_rate=args.lr, config=config,
-                          on_step=lambda i, r: i % 10 == 0 and print(
+                          tune_spill=args.tune_spill, on_step=lambda i, r: i % 10 == 0 and print(
                               f"seed {seed} {variant:5s} step {i:3d}  objective {r['objective']:.4f}  theta "
                               f"{r['theta_tol_deg']:.2f}  tau_h {r['tau_h']:.3f}  lambda {r['anchor_lambda']:.3f}",
                               flush=True))
     fit_s = time.perf_counter() - t0
     tuned = fit.params
     t1 = time.perf_counter()
-    hard = {name: tune.evaluate_hard(heldout, p, max_pushes=args.max_pushes, spill_lam=args.spill_lam)
-            for name, p in (("default", default), ("tuned", tuned))}
+    hard = {name: tune.evaluate_hard(heldout, p, max_pushes=args.max_pushes, spill_lam=args.spill_lam, plan_lam=lam)
+            for name, p, lam in (("default", default, None), ("tuned", tuned, fit.spill_lam))}
     eval_s = time.perf_counter() - t1
     eff = {k: np.array([r["efficiency"] for r in v]) for k, v in hard.items()}
     summary = dict(
@@ -58,7 +58,8 @@ def run_one(seed: int, variant: str, args) -> dict:
         mean_pushes={k: float(np.mean([r["pushes"] for r in v])) for k, v in hard.items()},
         tuned_wins=int(np.sum(eff["tuned"] > eff["default"])), scenes=len(heldout))
     row = dict(seed=seed, variant=variant, default={k: getattr(default, k) for k in tune.TUNED},
-               tuned={k: float(getattr(tuned, k)) for k in tune.TUNED}, history=fit.history, heldout=hard,
+               tuned={k: float(getattr(tuned, k)) for k in tune.TUNED}, tuned_plan_spill_lam=fit.spill_lam,
+               history=fit.history, heldout=hard,
                summary=summary, fit_seconds=fit_s, eval_seconds=eval_s)
     me = summary["mean_efficiency"]
     print(f"seed {seed} {variant:5s}: tuned {row['tuned']}  delivered/driven default {me['default']:.4f} "
@@ -73,11 +74,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--side", type=int, default=16, help="grid side (cells)")
     ap.add_argument("--steps", type=int, default=80, help="Adam steps")
     ap.add_argument("--lr", type=float, default=0.05)
-    ap.add_argument("--temperature", type=float, default=0.1)
+    ap.add_argument("--temperature", type=float, default=0.5)
     ap.add_argument("--spill-lam", type=float, default=0.05)
     ap.add_argument("--max-pushes", type=int, default=200)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--tune-spill", action="store_true",
+                    help="also tune the planner's spill lambda (Eq. 6 through the soft fabric); the world's stays "
+                         "--spill-lam")
     ap.add_argument("--out", default="tune_fabric", help="basename under experiments/results/")
     args = ap.parse_args(argv)
 
@@ -99,7 +103,7 @@ def _markdown(out: dict, path: Path) -> None:
         f"Command: `PYTHONPATH=. python experiments/tune_fabric.py --train {a['train']} --heldout {a['heldout']} "
         f"--side {a['side']} --steps {a['steps']} --lr {a['lr']} --temperature {a['temperature']} "
         f"--spill-lam {a['spill_lam']} --max-pushes {a['max_pushes']} --seeds {' '.join(map(str, a['seeds']))} "
-        f"--variants {' '.join(a['variants'])}`",
+        f"--variants {' '.join(a['variants'])}{' --tune-spill' if a.get('tune_spill') else ''}`",
         "",
         f"Per seed: fit on {a['train']} random {a['side']}x{a['side']} scenes, evaluate on {a['heldout']} other "
         f"scenes (seed + 10000) with the hard `run_episode` (max {a['max_pushes']} pushes, spill lam "
@@ -108,9 +112,9 @@ def _markdown(out: dict, path: Path) -> None:
         "harmonic aggregate; the default of `fit_fabric`); `route` = soft delivered per unit route length, "
         "arithmetic mean over sources (the first objective, kept as the ablation).",
         "",
-        "| objective | seed | tuned theta_tol (deg) | tau_H | lambda | soft objective step 0 -> last "
-        "| delivered/driven default | tuned | change | tuned wins | pushes default | tuned |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| objective | seed | tuned theta_tol (deg) | tau_H | lambda | planner spill lambda | soft objective "
+        "step 0 -> last | delivered/driven default | tuned | change | tuned wins | pushes default | tuned |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in out["runs"]:
         s, t, h = r["summary"], r["tuned"], r["history"]
@@ -118,6 +122,7 @@ def _markdown(out: dict, path: Path) -> None:
         lines.append(
             f"| {r['variant']} | {r['seed']} | {t['theta_tol_deg']:.1f} | {t['tau_h']:.3f} "
             f"| {t['anchor_lambda']:.3f} | "
+            f"{'-' if r.get('tuned_plan_spill_lam') is None else format(r['tuned_plan_spill_lam'], '.4f')} | "
             f"{h[0]['objective']:.3f} -> {h[-1]['objective']:.3f} | {me['default']:.4f} | {me['tuned']:.4f} | "
             f"{100 * (me['tuned'] / me['default'] - 1):+.1f}% | {s['tuned_wins']}/{s['scenes']} | "
             f"{s['mean_pushes']['default']:.1f} | {s['mean_pushes']['tuned']:.1f} |")

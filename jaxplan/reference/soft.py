@@ -45,12 +45,33 @@ def _fallback_dir(tvec, r, c, shape):
     return best_k
 
 
+def _soft_mean(options, t):
+    """The softmax-weighted mean of a list of finite scores; 0 for none."""
+    if not options:
+        return 0.0
+    _, w = _soft_max(options, t)
+    return sum(wi * s for wi, s in zip(w, options))
+
+
+def _log_softmax(options, t):
+    """log of the softmax weights of a list of finite scores at temperature t."""
+    top = max(options)
+    z = [(s - top) / t for s in options]
+    lse = math.log(sum(math.exp(x) for x in z))
+    return [x - lse for x in z]
+
+
+CONE_SCALE, HIGHWAY_SCALE, LENGTH_EXPONENT, ORDER_EXPONENT = 0.05, 0.1, 1.5, 2.25
+
+
 def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, theta_tol_deg, tau_h,
-                          anchor_lambda, temperature, monotone=True, rounds=None, highway_relative=True):
+                          anchor_lambda, temperature, monotone=True, rounds=None, highway_relative=True,
+                          spill_lam=None, spill_threshold=1e-3, slack_tau=0.0):
     """A dict with the ``SoftFabric`` fields (no smoothing / non-max suppression) for one grid.
 
     obj: f[H, W] objects; target_mask: bool[H, W]; dist: f[H, W] and tvec: f[H, W, 2] the scene's
-    geometry; cell_size, origin: world units. Keyword parameters as in ``FabricParams``.
+    geometry; cell_size, origin: world units. Keyword parameters as in ``FabricParams``; spill_lam
+    (None: Eq. 5) and spill_threshold as in ``SpillParams`` select by predicted delivered mass (Eq. 6).
     """
     obj = np.asarray(obj, np.float64)
     target = np.asarray(target_mask, bool)
@@ -61,11 +82,15 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
     s = float(cell_size)
     rounds = 2 * (h + w) if rounds is None else int(rounds)
     occ = ~target & (obj > 0)
+    n_occ = int(occ.sum())
+    mass = max(float(obj[occ].sum()) / n_occ, 1e-6) if n_occ else 1.0
+    temp = t * mass
     cos_t = math.cos(math.radians(float(theta_tol_deg))) - CONE_EPS
-    eta = math.sqrt(t) / s
+    eta = mass * t ** LENGTH_EXPONENT / s
+    order = mass * t ** ORDER_EXPONENT
 
-    # soft edge probabilities (log) of every allowed step
-    logp = {}
+    # the cone gate's logit of every allowed step (the monotone rule stays hard)
+    logit = {}
     for r in range(h):
         for c in range(w):
             if not occ[r, c]:
@@ -74,42 +99,53 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
                 nr, nc = r + dr, c + dc
                 if not in_grid(nr, nc, (h, w)) or not (occ[nr, nc] or target[nr, nc]):
                     continue
+                if monotone and (dist[r, c] - dist[nr, nc]) / s - MONOTONE_EPS <= 0:
+                    continue
                 ux, uy = step_unit(k)
-                lp = _log_sigmoid((tvec[r, c, 0] * ux + tvec[r, c, 1] * uy - cos_t) / t)
-                if monotone:
-                    margin = (dist[r, c] - dist[nr, nc]) / s - MONOTONE_EPS
-                    if margin <= 0:
-                        continue
-                    lp += _log_sigmoid(margin / t)
-                logp[(r, c, k)] = lp
+                logit[(r, c, k)] = (tvec[r, c, 0] * ux + tvec[r, c, 1] * uy - cos_t) / (t * t * CONE_SCALE)
 
     def options(value, r, c):
-        """[(score, kind)] with kind = direction index or 8 for the fallback."""
+        """[(Q, cost, kind)]: kind = direction index or 8 for the fallback; cost = the length and
+        gate terms subtracted from the neighbour's value."""
         out, log_fb = [], 0.0
         for k, (dr, dc) in enumerate(DIRS):
-            if (r, c, k) not in logp:
+            if (r, c, k) not in logit:
                 continue
             nr, nc = r + dr, c + dc
             nv = 0.0 if target[nr, nc] else value[nr, nc]
-            out.append((nv - eta * step_cells(k) * s - t ** 0.75 * k + logp[(r, c, k)], k))
-            log_fb += math.log(max(-math.expm1(min(logp[(r, c, k)], 0.0)), _TINY))
-        out.append((log_fb - eta * dist[r, c], 8))
+            cost = eta * step_cells(k) * s - mass / t * _log_sigmoid(logit[(r, c, k)])
+            out.append((nv - cost, cost, k))
+            log_fb += mass / t * _log_sigmoid(-logit[(r, c, k)])
+        cost = eta * dist[r, c] - log_fb
+        out.append((-cost, cost, 8))
         return out
 
-    value = np.where(occ, obj - eta * dist, 0.0)
-    raw = np.where(occ, obj, 0.0)
-    length = np.where(occ, dist, 0.0)
+    def weights(opts):
+        _, wv = _soft_max([o[0] for o in opts], temp)
+        _, pi = _soft_max([o[0] - (order * o[2] if o[2] < 8 else 0.0) for o in opts], temp)
+        return wv, pi
+
+    fb_cost = np.where(occ, eta * dist, 0.0)
+    value, raw, length, cost = np.zeros((h, w)), np.where(occ, obj, 0.0), np.where(occ, dist, 0.0), np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            if occ[r, c]:
+                cost[r, c] = options(np.zeros((h, w)), r, c)[-1][1]
+                value[r, c] = obj[r, c] - cost[r, c]
+    del fb_cost
     for _ in range(rounds):
-        nv, nr_, nl = np.zeros_like(value), np.zeros_like(raw), np.zeros_like(length)
+        nv, nr_, nl, nc_ = (np.zeros((h, w)) for _ in range(4))
         for r in range(h):
             for c in range(w):
                 if not occ[r, c]:
                     continue
                 opts = options(value, r, c)
-                v, pi = _soft_max([o[0] for o in opts], t)
+                v, _ = _soft_max([o[0] for o in opts], temp)
+                wv, pi = weights(opts)
                 nv[r, c] = obj[r, c] + v
                 nr_[r, c] = obj[r, c]
-                for p, (_, k) in zip(pi, opts):
+                for p, q, (_, cst, k) in zip(pi, wv, opts):
+                    nc_[r, c] += q * cst
                     if k == 8:
                         nl[r, c] += p * dist[r, c]
                         continue
@@ -117,19 +153,29 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
                     cont = not target[rr, cc]
                     nr_[r, c] += p * (raw[rr, cc] if cont else 0.0)
                     nl[r, c] += p * (step_cells(k) * s + (length[rr, cc] if cont else 0.0))
-        value, raw, length = nv, nr_, nl
+                    nc_[r, c] += q * (cost[rr, cc] if cont else 0.0)
+        value, raw, length, cost = nv, nr_, nl, nc_
 
     policy = np.zeros((h, w, 9))
+    log_sharp = {}
     for r in range(h):
         for c in range(w):
             if occ[r, c]:
                 opts = options(value, r, c)
-                _, pi = _soft_max([o[0] for o in opts], t)
-                for p, (_, k) in zip(pi, opts):
+                _, pi = weights(opts)
+                tie = [o[0] - (order * o[2] if o[2] < 8 else 0.0) for o in opts]
+                for p, ls, (_, _, k) in zip(pi, _log_softmax(tie, temp * t * t), opts):
                     policy[r, c, k] = p
+                    log_sharp[(r, c, k)] = ls
 
-    # soft psi: every predecessor P of U, gated by log pi_P(P -> U)
+    delivered = raw.copy()
     own = np.where(occ, raw, 0.0)
+    if spill_lam is not None:
+        policy, log_sharp, delivered, own = _select(obj, occ, target, tvec, raw, policy, logit, mass, t, rounds,
+                                                     float(spill_lam), float(spill_threshold), float(slack_tau))
+
+    # soft psi: 0, the own (selected) expected raw mass and every allowed predecessor P of U, lowered by
+    # M log of P's sharpened step into U; a softmax-weighted mean at T
     psi = own.copy()
     for _ in range(rounds):
         new = np.zeros_like(psi)
@@ -138,18 +184,18 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
                 opts = [0.0] + ([own[r, c]] if occ[r, c] else [])
                 for k, (dr, dc) in enumerate(DIRS):
                     pr, pc = r - dr, c - dc
-                    if in_grid(pr, pc, (h, w)) and policy[pr, pc, k] > 0:
-                        opts.append(psi[pr, pc] + math.log(max(policy[pr, pc, k], _TINY)))
-                new[r, c], _ = _soft_max(opts, t)
+                    if (pr, pc, k) in log_sharp:
+                        opts.append(psi[pr, pc] + mass * log_sharp[(pr, pc, k)])
+                new[r, c] = _soft_mean(opts, temp)
         psi = new
 
-    # soft heat: the policy-averaged Eq. 10 alignment of each source C = X - step
+    # soft heat: the sharpened-policy-averaged Eq. 10 alignment of each source C = X - step
     heat = np.zeros((h, w))
     for r in range(h):
         for c in range(w):
             if target[r, c]:
                 continue
-            opts = [0.0]
+            opts = []
             for j, (dr, dc) in enumerate(DIRS):
                 pr, pc = r - dr, c - dc
                 if not in_grid(pr, pc, (h, w)) or not occ[pr, pc]:
@@ -158,23 +204,24 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
                 expected = 0.0
                 for i in range(9):
                     hop = fb if i == 8 else i
-                    if hop < 0:
+                    if hop < 0 or (pr, pc, i) not in log_sharp:
                         continue
                     ux, uy = step_unit(hop)
                     jx, jy = step_unit(j)
                     a = ux * jx + uy * jy
                     if step_cells(j) <= step_cells(hop) + GATE_EPS and a * step_cells(j) > GATE_EPS:
-                        expected += policy[pr, pc, i] * a
+                        expected += math.exp(log_sharp[(pr, pc, i)]) * a
                 opts.append(expected * psi[pr, pc])
-            heat[r, c], _ = _soft_max(opts, t)
+            heat[r, c] = _soft_mean(opts, temp)
 
     scale = max(heat.max(), 1e-6) if highway_relative else 1.0
     thr = float(tau_h) * scale if highway_relative else float(tau_h)
+    width = t * HIGHWAY_SCALE * scale
     hw = np.zeros((h, w))
     for r in range(h):
         for c in range(w):
             if not target[r, c]:
-                hw[r, c] = _sigmoid((heat[r, c] - thr) / (t * scale)) * _sigmoid(heat[r, c] / (t * scale))
+                hw[r, c] = _sigmoid((heat[r, c] - thr) / width) * _sigmoid(heat[r, c] / width)
     cand = hw * occ
 
     ascale = max(heat.max(), 1e-6)
@@ -192,10 +239,71 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
                     continue
                 x1, y1 = centre(qr, qc)
                 d = math.hypot(x1 - x0, y1 - y0)
-                scores.append((heat[qr, qc] - float(anchor_lambda) * d) / ascale + math.log(max(cand[qr, qc], _TINY)))
+                scores.append((heat[qr, qc] - float(anchor_lambda) * d) / ascale
+                              + math.log(max(cand[qr, qc], _TINY)) / t)
                 idx.append(q)
             _, wts = _soft_max(scores, t)
             for q, wt in zip(idx, wts):
                 anchors[r, c, q] = wt
-    return dict(value=value, raw=raw, length=length, policy=policy, psi=psi, heat=heat, highways=hw,
-                candidate=cand, anchor_weights=anchors)
+    return dict(value=value + cost, raw=raw, length=length, policy=policy, psi=psi, heat=heat, highways=hw,
+                candidate=cand, anchor_weights=anchors, delivered=delivered)
+
+
+def _turn(i, j):
+    ux, uy = step_unit(i)
+    vx, vy = step_unit(j)
+    return math.acos(max(-1.0, min(1.0, ux * vx + uy * vy)))
+
+
+def _select(obj, occ, target, tvec, raw, policy, logit, mass, t, rounds, lam, threshold, slack):
+    """Eq. 6 softened, one cell at a time: ``(policy, log_sharp, delivered, own)`` (``soft.soft_select``)."""
+    h, w = obj.shape
+    temp = t * mass
+
+    def local(r, c, i):
+        """Expected turning right after stepping from (r, c) in direction i into N."""
+        nr, nc = r + DIRS[i][0], c + DIRS[i][1]
+        ux, uy = step_unit(i)
+        fb = math.acos(max(-1.0, min(1.0, tvec[nr, nc, 0] * ux + tvec[nr, nc, 1] * uy)))
+        return sum(policy[nr, nc, j] * _turn(i, j) for j in range(8)) + policy[nr, nc, 8] * fb
+
+    def option_theta(theta, r, c, i):
+        nr, nc = r + DIRS[i][0], c + DIRS[i][1]
+        return 0.0 if target[nr, nc] else local(r, c, i) + theta[nr, nc]
+
+    theta = np.zeros((h, w))
+    for _ in range(rounds):
+        new = np.zeros((h, w))
+        for (r, c, i) in logit:
+            new[r, c] += policy[r, c, i] * option_theta(theta, r, c, i)
+        theta = new
+
+    new_policy, log_sharp = np.zeros_like(policy), {}
+    delivered, own = np.zeros((h, w)), np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            if not occ[r, c]:
+                continue
+            opts, log_fb = [], 0.0
+            for i in range(8):
+                if (r, c, i) not in logit:
+                    continue
+                nr, nc = r + DIRS[i][0], c + DIRS[i][1]
+                r_i = obj[r, c] + (0.0 if target[nr, nc] else raw[nr, nc])
+                opts.append((i, r_i, option_theta(theta, r, c, i), mass / t * _log_sigmoid(logit[(r, c, i)])))
+                log_fb += mass / t * _log_sigmoid(-logit[(r, c, i)])
+            opts.append((8, obj[r, c], 0.0, log_fb))
+            best = max(o[1] for o in opts)
+            scores, d_opts = [], []
+            for _, r_i, th, gate in opts:
+                spilled = r_i * -math.expm1(-lam * th)
+                d_i = r_i - spilled * _sigmoid((spilled - threshold) / temp)
+                d_opts.append(d_i)
+                scores.append((d_i + gate) / temp + _log_sigmoid((r_i - best + slack) / temp) / t)
+            _, pi = _soft_max(scores, 1.0)
+            for (k, r_i, _, _), p, ls, d_i in zip(opts, pi, _log_softmax(scores, t * t), d_opts):
+                new_policy[r, c, k] = p
+                log_sharp[(r, c, k)] = ls
+                delivered[r, c] += p * d_i
+                own[r, c] += p * r_i
+    return new_policy, log_sharp, delivered, own

@@ -630,8 +630,13 @@ def _stop_message(code: int, state: EpisodeState, ep: EpisodeParams, plan: Plan 
 def run_episode(scene, params: FabricParams | None = None, spill: spillage.SpillParams | None = None,
                 episode: EpisodeParams | None = None, *, record: bool = False, progress: bool = False,
                 evaluator: spillage.Evaluator = spillage.curvature_spill,
-                on_tick: Callable[[int, dict], None] | None = None) -> Episode:
+                on_tick: Callable[[int, dict], None] | None = None,
+                plan_spill: spillage.SpillParams | None = None) -> Episode:
     """Run one aggregate-transport job on ``scene`` until done (module docstring). Returns ``Episode``.
+
+    spill: the spill model the pushes are executed with (what the world spills). plan_spill: the
+    one the planner selects routes with (Eq. 6); None (default) means ``spill``. Tuning the planner's
+    spill lambda against a fixed world (``experiments/tune_fabric.py --tune-spill``) sets both.
 
     Counts are rounded to ``execute.QUANTUM`` first (exact sums; see ``execute``). record: keep a
     per-tick snapshot (heat, headings, highways, route, connector) for ``viz.animate_episode``.
@@ -649,6 +654,8 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     if params.temperature is not None:   # a concrete 0 is the hard fabric; None keeps it so under jit
         params = params.replace(temperature=None)
     spillage.validate_spill_params(spill)
+    plan_spill = spill if plan_spill is None else plan_spill
+    spillage.validate_spill_params(plan_spill)
     validate_episode_params(ep)
 
     state = reset(scene, params, spill, ep)
@@ -663,12 +670,12 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
         for t in range(ep.max_pushes + 1):
             code, plan = int(state.stop), None
             if code == RUNNING:
-                (plan, planned), plan_ms = timed(lambda: _plan(state.scene, params, ep, spill, state.fabric, cap,
+                (plan, planned), plan_ms = timed(lambda: _plan(state.scene, params, ep, plan_spill, state.fabric, cap,
                                                                evaluator))
                 code = int(plan_code(plan, cap, shape))
                 if code == WALK_CAP:
                     cap = shape[0] * shape[1] + 1
-                    (plan, planned), plan_ms = timed(lambda: _plan(state.scene, params, ep, spill, state.fabric,
+                    (plan, planned), plan_ms = timed(lambda: _plan(state.scene, params, ep, plan_spill, state.fabric,
                                                                    cap, evaluator))
                     code = int(plan_code(plan, cap, shape))
             if code != RUNNING:

@@ -273,13 +273,16 @@ def _is_concrete(scene) -> bool:
     return not traced(scene)
 
 
-def build_fabric(scene, params: FabricParams | None = None) -> Fabric:
+def build_fabric(scene, params: FabricParams | None = None, spill=None) -> Fabric:
     """Build the whole fabric (visibility, DP, first hops, psi, heatmap, highways) for ``scene``.
 
     Jitted; ``vmap`` it over ``FabricParams`` (traced fields) or over stacked scenes of one shape.
     Concrete inputs are validated first and raise ``ValueError`` naming the bad field. With
     ``params.temperature`` set (> 0, or traced) it runs the soft kernels and returns a
     ``jaxplan.transport.soft.SoftFabric`` instead (``temperature=None`` or a concrete 0: the hard ``Fabric``).
+    spill: soft kernels only, a ``SpillParams``: Eq. 6's choice among each source's candidates
+    becomes a softmax over predicted delivered mass (``soft.soft_select``). The hard fabric applies
+    Eq. 6 with ``selection.reselect``.
     """
     params = FabricParams() if params is None else params
     if _is_concrete(params):
@@ -287,8 +290,12 @@ def build_fabric(scene, params: FabricParams | None = None) -> Fabric:
     if params.temperature is not None:
         if params.is_soft:   # a temperature > 0 (or traced): the differentiable kernels
             from jaxplan.transport import soft
-            return soft.build_soft_fabric(scene, params)
+            return soft.build_soft_fabric(scene, params, spill)
         params = params.replace(temperature=None)   # a concrete 0: the exact hard kernels
+    if spill is not None:
+        raise ValueError("spill: build_fabric takes SpillParams with the soft kernels only (FabricParams."
+                         "temperature > 0); for the hard fabric apply Eq. 6 with "
+                         "jaxplan.transport.selection.reselect.")
     return _build_jit(scene, params)
 
 

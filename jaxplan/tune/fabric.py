@@ -5,7 +5,9 @@ soft **delivered mass per unit driven** over the whole job. Every cell's objects
 that cell's own route, which costs its length plus the drive back from the target (``d(C, T)``), so
 the job's ratio is the total count over the count-weighted sum of cost per delivered object. For
 every occupied source C the soft fabric gives the expected raw mass ``R(C)``, length ``L(C)`` and
-first-step distribution; the curvature spill idea (``jaxplan.transport.spillage``: a fraction
+first-step distribution, the policy choosing among each source's first steps by predicted delivered
+mass (Eq. 6 through the soft fabric, ``build_fabric(..., SpillParams(lam=spill_lam))``, so heat,
+highways and anchors depend on the spill lambda); the curvature spill idea (``jaxplan.transport.spillage``: a fraction
 ``spill_lam`` of the load per radian of turning) turns the policy's expected total turning ``Θ(C)``
 into a kept fraction ``exp(-spill_lam Θ(C))``. A root may instead go via a highway (Eq. 12): its
 soft anchor weights give the expected via route (straight approach to the anchor, then the
@@ -30,6 +32,7 @@ from jaxplan.transport.fabric import build_fabric
 from jaxplan.transport.params import FabricParams
 from jaxplan.transport.scene import Scene, stack_scenes
 from jaxplan.transport.scenes import random_scene
+from jaxplan.transport.spillage import SpillParams
 
 TUNED = ("theta_tol_deg", "tau_h", "anchor_lambda")
 
@@ -81,7 +84,10 @@ AGGREGATES = ("job", "source")
 
 class ObjectiveConfig(NamedTuple):
     """Static settings of the objective: spill_lam (fraction per radian, as ``SpillParams.lam``),
-    rearrange_margin (as ``EpisodeParams``), temperature of the soft kernels.
+    rearrange_margin (as ``EpisodeParams``), temperature of the soft kernels (dimensionless,
+    docs/conventions.md "Soft kernels"; 0.5: the cone gate's logit is ``x / (t^2 CONE_SCALE)``, so
+    theta's gradient comes from the steps within a few ``t^2 CONE_SCALE`` cosine of the cone's edge,
+    0.0125 at t = 0.5 but 0.0005 at t = 0.1, where the objective is nearly flat in theta).
 
     approach: charge every route the drive back from the target to its source (``d(C, T)``), as the
     episode's distance driven does. aggregate: ``"job"`` (default) delivered per driven over the
@@ -92,25 +98,29 @@ class ObjectiveConfig(NamedTuple):
     cones whose many short routes the mean of ratios over-rewards).
     """
 
-    temperature: float = 0.1
+    temperature: float = 0.5
     spill_lam: float = 0.05
     rearrange_margin: float = 0.1
     approach: bool = True
     aggregate: str = "job"
 
 
-def soft_efficiency(scene: Scene, params: FabricParams, config: ObjectiveConfig | None = None):
+def soft_efficiency(scene: Scene, params: FabricParams, config: ObjectiveConfig | None = None, plan_lam=None):
     """``f32[]`` objects per world unit: the soft delivered mass per unit driven (``config.aggregate``).
 
     params: the (traced) fabric parameters; its temperature is replaced by ``config.temperature``.
-    config: None means ``ObjectiveConfig()``.
+    config: None means ``ObjectiveConfig()``. plan_lam: f32[] (traced) the spill lambda the planner
+    selects routes with (Eq. 6 through the soft fabric); None means ``config.spill_lam``. The world
+    spills with ``config.spill_lam`` whatever the planner assumes.
     """
     if config is None:
         config = ObjectiveConfig()
     if config.aggregate not in AGGREGATES:
         raise ValueError(f"ObjectiveConfig.aggregate: must be one of {AGGREGATES}; got {config.aggregate!r}.")
     t = config.temperature
-    f = build_fabric(scene, params.replace(temperature=t))
+    # spill through the fabric: Eq. 6 picks each source's first step by predicted delivered mass
+    plan_lam = config.spill_lam if plan_lam is None else plan_lam
+    f = build_fabric(scene, params.replace(temperature=t), SpillParams(lam=plan_lam))
     obj = jnp.where(f.occupied, jnp.asarray(scene.obj, jnp.float32), 0.0)
     rounds = params.resolved_soft_rounds(obj.shape)
     keep = jnp.exp(-config.spill_lam * expected_turning(f, scene, rounds))
@@ -140,6 +150,8 @@ def soft_efficiency(scene: Scene, params: FabricParams, config: ObjectiveConfig 
 
 soft_efficiency_jit = jax.jit(soft_efficiency, static_argnums=2)
 
+SPILL = "spill_lam"   # the planner's spill lambda, tuned with ``fit_fabric(tune_spill=True)``
+
 
 # ---------------------------------------------------------------------------------------------- fitting
 
@@ -159,19 +171,24 @@ def from_unconstrained(u: dict, base: FabricParams) -> FabricParams:
 
 
 class FitResult(NamedTuple):
-    """params: the tuned FabricParams (floats); history: one dict per step (objective, parameters)."""
+    """params: the tuned FabricParams (floats); history: one dict per step (objective, parameters);
+    spill_lam: the tuned planner spill lambda (``tune_spill``), else None."""
 
     params: FabricParams
     history: list
+    spill_lam: float | None = None
 
 
 def fit_fabric(scenes: list[Scene], init: FabricParams | None = None, *, steps: int = 60,
                learning_rate: float = 0.05, config: ObjectiveConfig | None = None,
-               on_step: Callable[[int, dict], None] | None = None) -> FitResult:
+               on_step: Callable[[int, dict], None] | None = None, tune_spill: bool = False) -> FitResult:
     """Maximise the mean ``soft_efficiency`` over ``scenes`` (one shape) with optax Adam.
 
     Returns the tuned parameters and the loss curve (``history[i]["objective"]``, the value before
     step i's update). One jitted value-and-grad for the whole batch (``vmap`` over scenes).
+    tune_spill: also tune the planner's spill lambda (>= 0 via a softplus; starts at
+    ``config.spill_lam``), the gradient flowing through the soft fabric's Eq. 6; the world's spill
+    stays ``config.spill_lam``.
     """
     if steps < 1:
         raise ValueError(f"steps: must be >= 1; got {steps!r}.")
@@ -182,41 +199,48 @@ def fit_fabric(scenes: list[Scene], init: FabricParams | None = None, *, steps: 
 
     def loss(u):
         p = from_unconstrained(u, base)
-        return -jnp.mean(jax.vmap(lambda s: soft_efficiency(s, p, config))(batch))
+        lam = jax.nn.softplus(u[SPILL]) if tune_spill else None
+        return -jnp.mean(jax.vmap(lambda s: soft_efficiency(s, p, config, lam))(batch))
 
     value_and_grad = jax.jit(jax.value_and_grad(loss))
     opt = optax.adam(learning_rate)
     u = to_unconstrained(base)
+    if tune_spill:
+        u[SPILL] = jnp.float32(math.log(math.expm1(max(float(config.spill_lam), 1e-4))))
     state = opt.init(u)
     history = []
     for i in range(steps):
         value, grad = value_and_grad(u)
         p = from_unconstrained(u, base)
         row = dict(step=i, objective=-float(value), **{k: float(getattr(p, k)) for k in TUNED})
+        if tune_spill:
+            row[SPILL] = float(jax.nn.softplus(u[SPILL]))
         history.append(row)
         if on_step is not None:
             on_step(i, row)
         updates, state = opt.update(grad, state, u)
         u = optax.apply_updates(u, updates)
     tuned = from_unconstrained(u, base)
-    return FitResult(base.replace(**{k: float(getattr(tuned, k)) for k in TUNED}), history)
+    lam = float(jax.nn.softplus(u[SPILL])) if tune_spill else None
+    return FitResult(base.replace(**{k: float(getattr(tuned, k)) for k in TUNED}), history, lam)
 
 
 # ---------------------------------------------------------------------------------------------- hard check
 
 
 def evaluate_hard(scenes: list[Scene], params: FabricParams, *, max_pushes: int = 40, spill_lam: float = 0.05,
-                  rearrange_margin: float = 0.1) -> list[dict]:
+                  rearrange_margin: float = 0.1, plan_lam: float | None = None) -> list[dict]:
     """Run the hard episode loop on every scene; one dict per scene with delivered mass, distance
-    driven, pushes and delivered per unit driven (objects per world unit)."""
+    driven, pushes and delivered per unit driven (objects per world unit). The world spills with
+    ``spill_lam``; the planner selects routes (Eq. 6) with ``plan_lam`` (None: ``spill_lam``)."""
     from jaxplan.transport.episode import EpisodeParams, run_episode
-    from jaxplan.transport.spillage import SpillParams
 
     hard = params.replace(temperature=None)
     rows = []
     for scene in scenes:
         ep = run_episode(scene, hard, SpillParams(lam=spill_lam),
-                         EpisodeParams(max_pushes=max_pushes, rearrange_margin=rearrange_margin))
+                         EpisodeParams(max_pushes=max_pushes, rearrange_margin=rearrange_margin),
+                         plan_spill=None if plan_lam is None else SpillParams(lam=plan_lam))
         delivered = float(ep.delivered[-1]) if len(ep.delivered) else 0.0
         driven = float(ep.driven[-1]) if len(ep.driven) else 0.0
         rows.append(dict(delivered=delivered, driven=driven, pushes=int(len(ep.pushes)),

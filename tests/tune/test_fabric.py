@@ -95,3 +95,16 @@ def test_job_aggregate_charges_cheap_sources_less_than_the_mean_of_ratios(scenes
 def test_unknown_aggregate_is_rejected(scenes):
     with pytest.raises(ValueError, match="aggregate"):
         tune.soft_efficiency(scenes[0], FabricParams(), tune.ObjectiveConfig(aggregate="median"))
+
+
+def test_fit_tunes_the_planner_spill_lambda_through_the_fabric(scenes):
+    config = tune.ObjectiveConfig(spill_lam=0.2)
+
+    def f(lam):
+        return tune.soft_efficiency(scenes[0], FabricParams(slack_tau=1.0), config, lam)
+
+    value, grad = jax.jit(jax.value_and_grad(f))(0.2)
+    assert np.isfinite(float(value)) and np.isfinite(float(grad)) and float(grad) != 0.0
+    fit = tune.fit_fabric(scenes, FabricParams(slack_tau=1.0), steps=2, learning_rate=0.1, config=config,
+                          tune_spill=True)
+    assert fit.spill_lam is not None and fit.spill_lam >= 0 and "spill_lam" in fit.history[0]
