@@ -28,6 +28,7 @@ CONE_EPS = 1e-6          # absolute slack on the cone test (Eq. 1)
 MONOTONE_EPS = 1e-5      # strict-decrease margin of the monotone rule, in cell sizes
 LENGTH_TIE_EPS = 1e-6  # path lengths this close (relative, in cell sizes) are ties
 GATE_EPS = 1e-6          # near-field / forward-facing slack of the heatmap, in cell sizes
+ALIGN_TIE_EPS = 1e-6     # fallback-hop alignments (cosines) this close are ties (to the lower direction index)
 
 
 def planes(a) -> list:

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from jaxplan.reference.visibility import CONE_EPS, GATE_EPS, MONOTONE_EPS, in_grid, step_cells, step_unit
+from jaxplan.reference.visibility import CONE_EPS, GATE_EPS, MONOTONE_EPS, fallback_hop, in_grid, step_cells, step_unit
 
 __all__ = ["reference_soft_fabric"]
 
@@ -35,14 +35,8 @@ def _soft_max(options, t):
 
 
 def _fallback_dir(tvec, r, c, shape):
-    best, best_k = -math.inf, -1
-    for k in range(8):
-        if in_grid(r + DIRS[k][0], c + DIRS[k][1], shape):
-            ux, uy = step_unit(k)
-            a = tvec[r, c, 0] * ux + tvec[r, c, 1] * uy
-            if a > best:
-                best, best_k = a, k
-    return best_k
+    hop = fallback_hop(r, c, (float(tvec[r, c, 0]), float(tvec[r, c, 1])), shape)
+    return -1 if hop is None else hop[0]
 
 
 def _soft_mean(options, t):

@@ -30,6 +30,7 @@ FALLBACK = 8
 CONE_EPS = 1e-6       # absolute slack on the cone test, so exact 45-degree cases stay feasible
 MONOTONE_EPS = 1e-5   # strict-decrease margin of the monotone rule, in cell sizes
 GATE_EPS = 1e-6       # slack of the heatmap's near-field and forward-facing tests, in cell sizes
+ALIGN_TIE_EPS = 1e-6  # fallback-hop alignments this close are ties, won by the lower direction index
 
 
 def step_cells(k: int) -> float:
@@ -113,13 +114,13 @@ def fallback_hop(r, c, forward_xy, shape):
     """Heatmap first hop of a fallback cell: ``(direction, (row, col))`` or ``None``.
 
     The in-grid 8-neighbour whose step direction best aligns with ``forward_xy`` (largest dot
-    product; the scan in direction order with a strict ``>`` gives ties to the lower index).
+    product; the scan in direction order keeps the first of alignments within ``ALIGN_TIE_EPS``).
     ``None`` when the grid has no neighbour (1x1 grid).
     """
     best = None
     best_dot = -math.inf
     for dot, k, cell in fallback_alignments(r, c, forward_xy, shape):
-        if dot > best_dot:
+        if dot > best_dot + ALIGN_TIE_EPS:
             best, best_dot = (k, cell), dot
     return best
 

@@ -72,7 +72,8 @@ def feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone: boo
 
 
 def fallback_direction(tvec):
-    """``i32[H, W]``: the in-grid direction best aligned with ``t(C)`` (ties to the lower index).
+    """``i32[H, W]``: the in-grid direction best aligned with ``t(C)`` (ties within
+    ``lattice.ALIGN_TIE_EPS`` to the lower index).
 
     It is the heatmap's first hop of a boundary-fallback cell; ``-1`` when the grid has no neighbour
     (a 1x1 grid).
@@ -90,7 +91,11 @@ def fallback_direction_at(tvec, cells):
 
 
 def _best_aligned(alignment, inside, has_neighbour):
-    best = jnp.argmax(jnp.where(inside, alignment, -jnp.inf), axis=0).astype(jnp.int32)
+    # t(C) halfway between two steps (22.5 degrees off both) is an exact tie that float rounding
+    # would decide either way: near-ties go to the lower index, as in the serial reference
+    masked = jnp.where(inside, alignment, -jnp.inf)
+    top = jnp.max(masked, axis=0, keepdims=True)
+    best = jnp.argmax(masked >= top - lattice.ALIGN_TIE_EPS, axis=0).astype(jnp.int32)
     return jnp.where(has_neighbour, best, -1)
 
 
