@@ -134,9 +134,8 @@ def reference_soft_fabric(obj, target_mask, dist, tvec, cell_size, origin, *, th
                 if not occ[r, c]:
                     continue
                 opts = options(value, r, c)
-                v, _ = _soft_max([o[0] for o in opts], temp)
                 wv, pi = weights(opts)
-                nv[r, c] = obj[r, c] + v
+                nv[r, c] = obj[r, c] + sum(q * o[0] for q, o in zip(wv, opts))
                 nr_[r, c] = obj[r, c]
                 for p, q, (_, cst, k) in zip(pi, wv, opts):
                     nc_[r, c] += q * cst

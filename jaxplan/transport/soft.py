@@ -19,7 +19,7 @@ A **gate** (a hard ``x >= 0`` test) becomes a logit ``z`` (cone: ``x / (t^2 CONE
 ``|x| / (t^4 CONE_SCALE)``, so a step outside the cone is worse than any path it could open, and an
 open one (``x`` a few ``t^2 CONE_SCALE`` inside) costs nothing.
 
-The dynamic program is a fixed-round **soft Bellman recursion** (``soft_rounds``, static). Ties in
+The dynamic program is a fixed-round **softmax-weighted Bellman recursion** (``soft_rounds``, static). Ties in
 mass go to the shorter path, then to the lower first-step index, through costs that vanish relative
 to ``M``. psi and the heatmap follow the **sharpened policy** (the policy's scores at temperature
 ``t^2 T``) and reduce their options by a softmax-weighted mean (``soft_mean``), which lies between the
@@ -61,9 +61,9 @@ ORDER_EXPONENT = 2.25
 class SoftFabric(NamedTuple):
     """What the soft kernels compute for one H x W grid (``build_fabric`` with a temperature).
 
-    value: f32[H, W], objects: the soft Bellman value with its expected length and gate costs added
-      back (expected raw mass plus the policy's entropy bonus); tends to J as t -> 0. 0 where not
-      occupied.
+    value: f32[H, W], objects: the softmax-weighted Bellman value with its expected length and gate
+      costs added back (the expected raw mass under the value's weights); tends to J as t -> 0. 0
+      where not occupied.
     raw: f32[H, W], expected raw mass (objects) collected by the soft policy from C (C included).
     length: f32[H, W], expected path length (world units) of the soft policy.
     policy: f32[H, W, 9], probability of each first step (8 directions, then the fallback); 0 where
@@ -187,12 +187,14 @@ def soft_dp(obj, occupied, goal, dist, z, allowed, cell_size, t, mass, rounds: i
     Per occupied cell C, options: step i (allowed) with score
     ``Q_i = V(N_i) - eta |step_i| + (M / t) log sigmoid(z_i)`` (``V = 0`` for a goal neighbour:
     entering it ends the path) and the fallback with ``Q_fb = (M / t) sum_i log sigmoid(-z_i) - eta d(C)``
-    (every step closed); ``eta = M t^1.5 / s`` (length tie-break). ``V(C) = obj(C) + T logsumexp(Q / T)``;
+    (every step closed); ``eta = M t^1.5 / s`` (length tie-break). ``V(C) = obj(C) + sum_i w_i Q_i``,
+    ``w = softmax(Q / T)`` (a weighted mean, not log-sum-exp: exact ties add no entropy bonus, which
+    would steer the tie-break toward branching paths);
     the policy ``pi = softmax((Q - o i) / T)``, ``o = M t^2.25`` per direction index i (the hard
     kernel's tie-break by the first step's index: in the policy only, not in V). Expected raw
     ``R(C) = obj(C) + sum_i pi_i [N_i not goal] R(N_i)``, expected length
     ``L(C) = sum_i pi_i (|step_i| + [N_i not goal] L(N_i)) + pi_fb d(C)``, and the expected costs
-    ``B(C)`` (length and gate terms, under ``softmax(Q / T)``), so that ``V + B`` tends to J.
+    ``B(C)`` (length and gate terms, under ``w``), so that ``V + B`` tends to J.
     Rounds start from the 0-step fallback and run ``rounds`` times (static).
 
     obj: f32[H, W] objects; occupied, goal: bool[H, W]; dist: f32[H, W] world units; z, allowed:
@@ -225,7 +227,8 @@ def soft_dp(obj, occupied, goal, dist, z, allowed, cell_size, t, mass, rounds: i
     def body(carry, _):
         value, raw, length, cost = carry
         q = scores(value)
-        v, w = soft_max(q, mask, temp)
+        _, w = soft_max(q, mask, temp)
+        v = jnp.sum(w * jnp.where(mask, q, 0.0), 0)   # the weighted mean: ties add no entropy bonus
         _, pi = soft_max(q - order, mask, temp)
         nb = lambda a: jnp.where(cont, lattice.neighbours(a, 0.0), 0.0)  # noqa: E731
         new_raw = obj + jnp.sum(pi[:8] * nb(raw), 0)

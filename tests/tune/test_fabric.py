@@ -108,3 +108,11 @@ def test_fit_tunes_the_planner_spill_lambda_through_the_fabric(scenes):
     fit = tune.fit_fabric(scenes, FabricParams(slack_tau=1.0), steps=2, learning_rate=0.1, config=config,
                           tune_spill=True)
     assert fit.spill_lam is not None and fit.spill_lam >= 0 and "spill_lam" in fit.history[0]
+
+
+def test_evaluate_hard_plans_with_the_planner_spill_lambda(scenes):
+    same = tune.evaluate_hard(scenes[:1], FabricParams(), max_pushes=3, spill_lam=0.05, plan_lam=0.05)
+    default = tune.evaluate_hard(scenes[:1], FabricParams(), max_pushes=3, spill_lam=0.05)
+    assert same == default
+    other = tune.evaluate_hard(scenes[:1], FabricParams(slack_tau=2.0), max_pushes=3, spill_lam=0.05, plan_lam=1.0)
+    assert other[0]["pushes"] >= 1 and np.isfinite(other[0]["efficiency"])
