@@ -42,7 +42,11 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-__all__ = ["Trajectory", "Simulator", "default_backend", "schedule_policy", "free_qpos_addresses"]
+__all__ = ["FAST_COMPILE", "Trajectory", "Simulator", "default_backend", "schedule_policy", "free_qpos_addresses"]
+
+# XLA options that cut the CPU compile of a large MJX program several fold (LLVM's expensive passes
+# off); docs/physics.md has the measured compile and run times with and without them.
+FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
 
 Policy = Callable[[Any, Any, jax.Array, jax.Array, jax.Array], tuple]
 
@@ -109,20 +113,29 @@ class Simulator:
     substeps: physics steps per control tick.  bounds: ``(lo f[3], hi f[3])`` world box for free
       bodies (None: unbounded).  backend: "mjx", "c" or "auto" (:func:`default_backend`).
     nthread: C-engine threads (default: all cores).
+    mjx_model: the model MJX steps instead of ``model`` (same bodies, joints and actuators; e.g. only
+      the contact pairs that can happen declared, ``PushWorld.mjx_model``). None: ``model``.
+    compiler_options: XLA options for MJX's program (e.g. :data:`FAST_COMPILE`); None: XLA's defaults.
 
     ``run`` compiles once per (horizon, batch size) on MJX; later calls with new states, policy
     parameters or policy states reuse the compiled program.
     """
 
     def __init__(self, model: mujoco.MjModel, policy: Policy, *, substeps: int = 1, bounds=None,
-                 backend: str = "auto", nthread: int | None = None):
+                 backend: str = "auto", nthread: int | None = None, mjx_model: mujoco.MjModel | None = None,
+                 compiler_options: dict | None = None):
         if backend == "auto":
             backend = default_backend()
         if backend not in ("mjx", "c"):
             raise ValueError(f"backend: expected 'mjx', 'c' or 'auto'; got {backend!r}.")
         if int(substeps) < 1:
             raise ValueError(f"substeps: must be an int >= 1; got {substeps!r}.")
+        if mjx_model is not None and (mjx_model.nq, mjx_model.nv, mjx_model.nu) != (model.nq, model.nv, model.nu):
+            raise ValueError(f"mjx_model: expected nq, nv, nu = {(model.nq, model.nv, model.nu)} as model; got "
+                             f"{(mjx_model.nq, mjx_model.nv, mjx_model.nu)}.")
         self.model = model
+        self.mjx_model = model if mjx_model is None else mjx_model
+        self.compiler_options = dict(compiler_options) if compiler_options else None
         self.policy = policy
         self.substeps = int(substeps)
         self.backend = backend
@@ -177,7 +190,7 @@ class Simulator:
             return self._mjx_cache[key]
         from mujoco import mjx
 
-        mx = mjx.put_model(self.model)
+        mx = mjx.put_model(self.mjx_model)
         missing = [k for k in field_names if not hasattr(mx, k)]
         if missing:
             raise ValueError(f"model_fields: MJX's model has no field {missing[0]!r}; use the C engine for it.")
@@ -191,8 +204,9 @@ class Simulator:
 
         def single(qpos0, qvel0, params, pstate0, fields):
             m = mx.replace(**{k: v.astype(getattr(mx, k).dtype) for k, v in fields.items()}) if fields else mx
+            # No mjx.forward here: the policy reads only qpos / qvel / time, and every mjx.step starts
+            # with its own forward pass; one copy of the collision code keeps the compile small.
             d = d0.replace(qpos=qpos0.astype(d0.qpos.dtype), qvel=qvel0.astype(d0.qvel.dtype))
-            d = mjx.forward(m, d)
 
             def tick(carry, t):
                 d, ps, ok, first_bad = carry
@@ -207,10 +221,9 @@ class Simulator:
             (d, ps, ok, first_bad), (qp, qv, ctrl, ncon) = jax.lax.scan(tick, init, jnp.arange(n_ticks))
             qp = jnp.concatenate([qpos0[None].astype(qp.dtype), qp])
             qv = jnp.concatenate([qvel0[None].astype(qv.dtype), qv])
-            ncon = jnp.concatenate([ncon_of(mjx.forward(m, d0.replace(qpos=qpos0.astype(d0.qpos.dtype))))[None], ncon])
             return qp, qv, ctrl, ok, first_bad, ncon, ps
 
-        fn = jax.jit(jax.vmap(single))
+        fn = jax.jit(jax.vmap(single), compiler_options=self.compiler_options)
         self._mjx_cache[key] = fn
         return fn
 
@@ -220,8 +233,17 @@ class Simulator:
         qp, qv, ctrl, ok, first_bad, ncon, ps = jax.block_until_ready(
             fn(jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32), params, pstate0, fields))
         time = np.arange(n_ticks + 1) * self.tick_seconds
+        # Contacts at tick 0 from the C engine on the MJX model (a second MJX collision pass would
+        # double the compiled program for a diagnostic).
+        m0, d0 = self.mjx_model, mujoco.MjData(self.mjx_model)
+        ncon0 = np.zeros(qpos0.shape[0], np.int32)
+        for i, q in enumerate(qpos0):
+            d0.qpos[:] = q
+            mujoco.mj_forward(m0, d0)
+            ncon0[i] = _active_contacts(d0)
+        ncon = np.concatenate([ncon0[:, None], np.asarray(ncon)], 1)
         return Trajectory(np.asarray(qp), np.asarray(qv), np.asarray(ctrl), time, np.asarray(ok),
-                          np.asarray(first_bad), np.asarray(ncon), ps, "mjx")
+                          np.asarray(first_bad), ncon, ps, "mjx")
 
     # ------------------------------------------------------------------------------------ C engine
     def _c_model(self) -> mujoco.MjModel:
