@@ -79,7 +79,11 @@ def _outcome_dict(out) -> dict:
             "poses": np.asarray(out.poses).tolist()}
 
 
-def child(spec: str, batch: int, backend: str, opt: str = "fast") -> dict:
+class _Compiled(Exception):
+    pass
+
+
+def child(spec: str, batch: int, backend: str, opt: str = "fast", compile_only: bool = False) -> dict:
     """One engine's cold and warm batched rollout in this process (the peak RSS is this run's)."""
     from jaxplan.pusharound.physics import build_push_world
     from jaxplan.pusharound.push import make_push_simulator, simulate_pushes
@@ -89,6 +93,29 @@ def child(spec: str, batch: int, backend: str, opt: str = "fast") -> dict:
     from jaxplan.physics.rollout import FAST_COMPILE
 
     sim = make_push_simulator(world, backend, compiler_options=FAST_COMPILE if opt == "fast" else None)
+    if compile_only:   # trace + XLA compile of the batched rollout, no run
+        timing = {}
+
+        def lower_only(qpos0, qvel0, params, pstate0, n_ticks, fields):
+            import jax.numpy as jnp
+
+            fn = sim._mjx_fn(n_ticks, ())
+            t0 = time.perf_counter()
+            fn.lower(jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32), params, pstate0,
+                     {}).compile()
+            timing["compile_s"] = time.perf_counter() - t0
+            raise _Compiled()
+
+        sim._run_mjx = lower_only
+        try:
+            simulate_pushes(world, tasks, sim=sim)
+        except _Compiled:
+            pass
+        return {"scene": spec, "backend": backend, "batch": batch, "ticks": int(world.config.horizon),
+                "compile_s": timing["compile_s"], "xla": opt,
+                "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20,
+                "movables": len(world.scene.movables), "geoms": int(world.model.ngeom), "pairs": len(world.pairs),
+                "meshes": int(world.mjx_model.nmesh)}
     t0 = time.perf_counter()
     simulate_pushes(world, tasks, sim=sim)
     cold = time.perf_counter() - t0
@@ -156,12 +183,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per MJX subprocess")
     ap.add_argument("--xla", choices=("fast", "default"), default="fast",
                     help="MJX compile: FAST_COMPILE options (LLVM's expensive passes off) or XLA's defaults")
+    ap.add_argument("--compile-only", action="store_true",
+                    help="MJX: trace and compile the batched rollout, no run (compile time and peak memory only)")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     ap.add_argument("--stem", default="mjx_scale")
     args = ap.parse_args(argv)
     if args.child:
-        print(json.dumps(child(args.child, args.batch, args.backend, args.xla)))
+        print(json.dumps(child(args.child, args.batch, args.backend, args.xla, args.compile_only)))
         return {}
     sys.path.insert(0, str(ROOT))
     from experiments._results import write_results
