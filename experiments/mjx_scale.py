@@ -36,12 +36,14 @@ POSE_TOL = (0.01, np.deg2rad(2.0))   # m, rad
 
 
 def make_scene(spec: str):
-    """``nominal:SEED``, ``dense:SEED`` or ``density:SEED:N`` -> PushScene."""
-    from jaxplan.pusharound.scenarios import dense_scene, density_scene, nominal_scene
+    """``nominal:SEED``, ``dense:SEED``, ``density:SEED:N`` or ``corridor:SEED`` -> PushScene."""
+    from jaxplan.pusharound.scenarios import corridor_scene, dense_scene, density_scene, nominal_scene
 
     kind, *args = spec.split(":")
     if kind == "nominal":
         return nominal_scene(int(args[0]))
+    if kind == "corridor":
+        return corridor_scene(int(args[0]))
     if kind == "dense":
         return dense_scene(int(args[0]))
     if kind == "density":
