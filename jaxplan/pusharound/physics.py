@@ -370,12 +370,21 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
     pairs = contact_pairs(colliders, [f"robot{i}" for i in range(len(robots))], reach)
     caps = mjx_caps(pairs, n_mov_geoms)
     mjx_xml = re.sub(r'contype="\d+" conaffinity="\d+"', 'contype="0" conaffinity="0"', xml)
+    model = mujoco.MjModel.from_xml_string(xml)
+
+    def pair_xml(a: str, b: str) -> str:
+        # MuJoCo's mixing for dynamic contacts (friction: the larger of the two geoms'; condim: the
+        # larger), which explicit pairs do not apply by themselves: sliding, sliding, torsional, rolling x2.
+        ga, gb = (mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in (a, b))
+        f = np.maximum(model.geom_friction[ga], model.geom_friction[gb])
+        dim = max(int(model.geom_condim[ga]), int(model.geom_condim[gb]))
+        return f'<pair geom1="{a}" geom2="{b}" condim="{dim}" friction="{_f(f[[0, 0, 1, 2, 2]])}"/>'
+
     mjx_xml = mjx_xml.replace("<asset>", f"""<custom>
     <numeric name="max_contact_points" data="{caps['max_contact_points']}"/>
   </custom>
   <asset>""", 1).replace("</mujoco>", "<contact>" + "".join(
-        f'<pair geom1="{a}" geom2="{b}"/>' for a, b in pairs) + "</contact>\n</mujoco>")
-    model = mujoco.MjModel.from_xml_string(xml)
+        pair_xml(a, b) for a, b in pairs) + "</contact>\n</mujoco>")
     mjx_model = mujoco.MjModel.from_xml_string(mjx_xml)
     if cfg.sleep:
         model.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)

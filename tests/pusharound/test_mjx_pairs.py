@@ -31,6 +31,11 @@ def test_mjx_model_declares_pairs_only(world):
     assert mm.npair == len(world.pairs) > 0
     assert (mm.nq, mm.nv, mm.nu, mm.ngeom) == (m.nq, m.nv, m.nu, m.ngeom)
     np.testing.assert_allclose(mm.geom_pos, m.geom_pos)
+    # pair friction and condim follow MuJoCo's mixing of the two geoms (max), as the C model's contacts
+    g1, g2 = mm.pair_geom1, mm.pair_geom2
+    mixed = np.maximum(m.geom_friction[g1], m.geom_friction[g2])[:, [0, 0, 1, 2, 2]]
+    np.testing.assert_allclose(mm.pair_friction, mixed)
+    np.testing.assert_array_equal(mm.pair_dim, np.maximum(m.geom_condim[g1], m.geom_condim[g2]))
     n_mesh_geoms = int(np.sum(m.geom_type == mujoco.mjtGeom.mjGEOM_MESH))
     assert 0 < m.nmesh < n_mesh_geoms
     # a longer reach declares a superset of pairs
