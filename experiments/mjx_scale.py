@@ -14,6 +14,7 @@ Examples::
 
     python experiments/mjx_scale.py --scenes nominal:0 --batch 4          # smoke run
     python experiments/mjx_scale.py                                        # 3 nominal, dense, density x 64
+    python experiments/mjx_scale.py --compile-only --stem mjx_scale_compile  # compile time and peak only
 """
 from __future__ import annotations
 
@@ -132,9 +133,11 @@ def child(spec: str, batch: int, backend: str, opt: str = "fast", compile_only: 
             "meshes": int(world.mjx_model.nmesh), "outcome": _outcome_dict(out)}
 
 
-def run_child(spec: str, batch: int, backend: str, timeout: float, xla: str = "fast") -> dict:
+def run_child(spec: str, batch: int, backend: str, timeout: float, xla: str = "fast",
+              compile_only: bool = False) -> dict:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     cmd = [sys.executable, __file__, "--child", spec, "--batch", str(batch), "--backend", backend, "--xla", xla]
+    cmd += ["--compile-only"] if compile_only else []
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -177,6 +180,21 @@ def markdown(rows: list, meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def markdown_compile(rows: list, meta: dict) -> str:
+    lines = [f"# MJX-JAX compile on the PushAround scenes ({meta['machine']})", "",
+             f"Trace + XLA compile of the batched rollout ({meta['batch']} candidates x {meta['ticks']} control ticks), "
+             "no run; peak = the subprocess's max RSS.", "",
+             "| scene | movables | geoms | declared pairs | meshes | compile s | peak GB |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        m = r["mjx"]
+        if "error" in m:
+            lines.append(f"| {r['scene']} | | | | | {m['error']} | |")
+        else:
+            lines.append(f"| {r['scene']} | {m['movables']} | {m['geoms']} | {m['pairs']} | {m['meshes']} | "
+                         f"{m['compile_s']:.1f} | {m['peak_gb']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="+", default=list(SCENES))
@@ -201,7 +219,12 @@ def main(argv=None) -> dict:
     meta = {"machine": f"{platform.machine()}, {os.cpu_count()} cores", "batch": args.batch, "ticks": 80,
             "backend": args.backend, "xla": args.xla}
     for spec in args.scenes:
-        mj = run_child(spec, args.batch, args.backend, args.timeout, args.xla)
+        mj = run_child(spec, args.batch, args.backend, args.timeout, args.xla, args.compile_only)
+        if args.compile_only:
+            rows.append({"scene": spec, "mjx": mj})
+            print(json.dumps(rows[-1]), flush=True)
+            write_results(args.results_dir, args.stem, {"meta": meta, "rows": rows}, markdown_compile(rows, meta))
+            continue
         c = child(spec, args.batch, "c")
         row = {"scene": spec, "mjx": {k: v for k, v in mj.items() if k != "outcome"},
                "c": {k: v for k, v in c.items() if k not in ("outcome", "peak_gb")}}
