@@ -182,9 +182,10 @@ def markdown(rows: list, meta: dict) -> str:
 
 def markdown_compile(rows: list, meta: dict) -> str:
     lines = [f"# MJX-JAX compile on the PushAround scenes ({meta['machine']})", "",
-             f"Trace + XLA compile of the batched rollout ({meta['batch']} candidates x {meta['ticks']} control ticks), "
-             "no run; peak = the subprocess's max RSS.", "",
-             "| scene | movables | geoms | declared pairs | meshes | compile s | peak GB |", "|---|---|---|---|---|---|---|"]
+             f"Trace + XLA compile of the batched rollout ({meta['batch']} candidates x {meta['ticks']} control "
+             "ticks), no run; peak = the subprocess's max RSS.", "",
+             "| scene | movables | geoms | declared pairs | meshes | compile s | peak GB |",
+             "|---|---|---|---|---|---|---|"]
     for r in rows:
         m = r["mjx"]
         if "error" in m:

@@ -46,8 +46,8 @@ import numpy as np
 __all__ = ["BACKENDS", "FAST_COMPILE", "Trajectory", "Simulator", "default_backend", "warp_available",
            "schedule_policy", "free_qpos_addresses"]
 
-# XLA options that cut the CPU compile of a large MJX program several fold (LLVM's expensive passes
-# off); docs/physics.md has the measured compile and run times with and without them.
+# XLA options for a large MJX program on a CPU: LLVM's expensive passes off (the nominal PushAround
+# scene's compile with them: docs/physics.md).
 FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
 
 Policy = Callable[[Any, Any, jax.Array, jax.Array, jax.Array], tuple]
@@ -191,6 +191,9 @@ class Simulator:
         if int(n_ticks) < 1:
             raise ValueError(f"n_ticks: must be >= 1; got {n_ticks!r}.")
         fields = self._check_fields(model_fields, qpos0.shape[0])
+        if fields and self.backend == "warp" and self.auto:
+            logging.getLogger(__name__).info("Simulator backend='auto': model_fields need MJX-JAX; using 'mjx'")
+            self.backend = "mjx"
         if fields and self.backend == "warp":
             raise ValueError("model_fields: per-element model fields are not supported on backend='warp'; "
                              "use 'mjx' or 'c'.")
