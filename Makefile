@@ -11,7 +11,7 @@ CONSTRAINTS := constraints.txt
 $(STAMP): pyproject.toml $(CONSTRAINTS)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -c $(CONSTRAINTS) -e ".[test,distributed]"
+	$(PY) -m pip install --quiet -c $(CONSTRAINTS) -e ".[test,distributed,warp]"
 	touch $(STAMP)
 
 install: $(STAMP)

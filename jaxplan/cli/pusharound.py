@@ -259,8 +259,8 @@ def _plan_execute_write(args, scene, source, table, run):
             return plan_pushes(now, config.replace(time_limit_s=max(5.0, 0.5 * float(args.time_limit))),
                                mode_table=table)
 
-        # One element at a time: the C engine unless MJX is asked for by name.
-        exec_backend = "mjx" if args.backend == "mjx" else "c"
+        # One element at a time: the C engine unless MJX (JAX or Warp) is asked for by name.
+        exec_backend = args.backend if args.backend in ("mjx", "warp") else "c"
         print(f"planned {len(plan.schedule)} pushes in {plan.stats.planning_time_s:.1f} s; executing in physics",
               file=sys.stderr)
         try:
@@ -332,7 +332,7 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
     p.add_argument("--seed", type=SEED, default=0, metavar="N",
                    help="seed of the nominal scene and of the search's gap sampling, an int in [0, 2^32 - 1]; "
                         "default 0")
-    p.add_argument("--backend", default="auto", choices=("auto", "c", "mjx"),
+    p.add_argument("--backend", default="auto", choices=("auto", "c", "mjx", "warp"),
                    help="physics engine: c (MuJoCo C, fast on CPU), mjx (JAX, for GPUs) or auto "
                         "(mjx with a GPU, else c); default auto")
     p.add_argument("--time-limit", type=ranged(float, 0.0, MAX_TIME_LIMIT, lo_open=True, unit="s"), default=60.0,

@@ -153,7 +153,7 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
     p.add_argument("--routes", type=ranged(int, 1, MAX_ROUTES, why="each route is one MuJoCo world with its "
                                                                  "gravel, all in one batch"),
                    default=4, metavar="N", help=f"routes to check, an int in [1, {MAX_ROUTES}]; default 4")
-    p.add_argument("--backend", default="auto", choices=("auto", "c", "mjx"),
+    p.add_argument("--backend", default="auto", choices=("auto", "c", "mjx", "warp"),
                    help="physics engine: c (MuJoCo C, fast on CPU), mjx (JAX, for GPUs) or auto "
                         "(mjx with a GPU, else c); default auto")
     p.add_argument("--speed", type=ranged(float, MIN_SPEED, MAX_SPEED, unit="cells/s",

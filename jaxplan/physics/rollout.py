@@ -33,6 +33,7 @@ float64; contact-rich scenes are chaotic, so per-particle states differ while ag
 from __future__ import annotations
 
 import concurrent.futures
+import logging
 import os
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -42,7 +43,12 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-__all__ = ["Trajectory", "Simulator", "default_backend", "schedule_policy", "free_qpos_addresses"]
+__all__ = ["BACKENDS", "FAST_COMPILE", "Trajectory", "Simulator", "default_backend", "warp_available",
+           "schedule_policy", "free_qpos_addresses"]
+
+# XLA options for a large MJX program on a CPU: LLVM's expensive passes off (the nominal PushAround
+# scene's compile with them: docs/physics.md).
+FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
 
 Policy = Callable[[Any, Any, jax.Array, jax.Array, jax.Array], tuple]
 
@@ -56,7 +62,7 @@ class Trajectory(NamedTuple):
     first_bad: i32[B], first tick (1..T) whose state was bad, -1 if none.
     ncon: i32[B, T+1], contacts with penetration (dist < 0) at each tick, for diagnostics.
     pstate: the policy state after the last tick (pytree, leading axis B).
-    backend: "mjx" or "c".
+    backend: "c", "mjx" or "warp".
     """
 
     qpos: np.ndarray
@@ -70,12 +76,33 @@ class Trajectory(NamedTuple):
     backend: str
 
 
-def default_backend() -> str:
-    """``"mjx"`` when JAX sees a GPU, else ``"c"`` (the C engine is far faster on a CPU)."""
+BACKENDS = ("c", "mjx", "warp")
+
+
+def _has_gpu() -> bool:
     try:
-        return "mjx" if jax.devices("gpu") else "c"
+        return bool(jax.devices("gpu"))
     except RuntimeError:
+        return False
+
+
+def warp_available() -> bool:
+    """MJX's Warp implementation imports (``pip install 'jaxplan[warp]'``: warp-lang)."""
+    try:
+        import warp  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def default_backend(model: mujoco.MjModel | None = None) -> str:
+    """The engine measured fastest here (docs/physics.md, Engines): the C engine on a CPU (it beat
+    MJX-JAX and MJX-Warp on every scene measured on one); on a GPU MJX-Warp when it is installed
+    (built for contact-rich worlds), else MJX-JAX. ``model`` is accepted for the scene-size rule
+    (none is needed by the measurements so far)."""
+    if not _has_gpu():
         return "c"
+    return "warp" if warp_available() else "mjx"
 
 
 def schedule_policy(params, pstate, qpos, qvel, time):
@@ -107,22 +134,38 @@ class Simulator:
     model: MjModel (its ``opt`` holds timestep, integrator, solver iterations).
     policy: the pure JAX policy above (must be hashable: a module-level function or a partial).
     substeps: physics steps per control tick.  bounds: ``(lo f[3], hi f[3])`` world box for free
-      bodies (None: unbounded).  backend: "mjx", "c" or "auto" (:func:`default_backend`).
+      bodies (None: unbounded).  backend: "c" (MuJoCo C, threads), "mjx" (MJX-JAX), "warp" (MJX-Warp) or
+      "auto" (:func:`default_backend`; the pick is logged and kept in ``backend``, ``auto`` is True).
     nthread: C-engine threads (default: all cores).
+    mjx_model: the model MJX steps instead of ``model`` (same bodies, joints and actuators; e.g. only
+      the contact pairs that can happen declared, ``PushWorld.mjx_model``). None: ``model``.
+    compiler_options: XLA options for MJX's program (e.g. :data:`FAST_COMPILE`); None: XLA's defaults.
 
     ``run`` compiles once per (horizon, batch size) on MJX; later calls with new states, policy
     parameters or policy states reuse the compiled program.
     """
 
     def __init__(self, model: mujoco.MjModel, policy: Policy, *, substeps: int = 1, bounds=None,
-                 backend: str = "auto", nthread: int | None = None):
+                 backend: str = "auto", nthread: int | None = None, mjx_model: mujoco.MjModel | None = None,
+                 compiler_options: dict | None = None):
+        self.auto = backend == "auto"
         if backend == "auto":
-            backend = default_backend()
-        if backend not in ("mjx", "c"):
-            raise ValueError(f"backend: expected 'mjx', 'c' or 'auto'; got {backend!r}.")
+            backend = default_backend(model)
+            logging.getLogger(__name__).info("Simulator backend='auto' picked %r (GPU: %s, warp: %s)", backend,
+                                             _has_gpu(), warp_available())
+        if backend not in BACKENDS:
+            raise ValueError(f"backend: expected 'c', 'mjx', 'warp' or 'auto'; got {backend!r}.")
+        if backend == "warp" and not warp_available():
+            raise ValueError("backend='warp': MJX's Warp implementation needs warp-lang; "
+                             "pip install 'jaxplan[warp]' (warp-lang==1.18.0).")
         if int(substeps) < 1:
             raise ValueError(f"substeps: must be an int >= 1; got {substeps!r}.")
+        if mjx_model is not None and (mjx_model.nq, mjx_model.nv, mjx_model.nu) != (model.nq, model.nv, model.nu):
+            raise ValueError(f"mjx_model: expected nq, nv, nu = {(model.nq, model.nv, model.nu)} as model; got "
+                             f"{(mjx_model.nq, mjx_model.nv, mjx_model.nu)}.")
         self.model = model
+        self.mjx_model = model if mjx_model is None else mjx_model
+        self.compiler_options = dict(compiler_options) if compiler_options else None
         self.policy = policy
         self.substeps = int(substeps)
         self.backend = backend
@@ -148,7 +191,13 @@ class Simulator:
         if int(n_ticks) < 1:
             raise ValueError(f"n_ticks: must be >= 1; got {n_ticks!r}.")
         fields = self._check_fields(model_fields, qpos0.shape[0])
-        run = self._run_mjx if self.backend == "mjx" else self._run_c
+        if fields and self.backend == "warp" and self.auto:
+            logging.getLogger(__name__).info("Simulator backend='auto': model_fields need MJX-JAX; using 'mjx'")
+            self.backend = "mjx"
+        if fields and self.backend == "warp":
+            raise ValueError("model_fields: per-element model fields are not supported on backend='warp'; "
+                             "use 'mjx' or 'c'.")
+        run = self._run_c if self.backend == "c" else self._run_mjx
         return run(qpos0, qvel0, params, pstate0, int(n_ticks), fields)
 
     @property
@@ -177,22 +226,30 @@ class Simulator:
             return self._mjx_cache[key]
         from mujoco import mjx
 
-        mx = mjx.put_model(self.model)
+        warp = self.backend == "warp"
+        if warp:
+            mx = mjx.put_model(self.mjx_model, impl="warp")
+            d0 = mjx.make_data(self.mjx_model, impl="warp")
+        else:
+            mx = mjx.put_model(self.mjx_model)
+            d0 = mjx.make_data(mx)
         missing = [k for k in field_names if not hasattr(mx, k)]
         if missing:
             raise ValueError(f"model_fields: MJX's model has no field {missing[0]!r}; use the C engine for it.")
-        d0 = mjx.make_data(mx)
         policy, substeps = self.policy, self.substeps
         free_adr = jnp.asarray(self.free_adr)
         lo, hi = jnp.asarray(self.lo, jnp.float32), jnp.asarray(self.hi, jnp.float32)
 
         def ncon_of(d):
+            if warp:   # counted on the host afterwards
+                return jnp.int32(0)
             return jnp.sum(d._impl.contact.dist < 0).astype(jnp.int32) if d._impl.contact.dist.size else jnp.int32(0)
 
         def single(qpos0, qvel0, params, pstate0, fields):
             m = mx.replace(**{k: v.astype(getattr(mx, k).dtype) for k, v in fields.items()}) if fields else mx
+            # No mjx.forward here: the policy reads only qpos / qvel / time, and every mjx.step starts
+            # with its own forward pass; one copy of the collision code keeps the compile small.
             d = d0.replace(qpos=qpos0.astype(d0.qpos.dtype), qvel=qvel0.astype(d0.qvel.dtype))
-            d = mjx.forward(m, d)
 
             def tick(carry, t):
                 d, ps, ok, first_bad = carry
@@ -207,10 +264,9 @@ class Simulator:
             (d, ps, ok, first_bad), (qp, qv, ctrl, ncon) = jax.lax.scan(tick, init, jnp.arange(n_ticks))
             qp = jnp.concatenate([qpos0[None].astype(qp.dtype), qp])
             qv = jnp.concatenate([qvel0[None].astype(qv.dtype), qv])
-            ncon = jnp.concatenate([ncon_of(mjx.forward(m, d0.replace(qpos=qpos0.astype(d0.qpos.dtype))))[None], ncon])
             return qp, qv, ctrl, ok, first_bad, ncon, ps
 
-        fn = jax.jit(jax.vmap(single))
+        fn = jax.jit(jax.vmap(single), compiler_options=self.compiler_options)
         self._mjx_cache[key] = fn
         return fn
 
@@ -220,8 +276,15 @@ class Simulator:
         qp, qv, ctrl, ok, first_bad, ncon, ps = jax.block_until_ready(
             fn(jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32), params, pstate0, fields))
         time = np.arange(n_ticks + 1) * self.tick_seconds
-        return Trajectory(np.asarray(qp), np.asarray(qv), np.asarray(ctrl), time, np.asarray(ok),
-                          np.asarray(first_bad), np.asarray(ncon), ps, "mjx")
+        # Contacts at tick 0 (every tick on Warp) from the C engine on the MJX model: a second MJX
+        # collision pass would double the compiled program for a diagnostic.
+        qp = np.asarray(qp)
+        ncon = np.asarray(ncon)
+        ticks = range(qp.shape[1]) if self.backend == "warp" else range(1)
+        host = _host_ncon(self.mjx_model, qp[:, list(ticks)])
+        ncon = host if self.backend == "warp" else np.concatenate([host, ncon], 1)
+        return Trajectory(qp, np.asarray(qv), np.asarray(ctrl), time, np.asarray(ok),
+                          np.asarray(first_bad), ncon.astype(np.int32), ps, self.backend)
 
     # ------------------------------------------------------------------------------------ C engine
     def _c_model(self) -> mujoco.MjModel:
@@ -277,6 +340,19 @@ class Simulator:
                 ok &= good
         time = np.arange(n_ticks + 1) * self.tick_seconds
         return Trajectory(qp, qv, ctrl_out, time, ok, first_bad, ncon, pstate, "c")
+
+
+def _host_ncon(model: mujoco.MjModel, qpos) -> np.ndarray:
+    """i32[B, K] penetrating contacts of ``model`` at the states ``qpos f[B, K, nq]`` (C engine)."""
+    d = mujoco.MjData(model)
+    out = np.zeros(qpos.shape[:2], np.int32)
+    for i in range(qpos.shape[0]):
+        for k in range(qpos.shape[1]):
+            if np.all(np.isfinite(qpos[i, k])):
+                d.qpos[:] = qpos[i, k]
+                mujoco.mj_forward(model, d)
+                out[i, k] = _active_contacts(d)
+    return out
 
 
 def _active_contacts(d: mujoco.MjData) -> int:

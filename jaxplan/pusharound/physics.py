@@ -21,6 +21,16 @@ Collision bits (a pair collides when ``contype_a & conaffinity_b`` or the revers
 floor (1, 0), movable (2, 15), fixed and walls (4, 0), robot (8, 12). Fixed pieces do not collide
 with the floor or each other.
 
+MJX gets its own model (``PushWorld.mjx_model``, same bodies, joints and actuators): every geom has
+contype = conaffinity = 0 and the contacts that can happen are declared as explicit ``<pair>`` elements
+(:func:`contact_pairs`: every movable piece with the floor; robots with every movable piece, fixed
+piece, wall and each other; movable pieces of two bodies, and a movable piece and a fixed piece or
+wall, whose outlines at the scene's poses are within ``config.push_reach`` + ``config.pair_margin``).
+MJX compiles one collision routine per (geom types, mesh, mesh) group, so identical convex pieces
+(a ring's segments, equal shapes) share one mesh asset, placed by the geom's yaw. Contact points are
+capped from the scene (:func:`mjx_caps`). docs/physics.md states the rule; a test counts on the C engine
+that the contacts pushes make are declared and within the cap.
+
 Units: metres, kilograms, seconds, radians. ``qpos`` layout: every movable's free joint (x, y, z,
 quaternion), then every robot's (x, y) slides; the addresses are in :class:`PushWorld`.
 """
@@ -28,17 +38,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from typing import NamedTuple
 
 import mujoco
 import numpy as np
 import shapely
+import shapely.affinity
 from shapely.geometry import Polygon
 
 from jaxplan.pusharound.scene import PushScene
 
-__all__ = ["PushPhysicsConfig", "PushWorld", "build_push_world", "initial_state", "movable_poses",
-           "yaw_quat"]
+__all__ = ["PushPhysicsConfig", "PushWorld", "build_push_world", "contact_pairs", "contact_usage", "initial_state",
+           "mjx_caps", "movable_poses", "yaw_quat"]
 
 MAX_PRISM_SIDES = 16    # 2 x 16 = 32 mesh vertices (MJX convex-mesh limit)
 _RECT_TOL = 1e-6        # |cos| of a rectangle's corner angles [-]
@@ -63,7 +75,9 @@ class PushPhysicsConfig:
     outside the workspace [m] (or below z = -1 m / above 2 m) makes the rollout element not finite;
     sleep: MuJoCo's island sleeping (C engine: bodies at rest stop being integrated until something
     touches them: much faster on cluttered scenes at rest, same results to ~1e-5 m; MJX ignores
-    the flag).
+    the flag); push_reach: the longest push (|v| duration, m) the MJX model's declared contact pairs
+    cover from the scene's poses (the search's pushes are at most 0.6 m/s for 2 s); pair_margin [m]:
+    added to the reach (sliding after release, rotation of long bodies).
     """
 
     timestep: float = 1.0 / 240.0
@@ -89,6 +103,8 @@ class PushPhysicsConfig:
     tip_cos: float = 0.9
     world_margin: float = 1.0
     sleep: bool = True
+    push_reach: float = 1.2
+    pair_margin: float = 0.1
 
     def replace(self, **changes) -> PushPhysicsConfig:
         return dataclasses.replace(self, **changes)
@@ -100,7 +116,10 @@ class PushWorld(NamedTuple):
     robot_adr: i32[N, 2] qpos addresses of each robot's x, y slides; robot_dof: i32[N, 2] dof addresses;
     bounds: (lo f[3], hi f[3]) world box given to the Simulator (workspace + world_margin, z in [-1, 2]);
     pieces_body: f[P, V, 2] every movable piece in its body frame (CCW, padded); piece_owner: i32[P];
-    fixed_verts: f[F, V2, 2] every fixed piece (world); xml: the MJCF text."""
+    fixed_verts: f[F, V2, 2] every fixed piece (world); xml: the MJCF text; mjx_model: the model MJX
+    steps (declared contact pairs, module docstring); pairs: the declared (geom name, geom name) pairs;
+    reach: the pairs' push reach [m] (config.push_reach); poses: f[M, 3] the poses the pairs were
+    chosen at."""
 
     model: mujoco.MjModel
     scene: PushScene
@@ -114,6 +133,10 @@ class PushWorld(NamedTuple):
     piece_owner: np.ndarray
     fixed_verts: np.ndarray
     xml: str
+    mjx_model: mujoco.MjModel | None = None
+    pairs: tuple = ()
+    reach: float = 0.0
+    poses: np.ndarray | None = None
 
 
 def yaw_quat(psi) -> np.ndarray:
@@ -158,21 +181,47 @@ def _f(v) -> str:
     return " ".join(f"{float(x):.9g}" for x in np.atleast_1d(v))
 
 
-def _piece_xml(xy: np.ndarray, name: str, z0: float, z1: float, attrs: str, assets: list) -> str:
-    """One prism geom (box or mesh) over ``z0..z1`` for the CCW piece ``xy`` (frame of its body)."""
+def _canonical(rel: np.ndarray):
+    """``(key, angle, verts f[n, 2])``: the CCW polygon ``rel`` (about its vertex mean) rotated so that
+    one of its edges lies along +x, choosing the edge whose rounded vertex list is smallest; congruent
+    polygons (up to rotation) get the same key. ``rel = R(angle) verts``."""
+    best = None
+    for k in range(len(rel)):
+        e = rel[(k + 1) % len(rel)] - rel[k]
+        a = math.atan2(e[1], e[0])
+        c, s = math.cos(-a), math.sin(-a)
+        v = np.roll(rel @ np.array([[c, s], [-s, c]]), -k, axis=0)
+        key = tuple(np.round(v, 6).ravel().tolist())
+        if best is None or key < best[0]:
+            best = (key, a, v)
+    return best
+
+
+def _piece_xml(xy: np.ndarray, name: str, z0: float, z1: float, attrs: str, assets: list,
+               meshes: dict | None = None) -> str:
+    """One prism geom (box or mesh) over ``z0..z1`` for the CCW piece ``xy`` (frame of its body).
+    ``meshes``: {canonical key: mesh name}, shared by congruent pieces (one mesh asset each)."""
     rect = _as_rectangle(xy)
     zc, hz = 0.5 * (z0 + z1), 0.5 * (z1 - z0)
     if rect is not None:
         c, half, ang = rect
         return (f'<geom name="{name}" type="box" pos="{_f(c)} {zc:.9g}" size="{_f(half)} {hz:.9g}" '
                 f'quat="{_f(yaw_quat(ang))}" {attrs}/>')
-    # Mesh vertices relative to the piece's centre, placed with the geom's pos: MuJoCo recentres a
-    # mesh on its own centre of mass, so vertices given around the origin keep the geom where we put it.
+    # Mesh vertices relative to the piece's vertex mean, in a canonical orientation, placed with the
+    # geom's pos and yaw: MuJoCo recentres a mesh on its own centre of mass and moves the geom's frame
+    # to match, so the vertices land where the piece is.
     c = xy.mean(0)
-    rel = xy - c
-    verts = np.concatenate([np.c_[rel, np.full(len(rel), -hz)], np.c_[rel, np.full(len(rel), hz)]])
-    assets.append(f'<mesh name="{name}_m" vertex="{_f(verts.reshape(-1))}"/>')
-    return f'<geom name="{name}" type="mesh" mesh="{name}_m" pos="{_f(c)} {zc:.9g}" {attrs}/>'
+    key, ang, rel = _canonical(xy - c)
+    key = (key, round(hz, 9))
+    if meshes is None:
+        meshes = {}
+    mesh = meshes.get(key)
+    if mesh is None:
+        mesh = meshes[key] = f"{name}_m"
+        verts = np.concatenate([np.c_[rel, np.full(len(rel), -hz)], np.c_[rel, np.full(len(rel), hz)]])
+        assets.append(f'<mesh name="{mesh}" vertex="{_f(verts.reshape(-1))}"/>')
+    return (f'<geom name="{name}" type="mesh" mesh="{mesh}" pos="{_f(c)} {zc:.9g}" quat="{_f(yaw_quat(ang))}" '
+            f'{attrs}/>')
 
 
 def _pack(rings: list) -> np.ndarray:
@@ -183,13 +232,43 @@ def _pack(rings: list) -> np.ndarray:
     return out
 
 
-def _caps(n_mov_geoms: int, n_fixed_geoms: int, n_robots: int) -> dict:
-    """MJX contact caps: every movable piece's floor pair and up to 8 neighbour pairs per movable piece
-    or robot (the scene's geometry is sparse); 4 contact points per pair."""
-    g, r = n_mov_geoms, n_robots
-    all_pairs = g + g * (g - 1) // 2 + g * n_fixed_geoms + r * (g + n_fixed_geoms) + r * (r - 1) // 2
-    pairs = max(1, min(all_pairs, g + 8 * (g + r)))
-    return {"max_geom_pairs": int(pairs), "max_contact_points": int(4 * pairs)}
+def contact_pairs(geoms: list, robots: list, reach: float) -> list:
+    """The declared contact pairs of the MJX model (module docstring), as (geom name, geom name).
+
+    geoms: ``(name, kind, owner, polygon)`` for every collision geom but the floor and the robots,
+    kind "movable" (owner: movable index) or "fixed" (fixed pieces and walls; owner -1), polygon:
+    its world outline at the scene's poses; robots: robot geom names; reach [m]: outlines closer than
+    this are paired. Movable pieces of one body are never paired (one rigid body)."""
+    out = [("floor", name) for name, kind, _, _ in geoms if kind == "movable"]
+    names = [g[0] for g in geoms]
+    out += [(r, name) for r in robots for name in names]
+    out += [(a, b) for i, a in enumerate(robots) for b in robots[i + 1:]]
+    polys = np.asarray([g[3] for g in geoms], dtype=object)
+    for i, (name, kind, owner, _) in enumerate(geoms):
+        if kind != "movable":
+            continue
+        # fixed geoms (any index) and movable pieces of other bodies after this one
+        rest = np.array([j for j, g in enumerate(geoms) if g[1] == "fixed" or (j > i and g[2] != owner)], int)
+        if rest.size == 0:
+            continue
+        near = shapely.distance(polys[i], polys[rest]) <= reach
+        out += [(name, geoms[j][0]) for j in rest[near]]
+    return out
+
+
+def mjx_caps(pairs: list, n_mov_geoms: int) -> dict:
+    """MJX contact cap from the declared pairs: 4 points per movable piece on the floor, plus 4 per
+    non-floor pair up to 2 such pairs per movable piece (a piece rests against at most a couple of
+    neighbours at once); MJX keeps the deepest points when more arise. No broad-phase pair cap (the
+    declared pairs are few)."""
+    other = sum(1 for a, _ in pairs if a != "floor")
+    return {"max_contact_points": int(4 * n_mov_geoms + 4 * min(other, 2 * n_mov_geoms))}
+
+
+def _posed_polygon(piece: Polygon, pose) -> Polygon:
+    x, y, psi = (float(v) for v in pose)
+    c, s = math.cos(psi), math.sin(psi)
+    return shapely.affinity.affine_transform(piece, [c, -s, s, c, x, y])
 
 
 def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) -> PushWorld:
@@ -207,6 +286,9 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
                  "transit_speed"):
         if not getattr(cfg, name) > 0:
             raise ValueError(f"config.{name}: must be > 0; got {getattr(cfg, name)!r}.")
+    for name in ("push_reach", "pair_margin"):
+        if not getattr(cfg, name) >= 0:
+            raise ValueError(f"config.{name}: must be >= 0 [m]; got {getattr(cfg, name)!r}.")
     for name, lo in (("substeps", 1), ("iterations", 1), ("ls_iterations", 1), ("horizon", 1)):
         if int(getattr(cfg, name)) < lo:
             raise ValueError(f"config.{name}: must be an int >= {lo}; got {getattr(cfg, name)!r}.")
@@ -217,12 +299,15 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
     fixed_rings, body_rings, owner = [], [], []
     n_mov_geoms = n_fixed_geoms = 0
 
+    meshes: dict = {}
+    colliders: list = []     # (name, kind, owner, world polygon) for contact_pairs
     fixed_attr = 'contype="4" conaffinity="0" rgba="0.35 0.35 0.4 1"'
     for fi, f in enumerate(scene.fixed):
         for pi, piece in enumerate(f.world_pieces()):
             xy = _limit_sides(piece)
             fixed_rings.append(_ring(piece))
-            statics.append(_piece_xml(xy, f"fixed{fi}_{pi}", 0.0, h, fixed_attr, assets))
+            statics.append(_piece_xml(xy, f"fixed{fi}_{pi}", 0.0, h, fixed_attr, assets, meshes))
+            colliders.append((f"fixed{fi}_{pi}", "fixed", -1, piece))
             n_fixed_geoms += 1
     if cfg.walls:
         t = cfg.wall_thickness
@@ -233,6 +318,7 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
                 (x1 + t / 2, 0.5 * (y0 + y1), t / 2, 0.5 * (y1 - y0)))):
             statics.append(f'<geom name="wall{k}" type="box" pos="{cx:.9g} {cy:.9g} {h / 2:.9g}" '
                            f'size="{hx:.9g} {hy:.9g} {h / 2:.9g}" {fixed_attr}/>')
+            colliders.append((f"wall{k}", "fixed", -1, shapely.box(cx - hx, cy - hy, cx + hx, cy + hy)))
             n_fixed_geoms += 1
 
     for mi, m in enumerate(scene.movables):
@@ -243,7 +329,8 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
             xy = _limit_sides(piece)
             body_rings.append(_ring(piece))
             owner.append(mi)
-            geoms.append(_piece_xml(xy, f"mov{mi}_{pi}", 0.0, h, attr, assets))
+            geoms.append(_piece_xml(xy, f"mov{mi}_{pi}", 0.0, h, attr, assets, meshes))
+            colliders.append((f"mov{mi}_{pi}", "movable", mi, _posed_polygon(piece, m.pose)))
             n_mov_geoms += 1
         izz = float(m.inertia)
         ixy = 0.5 * izz + float(m.mass) * h * h / 12.0
@@ -266,15 +353,10 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
             actuators.append(f'<velocity name="robot{ri}_{ax}" joint="robot{ri}_{ax}" kv="{cfg.kv:.9g}" '
                              f'forcelimited="true" forcerange="{-cfg.force:.9g} {cfg.force:.9g}"/>')
 
-    caps = _caps(n_mov_geoms, n_fixed_geoms, len(robots))
     span = max(x1 - x0, y1 - y0)
     xml = f"""<mujoco model="pusharound">
   <option timestep="{cfg.timestep:.9g}" integrator="implicitfast" iterations="{cfg.iterations}"
           ls_iterations="{cfg.ls_iterations}" cone="pyramidal"/>
-  <custom>
-    <numeric name="max_contact_points" data="{caps['max_contact_points']}"/>
-    <numeric name="max_geom_pairs" data="{caps['max_geom_pairs']}"/>
-  </custom>
   <asset>{''.join(assets)}</asset>
   <worldbody>
     <geom name="floor" type="plane" pos="{0.5 * (x0 + x1):.9g} {0.5 * (y0 + y1):.9g} 0"
@@ -284,7 +366,26 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
   </worldbody>
   <actuator>{''.join(actuators)}</actuator>
 </mujoco>"""
+    reach = float(cfg.push_reach) + float(cfg.pair_margin)
+    pairs = contact_pairs(colliders, [f"robot{i}" for i in range(len(robots))], reach)
+    caps = mjx_caps(pairs, n_mov_geoms)
+    mjx_xml = re.sub(r'contype="\d+" conaffinity="\d+"', 'contype="0" conaffinity="0"', xml)
     model = mujoco.MjModel.from_xml_string(xml)
+
+    def pair_xml(a: str, b: str) -> str:
+        # MuJoCo's mixing for dynamic contacts (friction: the larger of the two geoms'; condim: the
+        # larger), which explicit pairs do not apply by themselves: sliding, sliding, torsional, rolling x2.
+        ga, gb = (mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in (a, b))
+        f = np.maximum(model.geom_friction[ga], model.geom_friction[gb])
+        dim = max(int(model.geom_condim[ga]), int(model.geom_condim[gb]))
+        return f'<pair geom1="{a}" geom2="{b}" condim="{dim}" friction="{_f(f[[0, 0, 1, 2, 2]])}"/>'
+
+    mjx_xml = mjx_xml.replace("<asset>", f"""<custom>
+    <numeric name="max_contact_points" data="{caps['max_contact_points']}"/>
+  </custom>
+  <asset>""", 1).replace("</mujoco>", "<contact>" + "".join(
+        pair_xml(a, b) for a, b in pairs) + "</contact>\n</mujoco>")
+    mjx_model = mujoco.MjModel.from_xml_string(mjx_xml)
     if cfg.sleep:
         model.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 
@@ -300,7 +401,8 @@ def build_push_world(scene: PushScene, config: PushPhysicsConfig | None = None) 
     bounds = (np.array([x0 - e, y0 - e, -1.0]), np.array([x1 + e, y1 + e, 2.0]))
     fixed_verts = _pack(fixed_rings) if fixed_rings else np.zeros((0, 3, 2))
     return PushWorld(model, scene, cfg, mov_adr, mov_dof, robot_adr, robot_dof, bounds,
-                     _pack(body_rings), np.asarray(owner, np.int32), fixed_verts, xml)
+                     _pack(body_rings), np.asarray(owner, np.int32), fixed_verts, xml, mjx_model, tuple(pairs),
+                     float(cfg.push_reach), np.asarray(scene.poses, np.float64).copy())
 
 
 def initial_state(world: PushWorld, robot_xy=None, poses=None) -> tuple[np.ndarray, np.ndarray]:
@@ -331,3 +433,28 @@ def movable_poses(world: PushWorld, qpos) -> tuple[np.ndarray, np.ndarray]:
     yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     upright = 1 - 2 * (x * x + y * y)
     return np.stack([q[..., 0], q[..., 1], yaw], -1), upright
+
+
+def contact_usage(world: PushWorld, qpos) -> dict:
+    """What the C engine's contacts need from the MJX model, over the states ``qpos f[..., nq]`` (e.g.
+    every tick of a batch of push rollouts): ``{"pairs": set of (geom, geom) names in contact,
+    "undeclared": the ones not in world.pairs, "max_contacts": most contact points in one state,
+    "cap": the MJX model's max_contact_points}``. The full model (collision bits) finds the contacts."""
+    m = world.model
+    d = mujoco.MjData(m)
+    declared = {frozenset(p) for p in world.pairs}
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in range(m.ngeom)]
+    seen, most = set(), 0
+    for q in np.asarray(qpos, np.float64).reshape(-1, m.nq):
+        if not np.all(np.isfinite(q)):
+            continue
+        d.qpos[:] = q
+        mujoco.mj_forward(m, d)
+        most = max(most, int(d.ncon))
+        for c in d.contact[: d.ncon]:
+            seen.add(tuple(sorted((names[c.geom1], names[c.geom2]))))
+    mm = world.mjx_model
+    nid = mujoco.mj_name2id(mm, mujoco.mjtObj.mjOBJ_NUMERIC, "max_contact_points")
+    cap = int(mm.numeric_data[mm.numeric_adr[nid]]) if nid >= 0 else -1
+    return {"pairs": seen, "undeclared": sorted(p for p in seen if frozenset(p) not in declared),
+            "max_contacts": most, "cap": cap}

@@ -31,7 +31,7 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Point
 
-from jaxplan.physics.rollout import Simulator
+from jaxplan.physics.rollout import FAST_COMPILE, Simulator
 from jaxplan.pusharound.kernels import pack_polygons, pair_distances, point_distances
 from jaxplan.pusharound.physics import PushWorld, initial_state, movable_poses
 
@@ -209,14 +209,15 @@ def push_policy(robot_adr: tuple, kp: float, vmax: float, offset: float, params,
     return u.reshape(-1).astype(qpos.dtype), pstate
 
 
-def make_push_simulator(world: PushWorld, backend: str = "auto", nthread: int | None = None) -> Simulator:
+def make_push_simulator(world: PushWorld, backend: str = "auto", nthread: int | None = None,
+                        compiler_options: dict | None = FAST_COMPILE) -> Simulator:
     """The :class:`Simulator` for ``world`` with :func:`push_policy`; build once and pass it to every
     :func:`simulate_pushes` call (MJX compiles once per batch size)."""
     cfg = world.config
     policy = functools.partial(push_policy, tuple(int(a) for a in world.robot_adr.reshape(-1)), float(cfg.kp),
                                float(cfg.vmax), float(world.scene.robot_radius - cfg.press))
     return Simulator(world.model, policy, substeps=cfg.substeps, bounds=world.bounds, backend=backend,
-                     nthread=nthread)
+                     nthread=nthread, mjx_model=world.mjx_model, compiler_options=compiler_options)
 
 
 def check_tasks(world: PushWorld, tasks: PushTask) -> PushTask:
@@ -358,13 +359,18 @@ def _touching(verts, fixed_verts, tol: float) -> np.ndarray:
 
 
 def simulate_pushes(world: PushWorld, tasks: PushTask, *, sim: Simulator | None = None, backend: str = "auto",
-                    poses=None, robots=None, check_every: int = 4) -> PushOutcome:
+                    poses=None, robots=None, check_every: int = 4, trajectory: bool = False):
     """Simulate a batch of candidate pushes from one state in ONE ``Simulator.run`` call.
 
     world: from :func:`build_push_world`; tasks: a batched :class:`PushTask` (B <= 64); sim: a
     :func:`make_push_simulator` to reuse (else one is built for ``backend``); poses f[M, 3] and
     robots f[N, 2]: the state to start from (default: the world's scene; inactive robots start at
-    ``robots``); check_every: ticks between the fixed-obstacle clearance checks.
+    ``robots``); check_every: ticks between the fixed-obstacle clearance checks; trajectory: also
+    return the rollout's ``Trajectory`` (``(outcome, trajectory)``).
+
+    On MJX the world's declared contact pairs (docs/physics.md) hold for pushes no longer than
+    ``world.reach`` from the world's poses: a batch whose longest push (``|v| duration``) plus the
+    farthest any movable has moved from them exceeds it raises ``ValueError``.
     """
     tasks = check_tasks(world, tasks)
     cfg, scene = world.config, world.scene
@@ -374,6 +380,13 @@ def simulate_pushes(world: PushWorld, tasks: PushTask, *, sim: Simulator | None 
         sim = make_push_simulator(world, backend)
     elif sim.model is not world.model:
         raise ValueError("sim: built for another world; use make_push_simulator(world).")
+    if sim.backend != "c" and world.pairs:
+        push = float(np.max(np.linalg.norm(tasks.velocity[:, :2], axis=-1) * tasks.duration))
+        drift = float(np.max(np.linalg.norm(poses[:, :2] - world.poses[:, :2], axis=-1)))
+        if push + drift > world.reach + 1e-9:
+            raise ValueError(f"tasks: a push of {push:.2f} m from poses {drift:.2f} m away from the world's exceeds "
+                             f"the MJX contact pairs' reach {world.reach:.2f} m; build the world at these poses "
+                             "(build_push_world(scene.with_poses(poses))) or raise PushPhysicsConfig.push_reach.")
     scene_home = scene.replace(robots=home) if robots is not None else scene
     starts = start_positions(world._replace(scene=scene_home), tasks, poses)
     b = len(tasks.movable)
@@ -387,7 +400,8 @@ def simulate_pushes(world: PushWorld, tasks: PushTask, *, sim: Simulator | None 
               "hold": jnp.asarray(starts, jnp.float32),
               "duration": jnp.asarray(tasks.duration, jnp.float32)}
     traj = sim.run(q0, v0, params, jnp.zeros((b,), jnp.float32), cfg.horizon)
-    return rollout_outcome(world, tasks, traj, poses, check_every)
+    out = rollout_outcome(world, tasks, traj, poses, check_every)
+    return (out, traj) if trajectory else out
 
 
 def rollout_outcome(world: PushWorld, tasks: PushTask, traj, poses0, check_every: int) -> PushOutcome:

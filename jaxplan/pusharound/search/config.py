@@ -32,7 +32,7 @@ class SearchConfig:
     partly expanded nodes; max_batch: candidates per physics call (<= 64); batch_size: candidates an
     expansion simulates (capped by max_batch; 16 on the 2-core CPU: the paper's 64 cost four times
     the physics per expansion, and the deferred expansion reaches the rest later); time_limit_s: wall-clock
-    budget [s]; max_expansions: batches simulated at most; backend: "c" | "mjx" | "auto"; seed: gap
+    budget [s]; max_expansions: batches simulated at most; backend: "c" | "mjx" | "warp" | "auto"; seed: gap
     sampling. heuristic_weight: factor on the estimate in Eq. 10; temperature: softmax temperature of
     the gap order over costs normalised to [0, 1]; gaps_per_node: ranked gaps whose movables get
     candidates in the first pass (the rest follow after a node is re-popped); n_directions: push
@@ -102,8 +102,8 @@ class SearchConfig:
                 raise ValueError(f"SearchConfig.{name}: must be a finite number >= 0; got {v!r}.")
         if self.presearch_mode not in ("graph", "beam"):
             raise ValueError(f"SearchConfig.presearch_mode: expected 'graph' or 'beam'; got {self.presearch_mode!r}.")
-        if self.backend not in ("c", "mjx", "auto"):
-            raise ValueError(f"SearchConfig.backend: expected 'c', 'mjx' or 'auto'; got {self.backend!r}.")
+        if self.backend not in ("c", "mjx", "warp", "auto"):
+            raise ValueError(f"SearchConfig.backend: expected 'c', 'mjx', 'warp' or 'auto'; got {self.backend!r}.")
         if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
             raise ValueError(f"SearchConfig.seed: must be an int >= 0 (it seeds numpy's default_rng); "
                              f"got {self.seed!r}.")
