@@ -85,7 +85,8 @@ def grid_errors(scene, params) -> dict:
     return out
 
 
-def _scalar(scene, theta, tau, lam, obj, t):
+def probe_scalar(scene, theta, tau, lam, obj, t):
+    """A scalar touching value, raw, psi, heat, highways and the anchor weights (the gradient probe)."""
     f = build_fabric(scene.with_obj(obj), FabricParams(theta_tol_deg=theta, tau_h=tau, anchor_lambda=lam,
                                                        temperature=t))
     pos = jnp.arange(f.anchor_weights.shape[-1], dtype=jnp.float32)
@@ -93,8 +94,8 @@ def _scalar(scene, theta, tau, lam, obj, t):
             + jnp.sum(f.highways * f.heat) + jnp.sum(f.anchor_weights * pos) * 0.1)
 
 
-_value = jax.jit(_scalar)
-_grad = jax.jit(jax.grad(_scalar, argnums=(1, 2, 3, 4)))
+_value = jax.jit(probe_scalar)
+_grad = jax.jit(jax.grad(probe_scalar, argnums=(1, 2, 3, 4)))
 
 
 def gradient_checks(scene, params, rng) -> list[dict]:

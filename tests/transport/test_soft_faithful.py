@@ -8,6 +8,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from experiments.soft_convergence import probe_scalar
 from jaxplan import FabricParams, Scene, box, build_fabric, circle
 from jaxplan.core import lattice
 from jaxplan.transport import visibility
@@ -72,17 +73,8 @@ def test_soft_fabric_is_faithful_at_t_0_05(case):
     assert max(errors.values()) <= max(warm.values()) + 1e-6, (errors, warm)
 
 
-def _scalar(scene, theta, tau, lam, obj, t):
-    """A scalar touching value, raw, psi, heat, highways and the anchor weights."""
-    f = build_fabric(scene.with_obj(obj), FabricParams(theta_tol_deg=theta, tau_h=tau, anchor_lambda=lam,
-                                                       temperature=t))
-    pos = jnp.arange(f.anchor_weights.shape[-1], dtype=jnp.float32)
-    return (jnp.sum(f.value) + jnp.sum(f.raw) + jnp.sum(f.psi) + jnp.sum(f.heat)
-            + jnp.sum(f.highways * f.heat) + jnp.sum(f.anchor_weights * pos) * 0.1)
-
-
-_value = jax.jit(_scalar)
-_grad = jax.jit(jax.grad(_scalar, argnums=(1, 2, 3, 4)))
+_value = jax.jit(probe_scalar)
+_grad = jax.jit(jax.grad(probe_scalar, argnums=(1, 2, 3, 4)))
 
 
 @pytest.fixture(scope="module")
