@@ -213,7 +213,7 @@ def errors(pred, sim, lateral, idx, sim_layouts=None):
 # Throughput
 # --------------------------------------------------------------------------------------------------
 
-def _small_scene():
+def small_scene():
     from jaxplan.transport.scene import Scene, box
 
     obj = np.zeros((6, 12))
@@ -426,7 +426,7 @@ def main(argv=None):
     print(f"  delivered over {args.noise_reps} layouts: {rep.tolist()}", flush=True)
 
     print("throughput (C vs MJX, same batch) ...", flush=True)
-    tp = [throughput(_small_scene(), 2, args.tp_ticks or None, args.repeats,
+    tp = [throughput(small_scene(), 2, args.tp_ticks or None, args.repeats,
                      "small scene, whole routes" if not args.tp_ticks else "small scene")]
     if not args.quick:
         tp.append(throughput(builtin_scene("default"), 2, 40, args.repeats, "default scene, short horizon"))

@@ -62,7 +62,7 @@ class _TimedSimulator:
         return out
 
 
-def _tile(routes, batch):
+def tile_routes(routes, batch):
     import jax
 
     b = int(np.asarray(routes.n_cells).shape[0])
@@ -70,7 +70,7 @@ def _tile(routes, batch):
     return jax.tree.map(lambda a: np.asarray(a)[idx], routes)
 
 
-def _measure(scene, routes, world, backend, n_ticks, repeats):
+def measure_engine(scene, routes, world, backend, n_ticks, repeats):
     from jaxplan.physics.rollout import Simulator
     from jaxplan.transport.rover import bridge
 
@@ -176,7 +176,7 @@ def main(argv=None):
     import jax
     import mujoco
 
-    from experiments.bench_rover import _small_scene
+    from experiments.bench_rover import small_scene
     from jaxplan import builtin_scene
     from jaxplan.transport.rover import bridge
     from jaxplan.transport.rover.model import RoverConfig
@@ -184,7 +184,7 @@ def main(argv=None):
     t_start = time.perf_counter()
     gpu = any(d.platform == "gpu" for d in jax.devices())
     device = "gpu" if gpu else "cpu"
-    scene = _small_scene() if args.scene == "small" else builtin_scene(args.scene)
+    scene = small_scene() if args.scene == "small" else builtin_scene(args.scene)
     _, routes, _ = bridge.plan_routes(scene, n_routes=args.routes)
     n_distinct = int(np.asarray(routes.n_cells).shape[0])
     world = bridge.world_for_routes(scene, routes, RoverConfig(solver=args.solver))
@@ -199,14 +199,14 @@ def main(argv=None):
     args.results_dir.mkdir(parents=True, exist_ok=True)
     stem = args.results_dir / f"rover_throughput_{device}{'' if args.solver == 'CG' else '_' + args.solver.lower()}"
     for batch in args.batches:
-        batch_routes = _tile(routes, batch)
+        batch_routes = tile_routes(routes, batch)
         n_ticks = args.ticks or None   # None: the first engine's run fixes the whole-route horizon
         row = {"batch": batch, "engines": {}}
         result["rows"].append(row)
         for be in args.engines:
             if be == "c" and batch > args.c_max_batch:
                 continue
-            e = _measure(scene, batch_routes, world, be, n_ticks, args.repeats)
+            e = measure_engine(scene, batch_routes, world, be, n_ticks, args.repeats)
             n_ticks = e["ticks"]
             e["route_steps_per_s"] = batch * n_ticks * sub / e["physics_median_s"]
             row["engines"][be] = e

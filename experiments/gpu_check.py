@@ -6,7 +6,7 @@ Issue 36, item 3. On the machine at hand (named in the results) it measures
   candidate pushes (64, the search's batch; ``experiments/mjx_scale.push_candidates``) x 80 control
   ticks, per engine: cold call (MJX: trace + compile) and the median of ``--repeats`` warm calls;
 - the rover with gravel: route-steps per second (routes x ticks x substeps / warm physics time) at
-  batch ``--batches`` (64 / 256 / 1,024 routes, ``bench_rover_throughput._measure``), per engine;
+  batch ``--batches`` (64 / 256 / 1,024 routes, ``bench_rover_throughput.measure_engine``), per engine;
 - the fabric benchmark's GPU rows: ``build_fabric`` on random ``--fabric-sizes`` grids
   (``bench_fabric.time_jax``: one warm-up call, then the median of ``--repeats``).
 
@@ -64,15 +64,15 @@ def push_row(spec: str, batch: int, engine: str, repeats: int) -> dict:
 
 
 def rover_rows(scene_name: str, n_routes: int, batches, engines, ticks: int, repeats: int, room) -> list:
-    from experiments.bench_rover import _small_scene
-    from experiments.bench_rover_throughput import _measure, _tile
+    from experiments.bench_rover import small_scene
+    from experiments.bench_rover_throughput import measure_engine, tile_routes
     from jaxplan import builtin_scene
     from jaxplan.transport.rover import bridge
     from jaxplan.transport.rover.model import RoverConfig
 
     if not room():
         return [{"part": "rover", "engine": e, "batch": b, "skipped": "time budget"} for b in batches for e in engines]
-    scene = _small_scene() if scene_name == "small" else builtin_scene(scene_name)
+    scene = small_scene() if scene_name == "small" else builtin_scene(scene_name)
     _, routes, _ = bridge.plan_routes(scene, n_routes=n_routes)
     world = bridge.world_for_routes(scene, routes, RoverConfig())
     sub = world.config.substeps
@@ -82,7 +82,7 @@ def rover_rows(scene_name: str, n_routes: int, batches, engines, ticks: int, rep
             if not room():
                 rows.append({"part": "rover", "engine": e, "batch": b, "skipped": "time budget"})
                 continue
-            m = _measure(scene, _tile(routes, b), world, e, ticks, repeats)
+            m = measure_engine(scene, tile_routes(routes, b), world, e, ticks, repeats)
             rows.append({"part": "rover", "scene": scene_name, "engine": e, "batch": b, "cold_s": m["cold_s"],
                          "warm_s": m["physics_median_s"], "per_s": b * m["ticks"] * sub / m["physics_median_s"],
                          "unit": "route-steps/s", "particles": int(world.n_particles), "ticks": m["ticks"]})

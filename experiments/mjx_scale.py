@@ -4,9 +4,10 @@ Issue 36, item 1. Each scene's MJX rollout runs in its own subprocess (so that i
 memory, ``ru_maxrss``, is the rollout's alone): the world is built (declared contact pairs,
 docs/physics.md), ``--batch`` candidate pushes are drawn (:func:`push_candidates`: the scene's
 movables in turn, 8 world directions, one and two robots, 0.3 m/s for 2 s, those passing the
-quick-pass), and ``simulate_pushes`` runs cold (trace + XLA compile + run) and warm (run).
-``compile_s`` = cold - warm. The parent runs the same candidates on the C engine and compares the
-verdicts (valid, wall hits) and every movable's final pose (1 cm, 2 degrees).
+quick-pass), and ``simulate_pushes`` runs once: ``compile_s`` is the simulator's trace + XLA
+compile (``Simulator.compile_seconds``), ``warm_s`` the rest of the call. The parent runs the same
+candidates on the C engine and compares the verdicts (valid, wall hits) and every movable's final
+pose (1 cm, 2 degrees).
 
 Results: ``experiments/results/mjx_scale.{json,md}`` (``--stem`` to rename).
 
@@ -15,6 +16,11 @@ Examples::
     python experiments/mjx_scale.py --scenes nominal:0 --batch 4          # smoke run
     python experiments/mjx_scale.py                                        # 3 nominal, dense, density x 64
     python experiments/mjx_scale.py --compile-only --stem mjx_scale_compile  # compile time and peak only
+    python experiments/mjx_scale.py --rover 1 4 16 --stem mjx_rover        # rover, 64 / 256 / 1,024 particles
+
+``--rover K ...``: the rover world of the ``default`` scene's 6 first routes with ``K`` particles
+per object (64 particle bodies per unit of K), ``--batch`` routes (the 6 tiled) x ``--rover-ticks``
+control ticks of 10 physics steps on MJX-JAX: compile time, peak memory and the run's time.
 """
 from __future__ import annotations
 
@@ -86,12 +92,14 @@ class _Compiled(Exception):
     pass
 
 
-def child(spec: str, batch: int, backend: str, opt: str = "fast", compile_only: bool = False) -> dict:
-    """One engine's cold and warm batched rollout in this process (the peak RSS is this run's)."""
-    from jaxplan.pusharound.physics import build_push_world
+def child(spec: str, batch: int, backend: str, opt: str = "fast", compile_only: bool = False,
+          sleep: bool = True) -> dict:
+    """One engine's batched rollout in this process (the peak RSS is this run's). ``sleep``: the C
+    engine's island sleeping (MJX has none)."""
+    from jaxplan.pusharound.physics import PushPhysicsConfig, build_push_world
     from jaxplan.pusharound.push import make_push_simulator, simulate_pushes
 
-    world = build_push_world(make_scene(spec))
+    world = build_push_world(make_scene(spec), PushPhysicsConfig(sleep=sleep))
     tasks = push_candidates(world, batch)
     from jaxplan.physics.rollout import FAST_COMPILE
 
@@ -120,31 +128,72 @@ def child(spec: str, batch: int, backend: str, opt: str = "fast", compile_only: 
                 "movables": len(world.scene.movables), "geoms": int(world.model.ngeom), "pairs": len(world.pairs),
                 "meshes": int(world.mjx_model.nmesh)}
     t0 = time.perf_counter()
-    simulate_pushes(world, tasks, sim=sim)
-    cold = time.perf_counter() - t0
-    print(f"{spec} {backend} B={batch}: cold {cold:.1f} s", file=sys.stderr, flush=True)
-    t0 = time.perf_counter()
     out = simulate_pushes(world, tasks, sim=sim)
-    warm = time.perf_counter() - t0
+    cold = time.perf_counter() - t0
+    compile_s = sim.compile_seconds
+    print(f"{spec} {backend} B={batch}: cold {cold:.1f} s, compile {compile_s:.1f} s", file=sys.stderr, flush=True)
     peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
     return {"scene": spec, "backend": backend, "batch": batch, "ticks": int(world.config.horizon),
-            "cold_s": cold, "warm_s": warm, "compile_s": max(cold - warm, 0.0), "peak_gb": peak_gb,
+            "cold_s": cold, "warm_s": cold - compile_s, "compile_s": compile_s, "peak_gb": peak_gb,
             "movables": len(world.scene.movables), "geoms": int(world.model.ngeom), "pairs": len(world.pairs),
             "meshes": int(world.mjx_model.nmesh), "outcome": _outcome_dict(out)}
 
 
+def rover_child(per_object: int, batch: int, ticks: int, opt: str) -> dict:
+    """MJX-JAX's compile and run of the rover world with ``per_object`` particles per object."""
+    from experiments.bench_rover_throughput import tile_routes
+    from jaxplan import builtin_scene
+    from jaxplan.physics.rollout import FAST_COMPILE, Simulator
+    from jaxplan.transport.rover import bridge
+    from jaxplan.transport.rover.model import RoverConfig
+
+    scene = builtin_scene("default")
+    _, routes, _ = bridge.plan_routes(scene, n_routes=6)
+    world = bridge.world_for_routes(scene, routes, RoverConfig(particles_per_object=per_object))
+    sim = Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps, bounds=world.bounds,
+                    backend="mjx", compiler_options=FAST_COMPILE if opt == "fast" else None)
+    t0 = time.perf_counter()
+    chk = bridge.check_routes(scene, tile_routes(routes, batch), n_ticks=ticks, world=world, simulator=sim)
+    cold = time.perf_counter() - t0
+    return {"per_object": per_object, "particles": world.n_particles, "batch": batch, "ticks": ticks,
+            "geoms": int(world.model.ngeom), **world.caps, "xla": opt, "compile_s": sim.compile_seconds,
+            "run_s": cold - sim.compile_seconds, "finite": float(np.mean(chk.outcome.finite)),
+            "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20}
+
+
+def markdown_rover(rows: list, meta: dict) -> str:
+    lines = [f"# MJX-JAX compile on the rover world ({meta['machine']})", "",
+             f"The `default` scene's 6 first routes tiled to {meta['batch']} routes, {meta['rover_ticks']} "
+             "control ticks of 10 physics steps; compile = trace + XLA compile; run = the rest of the call; "
+             "peak = the subprocess's max RSS.", "",
+             "| particles | geoms | max_geom_pairs | max_contact_points | compile s | run s | finite | peak GB |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['particles']} | | | | {r['error']} | | | |")
+        else:
+            lines.append(f"| {r['particles']} | {r['geoms']} | {r['max_geom_pairs']} | {r['max_contact_points']} | "
+                         f"{r['compile_s']:.1f} | {r['run_s']:.1f} | {r['finite']:.2f} | {r['peak_gb']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def _subprocess(cmd: list, timeout: float, failed: dict) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    try:
+        proc = subprocess.run([sys.executable, __file__] + cmd, capture_output=True, text=True, env=env,
+                              timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {**failed, "error": f"timed out after {timeout:.0f} s"}
+    if proc.returncode != 0:
+        return {**failed, "error": proc.stderr.strip().splitlines()[-1:]}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def run_child(spec: str, batch: int, backend: str, timeout: float, xla: str = "fast",
               compile_only: bool = False) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    cmd = [sys.executable, __file__, "--child", spec, "--batch", str(batch), "--backend", backend, "--xla", xla]
+    cmd = ["--child", spec, "--batch", str(batch), "--backend", backend, "--xla", xla]
     cmd += ["--compile-only"] if compile_only else []
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return {"scene": spec, "backend": backend, "batch": batch, "error": f"timed out after {timeout:.0f} s"}
-    if proc.returncode != 0:
-        return {"scene": spec, "backend": backend, "batch": batch, "error": proc.stderr.strip().splitlines()[-1:]}
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return _subprocess(cmd, timeout, {"scene": spec, "backend": backend, "batch": batch})
 
 
 def agreement(a: dict, b: dict) -> dict:
@@ -156,13 +205,15 @@ def agreement(a: dict, b: dict) -> dict:
     return {"valid_differ": int(np.sum(np.asarray(a["valid"]) != np.asarray(b["valid"]))),
             "hit_differ": int(np.sum(np.asarray(a["hit_fixed"]) != np.asarray(b["hit_fixed"]))),
             "pose_differ": int(np.sum(~pose_ok)), "max_dxy_m": float(dxy.max()),
+            "median_dxy_m": float(np.median(dxy)), "median_dyaw_deg": float(np.rad2deg(np.median(dyaw))),
             "max_dyaw_deg": float(np.rad2deg(dyaw.max())), "n": int(len(pose_ok))}
 
 
 def markdown(rows: list, meta: dict) -> str:
     lines = [f"# MJX-JAX on the PushAround scenes ({meta['machine']})", "",
              f"Batch {meta['batch']} candidates x {meta['ticks']} control ticks (6 physics steps each). Compile = "
-             "cold - warm call; peak = the MJX subprocess's max RSS. Agreement with the C engine: candidates whose "
+             "trace + XLA compile, warm = the rest of the same call; peak = the MJX subprocess's max RSS. "
+             "Agreement with the C engine: candidates whose "
              "valid / wall-hit verdict differs, and whose final movable poses differ by more than 1 cm or 2 deg.", "",
              "| scene | movables | geoms | declared pairs | meshes | MJX compile s | MJX warm s | peak GB | "
              "C warm s | valid differ | hit differ | pose differ | max dxy m | max dyaw deg |",
@@ -177,6 +228,20 @@ def markdown(rows: list, meta: dict) -> str:
                      f"{c.get('warm_s', float('nan')):.2f} | "
                      f"{ag.get('valid_differ', '')} | {ag.get('hit_differ', '')} | {ag.get('pose_differ', '')} | "
                      f"{ag.get('max_dxy_m', float('nan')):.4f} | {ag.get('max_dyaw_deg', float('nan')):.2f} |")
+    pairs = (("agreement", "MJX-JAX vs C"), ("agreement_no_sleep", "MJX-JAX vs C, sleeping off"),
+             ("c_sleep_vs_no_sleep", "C vs C, sleeping off"))
+    if any(key in r for r in rows for key, _ in pairs[1:]):
+        lines += ["", "Per comparison (candidates out of the batch; a movable's pose error is the largest over the "
+                  "scene's movables):", "",
+                  "| scene | comparison | valid differ | hit differ | pose differ | median dxy m | max dxy m | "
+                  "median dyaw deg | max dyaw deg |", "|---|---|---|---|---|---|---|---|---|"]
+        for r in rows:
+            for key, label in pairs:
+                ag = r.get(key)
+                if ag:
+                    lines.append(f"| {r['scene']} | {label} | {ag['valid_differ']} | {ag['hit_differ']} | "
+                                 f"{ag['pose_differ']} | {ag['median_dxy_m']:.4f} | {ag['max_dxy_m']:.4f} | "
+                                 f"{ag['median_dyaw_deg']:.2f} | {ag['max_dyaw_deg']:.2f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -206,12 +271,19 @@ def main(argv=None) -> dict:
                     help="MJX compile: FAST_COMPILE options (LLVM's expensive passes off) or XLA's defaults")
     ap.add_argument("--compile-only", action="store_true",
                     help="MJX: trace and compile the batched rollout, no run (compile time and peak memory only)")
+    ap.add_argument("--rover", type=int, nargs="+", default=None, metavar="K",
+                    help="the rover world instead, with K particles per object (1 4 16: 64 / 256 / 1,024 particles)")
+    ap.add_argument("--rover-ticks", type=int, default=20, help="rover control ticks per rollout")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--rover-child", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     ap.add_argument("--stem", default="mjx_scale")
     args = ap.parse_args(argv)
     if args.child:
         print(json.dumps(child(args.child, args.batch, args.backend, args.xla, args.compile_only)))
+        return {}
+    if args.rover_child:
+        print(json.dumps(rover_child(args.rover_child, args.batch, args.rover_ticks, args.xla)))
         return {}
     sys.path.insert(0, str(ROOT))
     from experiments._results import write_results
@@ -219,6 +291,15 @@ def main(argv=None) -> dict:
     rows = []
     meta = {"machine": f"{platform.machine()}, {os.cpu_count()} cores", "batch": args.batch, "ticks": 80,
             "backend": args.backend, "xla": args.xla}
+    if args.rover:
+        meta["rover_ticks"] = args.rover_ticks
+        for k in args.rover:
+            cmd = ["--rover-child", str(k), "--batch", str(args.batch), "--rover-ticks", str(args.rover_ticks),
+                   "--xla", args.xla]
+            rows.append(_subprocess(cmd, args.timeout, {"per_object": k, "particles": 64 * k}))
+            print(json.dumps(rows[-1]), flush=True)
+            write_results(args.results_dir, args.stem, {"meta": meta, "rows": rows}, markdown_rover(rows, meta))
+        return {"meta": meta, "rows": rows}
     for spec in args.scenes:
         mj = run_child(spec, args.batch, args.backend, args.timeout, args.xla, args.compile_only)
         if args.compile_only:
@@ -227,10 +308,14 @@ def main(argv=None) -> dict:
             write_results(args.results_dir, args.stem, {"meta": meta, "rows": rows}, markdown_compile(rows, meta))
             continue
         c = child(spec, args.batch, "c")
+        awake = child(spec, args.batch, "c", sleep=False)
         row = {"scene": spec, "mjx": {k: v for k, v in mj.items() if k != "outcome"},
-               "c": {k: v for k, v in c.items() if k not in ("outcome", "peak_gb")}}
+               "c": {k: v for k, v in c.items() if k not in ("outcome", "peak_gb")},
+               "outcomes": {"mjx": mj.get("outcome"), "c": c["outcome"], "c_no_sleep": awake["outcome"]}}
         if "outcome" in mj:
             row["agreement"] = agreement(mj["outcome"], c["outcome"])
+            row["agreement_no_sleep"] = agreement(mj["outcome"], awake["outcome"])
+        row["c_sleep_vs_no_sleep"] = agreement(c["outcome"], awake["outcome"])
         rows.append(row)
         print(json.dumps(row), flush=True)
         write_results(args.results_dir, args.stem, {"meta": meta, "rows": rows}, markdown(rows, meta))

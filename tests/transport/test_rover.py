@@ -129,6 +129,8 @@ def test_vmapped_batch_equals_single_rollouts(tiny):
         np.testing.assert_allclose(one.qpos[0, :20], ref.trajectory.qpos[i, :20], atol=1e-4)
         assert np.max(np.abs(one.qpos[0, -1, :2] - ref.trajectory.qpos[i, -1, :2])) < 0.05
         assert bool(one.finite[0]) == bool(ref.trajectory.finite[i])
+        # the B=1 program is compiled by the first call and reused by the second
+        assert (sims["mjx"].compile_seconds > 0) == (i == 0)
 
 
 def test_contact_caps_hold_the_pile_on_the_demo_scene():
