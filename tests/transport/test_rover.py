@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxplan import FabricParams, build_fabric, builtin_scene
-from jaxplan.physics.rollout import Simulator
+from jaxplan.physics.rollout import Simulator, warp_available
 from jaxplan.transport import execute
 from jaxplan.transport.rebuild import selective_rebuild
 from jaxplan.transport.rover import bridge
@@ -52,6 +52,24 @@ def test_backends_agree_on_verdicts(tiny):
     assert np.max(np.abs(pose_c - pose_m)) / world.cell_size < 0.05
     # and the rover did drive the route: the tiny routes deliver their whole load
     assert np.all(c.delivered == c.collected) and np.all(c.collected > 0)
+
+
+WARP_TICKS = 80    # 4 s: the rover is under way and its blade has met the first particles
+
+
+@pytest.mark.skipif(not warp_available(), reason="warp-lang not installed (pip install 'jaxplan[warp]')")
+def test_warp_drives_the_routes_like_the_c_engine(tiny):
+    """MJX-Warp on the rover world: finite, and the rover's path within 1 cm of the C engine's at
+    every tick of the first 4 s (the C run is the fixture's, whose first ticks are these)."""
+    scene, routes, world, _, checks = tiny
+    sim = Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps, bounds=world.bounds,
+                    backend="warp")
+    warp = bridge.check_routes(scene, routes, n_ticks=WARP_TICKS, world=world, simulator=sim)
+    assert warp.trajectory.backend == "warp" and warp.trajectory.finite.all()
+    path_c = checks["c"].trajectory.qpos[:, :WARP_TICKS + 1, :2]
+    path_w = warp.trajectory.qpos[:, :, :2]
+    assert np.max(np.abs(path_w - path_c)) / world.cell_size < 0.01
+    assert np.max(np.abs(path_c[:, -1] - path_c[:, 0])) > 1.0     # it did drive
 
 
 DEMO_TICKS = 120   # 6 s: the blade drives ~4 cells into the demo route and pushes ~20 particles
