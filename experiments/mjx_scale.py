@@ -9,7 +9,8 @@ compile (``Simulator.compile_seconds``), ``warm_s`` the rest of the call. The pa
 candidates on the C engine and compares the verdicts (valid, wall hits) and every movable's final
 pose (1 cm, 2 degrees).
 
-Results: ``experiments/results/mjx_scale.{json,md}`` (``--stem`` to rename).
+Results: ``experiments/results/mjx_scale.{json,md}`` (``--stem`` to rename), and every candidate's
+verdicts and final poses per engine in ``mjx_scale_outcomes.json.gz``.
 
 Examples::
 
@@ -25,6 +26,7 @@ control ticks of 10 physics steps on MJX-JAX: compile time, peak memory and the 
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import os
 import platform
@@ -85,7 +87,7 @@ def push_candidates(world, n: int, speed: float = 0.3, duration: float = 2.0):
 
 def _outcome_dict(out) -> dict:
     return {"valid": out.valid.tolist(), "hit_fixed": out.hit_fixed.tolist(), "finite": out.finite.tolist(),
-            "poses": np.asarray(out.poses).tolist()}
+            "poses": np.round(np.asarray(out.poses, np.float64), 5).tolist()}   # 10 um, 1e-5 rad
 
 
 class _Compiled(Exception):
@@ -300,6 +302,7 @@ def main(argv=None) -> dict:
             print(json.dumps(rows[-1]), flush=True)
             write_results(args.results_dir, args.stem, {"meta": meta, "rows": rows}, markdown_rover(rows, meta))
         return {"meta": meta, "rows": rows}
+    outcomes = {}   # per scene and engine: verdicts and final poses of every candidate
     for spec in args.scenes:
         mj = run_child(spec, args.batch, args.backend, args.timeout, args.xla, args.compile_only)
         if args.compile_only:
@@ -310,8 +313,8 @@ def main(argv=None) -> dict:
         c = child(spec, args.batch, "c")
         awake = child(spec, args.batch, "c", sleep=False)
         row = {"scene": spec, "mjx": {k: v for k, v in mj.items() if k != "outcome"},
-               "c": {k: v for k, v in c.items() if k not in ("outcome", "peak_gb")},
-               "outcomes": {"mjx": mj.get("outcome"), "c": c["outcome"], "c_no_sleep": awake["outcome"]}}
+               "c": {k: v for k, v in c.items() if k not in ("outcome", "peak_gb")}}
+        outcomes[spec] = {"mjx": mj.get("outcome"), "c": c["outcome"], "c_no_sleep": awake["outcome"]}
         if "outcome" in mj:
             row["agreement"] = agreement(mj["outcome"], c["outcome"])
             row["agreement_no_sleep"] = agreement(mj["outcome"], awake["outcome"])
@@ -319,6 +322,8 @@ def main(argv=None) -> dict:
         rows.append(row)
         print(json.dumps(row), flush=True)
         write_results(args.results_dir, args.stem, {"meta": meta, "rows": rows}, markdown(rows, meta))
+        with gzip.open(args.results_dir / f"{args.stem}_outcomes.json.gz", "wt") as f:
+            json.dump(outcomes, f)
     return {"meta": meta, "rows": rows}
 
 
