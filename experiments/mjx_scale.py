@@ -90,8 +90,23 @@ def _outcome_dict(out) -> dict:
             "poses": np.round(np.asarray(out.poses, np.float64), 5).tolist()}   # 10 um, 1e-5 rad
 
 
-class _Compiled(Exception):
-    pass
+class Compiled(Exception):
+    """Raised by :class:`CompileOnly` once the rollout is compiled."""
+
+
+class CompileOnly:
+    """A Simulator stand-in whose ``run`` compiles the rollout (``Simulator.compile``) and stops the
+    caller with :class:`Compiled`: compile time and program size without the run."""
+
+    def __init__(self, sim):
+        self.sim = sim
+
+    def __getattr__(self, name):
+        return getattr(self.sim, name)
+
+    def run(self, *args, **kwargs):
+        self.sim.compile(*args, **kwargs)
+        raise Compiled()
 
 
 def child(spec: str, batch: int, backend: str, opt: str = "fast", compile_only: bool = False,
@@ -107,25 +122,12 @@ def child(spec: str, batch: int, backend: str, opt: str = "fast", compile_only: 
 
     sim = make_push_simulator(world, backend, compiler_options=FAST_COMPILE if opt == "fast" else None)
     if compile_only:   # trace + XLA compile of the batched rollout, no run
-        timing = {}
-
-        def lower_only(qpos0, qvel0, params, pstate0, n_ticks, fields):
-            import jax.numpy as jnp
-
-            fn = sim._mjx_fn(n_ticks, ())
-            t0 = time.perf_counter()
-            fn.lower(jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32), params, pstate0,
-                     {}).compile()
-            timing["compile_s"] = time.perf_counter() - t0
-            raise _Compiled()
-
-        sim._run_mjx = lower_only
         try:
-            simulate_pushes(world, tasks, sim=sim)
-        except _Compiled:
+            simulate_pushes(world, tasks, sim=CompileOnly(sim))
+        except Compiled:
             pass
         return {"scene": spec, "backend": backend, "batch": batch, "ticks": int(world.config.horizon),
-                "compile_s": timing["compile_s"], "xla": opt,
+                "compile_s": sim.compile_seconds, "xla": opt, "program_gb": _gb(sim.memory_bytes),
                 "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20,
                 "movables": len(world.scene.movables), "geoms": int(world.model.ngeom), "pairs": len(world.pairs),
                 "meshes": int(world.mjx_model.nmesh)}
@@ -141,8 +143,13 @@ def child(spec: str, batch: int, backend: str, opt: str = "fast", compile_only: 
             "meshes": int(world.mjx_model.nmesh), "outcome": _outcome_dict(out)}
 
 
-def rover_child(per_object: int, batch: int, ticks: int, opt: str) -> dict:
-    """MJX-JAX's compile and run of the rover world with ``per_object`` particles per object."""
+def _gb(nbytes) -> float | None:
+    return None if nbytes is None else nbytes / 2 ** 30
+
+
+def rover_child(per_object: int, batch: int, ticks: int, opt: str, compile_only: bool = False) -> dict:
+    """MJX-JAX's compile (and run, unless ``compile_only``) of the rover world with ``per_object``
+    particles per object."""
     from experiments.bench_rover_throughput import tile_routes
     from jaxplan import builtin_scene
     from jaxplan.physics.rollout import FAST_COMPILE, Simulator
@@ -154,28 +161,38 @@ def rover_child(per_object: int, batch: int, ticks: int, opt: str) -> dict:
     world = bridge.world_for_routes(scene, routes, RoverConfig(particles_per_object=per_object))
     sim = Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps, bounds=world.bounds,
                     backend="mjx", compiler_options=FAST_COMPILE if opt == "fast" else None)
+    row = {"per_object": per_object, "particles": world.n_particles, "batch": batch, "ticks": ticks,
+           "geoms": int(world.model.ngeom), **world.caps, "xla": opt}
     t0 = time.perf_counter()
-    chk = bridge.check_routes(scene, tile_routes(routes, batch), n_ticks=ticks, world=world, simulator=sim)
-    cold = time.perf_counter() - t0
-    return {"per_object": per_object, "particles": world.n_particles, "batch": batch, "ticks": ticks,
-            "geoms": int(world.model.ngeom), **world.caps, "xla": opt, "compile_s": sim.compile_seconds,
-            "run_s": cold - sim.compile_seconds, "finite": float(np.mean(chk.outcome.finite)),
+    try:
+        chk = bridge.check_routes(scene, tile_routes(routes, batch), n_ticks=ticks, world=world,
+                                  simulator=CompileOnly(sim) if compile_only else sim)
+        row.update(run_s=time.perf_counter() - t0 - sim.compile_seconds, finite=float(np.mean(chk.outcome.finite)))
+    except Compiled:
+        pass
+    return {**row, "compile_s": sim.compile_seconds, "program_gb": _gb(sim.memory_bytes),
             "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20}
 
 
+def _num(row: dict, key: str, fmt: str) -> str:
+    return "" if row.get(key) is None else format(row[key], fmt)
+
+
 def markdown_rover(rows: list, meta: dict) -> str:
+    ran = "" if meta.get("compile_only") else f", run for {meta['rover_ticks']} control ticks of 10 physics steps"
     lines = [f"# MJX-JAX compile on the rover world ({meta['machine']})", "",
-             f"The `default` scene's 6 first routes tiled to {meta['batch']} routes, {meta['rover_ticks']} "
-             "control ticks of 10 physics steps; compile = trace + XLA compile; run = the rest of the call; "
-             "peak = the subprocess's max RSS.", "",
-             "| particles | geoms | max_geom_pairs | max_contact_points | compile s | run s | finite | peak GB |",
-             "|---|---|---|---|---|---|---|---|"]
+             f"The `default` scene's 6 first routes tiled to {meta['batch']} routes{ran}; compile = trace + XLA "
+             "compile; program = the compiled program's buffers as XLA sizes them (arguments, outputs, "
+             "temporaries); run = the rest of the call; peak = the subprocess's max RSS.", "",
+             "| particles | geoms | max_geom_pairs | max_contact_points | compile s | program GB | run s | finite | "
+             "peak GB |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            lines.append(f"| {r['particles']} | | | | {r['error']} | | | |")
+            lines.append(f"| {r['particles']} | | | | {r['error']} | | | | |")
         else:
             lines.append(f"| {r['particles']} | {r['geoms']} | {r['max_geom_pairs']} | {r['max_contact_points']} | "
-                         f"{r['compile_s']:.1f} | {r['run_s']:.1f} | {r['finite']:.2f} | {r['peak_gb']:.2f} |")
+                         f"{r['compile_s']:.1f} | {_num(r, 'program_gb', '.2f')} | {_num(r, 'run_s', '.1f')} | "
+                         f"{_num(r, 'finite', '.2f')} | {r['peak_gb']:.2f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -285,7 +302,7 @@ def main(argv=None) -> dict:
         print(json.dumps(child(args.child, args.batch, args.backend, args.xla, args.compile_only)))
         return {}
     if args.rover_child:
-        print(json.dumps(rover_child(args.rover_child, args.batch, args.rover_ticks, args.xla)))
+        print(json.dumps(rover_child(args.rover_child, args.batch, args.rover_ticks, args.xla, args.compile_only)))
         return {}
     sys.path.insert(0, str(ROOT))
     from experiments._results import write_results
@@ -294,10 +311,10 @@ def main(argv=None) -> dict:
     meta = {"machine": f"{platform.machine()}, {os.cpu_count()} cores", "batch": args.batch, "ticks": 80,
             "backend": args.backend, "xla": args.xla}
     if args.rover:
-        meta["rover_ticks"] = args.rover_ticks
+        meta.update(rover_ticks=args.rover_ticks, compile_only=args.compile_only)
         for k in args.rover:
             cmd = ["--rover-child", str(k), "--batch", str(args.batch), "--rover-ticks", str(args.rover_ticks),
-                   "--xla", args.xla]
+                   "--xla", args.xla] + (["--compile-only"] if args.compile_only else [])
             rows.append(_subprocess(cmd, args.timeout, {"per_object": k, "particles": 64 * k}))
             print(json.dumps(rows[-1]), flush=True)
             write_results(args.results_dir, args.stem, {"meta": meta, "rows": rows}, markdown_rover(rows, meta))

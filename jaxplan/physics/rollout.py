@@ -144,7 +144,8 @@ class Simulator:
 
     ``run`` compiles once per (horizon, batch size) on MJX; later calls with new states, policy
     parameters or policy states reuse the compiled program. ``compile_seconds`` is what the last
-    ``run`` spent tracing and compiling (0.0 when it reused a program, and always on the C engine).
+    ``run`` (or ``compile``) spent tracing and compiling (0.0 when it reused a program, and always on
+    the C engine); ``memory_bytes`` the last compiled program's buffers (``compile``).
     """
 
     def __init__(self, model: mujoco.MjModel, policy: Policy, *, substeps: int = 1, bounds=None,
@@ -179,6 +180,7 @@ class Simulator:
         self._mjx_cache: dict = {}
         self._executables: dict = {}
         self.compile_seconds = 0.0
+        self.memory_bytes: int | None = None
         self._policy_batch = jax.jit(jax.vmap(policy))
 
     # ------------------------------------------------------------------------------------ public
@@ -186,6 +188,23 @@ class Simulator:
         """Roll out B elements for ``n_ticks`` control ticks. qpos0 f[B, nq], qvel0 f[B, nv];
         params, pstate0: policy pytrees with leading axis B. model_fields: optional
         ``{name: f[B, *shape]}``, per-element values of ``MjModel`` fields (``shape`` = the field's)."""
+        qpos0, qvel0, n_ticks, fields = self._checked(qpos0, qvel0, n_ticks, model_fields)
+        run = self._run_c if self.backend == "c" else self._run_mjx
+        return run(qpos0, qvel0, params, pstate0, n_ticks, fields)
+
+    def compile(self, qpos0, qvel0, params, pstate0, n_ticks: int, model_fields=None) -> float:
+        """Trace and compile the program ``run`` would run on these inputs, without running it (MJX-JAX
+        and MJX-Warp; the C engine has nothing to compile). Returns ``compile_seconds`` (0.0 when the
+        program was already compiled); ``memory_bytes`` then holds the program's buffers as XLA
+        sizes them (arguments, outputs and temporaries; None where XLA does not say)."""
+        qpos0, qvel0, n_ticks, fields = self._checked(qpos0, qvel0, n_ticks, model_fields)
+        if self.backend != "c":
+            self._executable(self._mjx_args(qpos0, qvel0, params, pstate0, fields), n_ticks, tuple(sorted(fields)))
+        else:
+            self.compile_seconds = 0.0
+        return self.compile_seconds
+
+    def _checked(self, qpos0, qvel0, n_ticks, model_fields):
         qpos0 = np.asarray(qpos0, np.float64)
         qvel0 = np.asarray(qvel0, np.float64)
         if qpos0.ndim != 2 or qpos0.shape[1] != self.model.nq:
@@ -201,8 +220,7 @@ class Simulator:
         if fields and self.backend == "warp":
             raise ValueError("model_fields: per-element model fields are not supported on backend='warp'; "
                              "use 'mjx' or 'c'.")
-        run = self._run_c if self.backend == "c" else self._run_mjx
-        return run(qpos0, qvel0, params, pstate0, int(n_ticks), fields)
+        return qpos0, qvel0, int(n_ticks), fields
 
     @property
     def tick_seconds(self) -> float:
@@ -274,19 +292,27 @@ class Simulator:
         self._mjx_cache[key] = fn
         return fn
 
-    def _run_mjx(self, qpos0, qvel0, params, pstate0, n_ticks, fields):
-        names = tuple(sorted(fields))
+    @staticmethod
+    def _mjx_args(qpos0, qvel0, params, pstate0, fields) -> tuple:
         fields = {k: jnp.asarray(v) for k, v in fields.items()}
-        args = (jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32), params, pstate0, fields)
+        return jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32), params, pstate0, fields
+
+    def _executable(self, args: tuple, n_ticks: int, names: tuple):
+        """The compiled program for ``args`` (compiled ahead of the call so that its cost is measured
+        apart: ``compile_seconds``, ``memory_bytes``)."""
         key = (n_ticks, names, jax.tree_util.tree_structure(args),
                tuple((np.shape(x), str(jnp.result_type(x))) for x in jax.tree_util.tree_leaves(args)))
-        executable = self._executables.get(key)
         self.compile_seconds = 0.0
-        if executable is None:   # compiled ahead of the call so that its cost is measured apart
+        if key not in self._executables:
             start = time.perf_counter()
-            executable = self._mjx_fn(n_ticks, names).lower(*args).compile()
+            self._executables[key] = self._mjx_fn(n_ticks, names).lower(*args).compile()
             self.compile_seconds = time.perf_counter() - start
-            self._executables[key] = executable
+            self.memory_bytes = _program_bytes(self._executables[key])
+        return self._executables[key]
+
+    def _run_mjx(self, qpos0, qvel0, params, pstate0, n_ticks, fields):
+        args = self._mjx_args(qpos0, qvel0, params, pstate0, fields)
+        executable = self._executable(args, n_ticks, tuple(sorted(fields)))
         qp, qv, ctrl, ok, first_bad, ncon, ps = jax.block_until_ready(executable(*args))
         tick_times = np.arange(n_ticks + 1) * self.tick_seconds
         # Contacts at tick 0 (every tick on Warp) from the C engine on the MJX model: a second MJX
@@ -353,6 +379,15 @@ class Simulator:
                 ok &= good
         tick_times = np.arange(n_ticks + 1) * self.tick_seconds
         return Trajectory(qp, qv, ctrl_out, tick_times, ok, first_bad, ncon, pstate, "c")
+
+
+def _program_bytes(executable) -> int | None:
+    """Arguments + outputs + temporaries of a compiled XLA program, in bytes (None if unknown)."""
+    try:
+        m = executable.memory_analysis()
+        return int(m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes)
+    except (AttributeError, NotImplementedError, TypeError):
+        return None
 
 
 def _host_ncon(model: mujoco.MjModel, qpos) -> np.ndarray:

@@ -147,8 +147,12 @@ def test_vmapped_batch_equals_single_rollouts(tiny):
         np.testing.assert_allclose(one.qpos[0, :20], ref.trajectory.qpos[i, :20], atol=1e-4)
         assert np.max(np.abs(one.qpos[0, -1, :2] - ref.trajectory.qpos[i, -1, :2])) < 0.05
         assert bool(one.finite[0]) == bool(ref.trajectory.finite[i])
-        # the B=1 program is compiled by the first call and reused by the second
+        # the B=1 program is compiled by the first call and reused by the second (and by compile)
         assert (sims["mjx"].compile_seconds > 0) == (i == 0)
+        args = (ref.trajectory.qpos[i:i + 1, 0], ref.trajectory.qvel[i:i + 1, 0], _stack(ref.params, [i]),
+                _stack(_pstate0(2), [i]), TICKS)
+        assert sims["mjx"].compile(*args) == 0.0 and sims["c"].compile(*args) == 0.0
+    assert sims["mjx"].memory_bytes > 0 and sims["c"].memory_bytes is None
 
 
 def test_contact_caps_hold_the_pile_on_the_demo_scene():
