@@ -93,9 +93,8 @@ class ObjectiveConfig(NamedTuple):
     episode's distance driven does. aggregate: ``"job"`` (default) delivered per driven over the
     whole job, i.e. total count over the count-weighted sum of length per delivered object of each
     cell's route (a harmonic mean); ``"source"`` the count-weighted arithmetic mean of each route's
-    delivered per length. Measured in ``experiments/results/tune_fabric.md``: without the approach
-    and with ``"source"`` the tuned parameters lose under the hard episodes (they favour narrow
-    cones whose many short routes the mean of ratios over-rewards).
+    delivered per length. Both are compared under the hard episodes in
+    ``experiments/results/tune_fabric.md``.
     """
 
     temperature: float = 0.5
