@@ -22,8 +22,10 @@ demo: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
+# Whole modules go to one worker (--dist loadscope), so a module's compiled fixtures are built once;
+# the log ends with the 20 slowest tests.
 test: lint
-	$(PY) -m pytest -n 2 -q
+	$(PY) -m pytest -n 2 --dist loadscope -q --durations=20
 
 # Build the wheel, install it (not editable) in a fresh virtual environment and run the rover and
 # PushAround from outside the checkout: the wheel must carry everything they need.

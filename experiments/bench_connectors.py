@@ -18,10 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from experiments.bench_fabric import RESULTS_DIR, environment, make_scene  # noqa: E402
+from experiments.bench_fabric import RESULTS_DIR, environment, make_scene
 
 
 def run(n: int, repeats: int) -> dict:
@@ -29,26 +26,26 @@ def run(n: int, repeats: int) -> dict:
     import jax.numpy as jnp
 
     from jaxplan import FabricParams, SpillParams, build_fabric, extract_paths, plan_connectors
-    from jaxplan.core.timing import timed
-    from jaxplan.transport import execute, rebuild
+    from jaxplan.core import timed
+    from jaxplan.transport import execute_jit, quantize, refresh_connectors, routes_from_paths, selective_rebuild
 
     params = FabricParams()
     scene = make_scene(n, 0.4, 0)
-    scene = scene.with_obj(execute.quantize(scene.obj))
+    scene = scene.with_obj(quantize(scene.obj))
     fabric = build_fabric(scene, params)
     old = plan_connectors(scene, params, fabric)
     source = jnp.stack(jnp.unravel_index(jnp.argmax(fabric.value), scene.shape))[None]
     route = jax.tree.map(lambda a: a[0],
-                         execute.routes_from_paths(scene, extract_paths(fabric, source, max_steps=8 * n)))
-    new_obj, push = execute.execute_jit(scene, route, SpillParams(lam=0.05))
+                         routes_from_paths(scene, extract_paths(fabric, source, max_steps=8 * n)))
+    new_obj, push = execute_jit(scene, route, SpillParams(lam=0.05))
     after = scene.with_obj(new_obj)
-    rebuilt, _ = rebuild.selective_rebuild(after, params, fabric, push.changed)
+    rebuilt, _ = selective_rebuild(after, params, fabric, push.changed)
 
     def plan():
         return plan_connectors(after, params, rebuilt)
 
     def refresh():
-        return rebuild.refresh_connectors(after, params, rebuilt, fabric, old, push.changed)
+        return refresh_connectors(after, params, rebuilt, fabric, old, push.changed)
 
     out = {"n": n}
     for name, fn in (("plan_ms", plan), ("refresh_ms", refresh)):
@@ -62,7 +59,7 @@ def run(n: int, repeats: int) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m experiments.bench_connectors", description=__doc__.split("\n\n")[0])
     p.add_argument("--sizes", type=int, nargs="+", default=[25, 65, 128])
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--results-dir", type=Path, default=RESULTS_DIR)

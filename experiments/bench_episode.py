@@ -14,9 +14,9 @@ the batch's static walk length (default ``episode.default_walk_cap``; the host l
 and retry); ``--also-walk-cap N`` adds a second batch row with that cap. Writes
 ``experiments/results/episode.{json,md}``.
 
-    python experiments/bench_episode.py                      # 64 episodes, 32x32, 30 pushes
-    python experiments/bench_episode.py --also-walk-cap 64   # plus a batch walked 64 steps at most
-    python experiments/bench_episode.py --quick              # 4 episodes, 12x12, 4 pushes
+    python -m experiments.bench_episode                      # 64 episodes, 32x32, 30 pushes
+    python -m experiments.bench_episode --also-walk-cap 64   # plus a batch walked 64 steps at most
+    python -m experiments.bench_episode --quick              # 4 episodes, 12x12, 4 pushes
 """
 from __future__ import annotations
 
@@ -31,10 +31,17 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from experiments._results import write_results
+from experiments.results_io import write_results
 from jaxplan import FabricParams, SpillParams, build_fabric, random_scene, run_episode
-from jaxplan.transport.episode import STOP_REASONS, EpisodeParams, act, default_walk_cap, reset, rollout_scenes_jit
-from jaxplan.transport.scene import stack_scenes
+from jaxplan.transport import (
+    STOP_REASONS,
+    EpisodeParams,
+    act,
+    default_walk_cap,
+    reset,
+    rollout_scenes_jit,
+    stack_scenes,
+)
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
@@ -185,8 +192,9 @@ def markdown(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0], epilog="example: python "
-                                 "experiments/bench_episode.py --batch 64 --side 32 --max-pushes 30 --also-walk-cap 64",
+    ap = argparse.ArgumentParser(prog="python -m experiments.bench_episode", description=__doc__.split("\n")[0],
+                                 epilog="example: python -m experiments.bench_episode "
+                                        "--batch 64 --side 32 --max-pushes 30 --also-walk-cap 64",
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--batch", type=int, default=None,
                     help="episodes (random scenes, seeds 0..B-1; default 64, --quick 4)")

@@ -20,10 +20,10 @@ end (met / not met; never asserted).
 
 Examples::
 
-    python experiments/bench_fabric.py --quick          # smoke run, ~1 minute
-    python experiments/bench_fabric.py                  # full run (long: 1024^2 included)
-    python experiments/bench_fabric.py --single-cpu     # pin to one core, like the paper's setup
-    python experiments/bench_fabric.py --targets        # re-print the targets of the saved results
+    python -m experiments.bench_fabric --quick          # smoke run, ~1 minute
+    python -m experiments.bench_fabric                  # full run (long: 1024^2 included)
+    python -m experiments.bench_fabric --single-cpu     # pin to one core, like the paper's setup
+    python -m experiments.bench_fabric --targets        # re-print the targets of the saved results
 """
 from __future__ import annotations
 
@@ -89,7 +89,7 @@ def loglog_fit(cells, times):
 _PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 
 
-def _rss_bytes():
+def rss_bytes():
     """Current resident set size from /proc/self/statm, or None where /proc is unavailable."""
     try:
         with open("/proc/self/statm") as fh:
@@ -111,7 +111,7 @@ class PeakMemory:
 
     def __init__(self, interval: float = 0.001):
         self.interval = interval
-        self.method = ("RSS sampled from /proc/self/statm every 1 ms" if _rss_bytes() is not None
+        self.method = ("RSS sampled from /proc/self/statm every 1 ms" if rss_bytes() is not None
                        else "resource.getrusage ru_maxrss delta (high-water mark)")
         self.baseline = self.peak = 0
         self._stop = threading.Event()
@@ -119,12 +119,12 @@ class PeakMemory:
 
     def _run(self):
         while not self._stop.is_set():
-            self.peak = max(self.peak, _rss_bytes() or 0)
+            self.peak = max(self.peak, rss_bytes() or 0)
             time.sleep(self.interval)
 
     def __enter__(self):
-        if _rss_bytes() is not None:
-            self.baseline = self.peak = _rss_bytes()
+        if rss_bytes() is not None:
+            self.baseline = self.peak = rss_bytes()
             self._thread = threading.Thread(target=self._run, daemon=True)
             self._thread.start()
         else:
@@ -135,7 +135,7 @@ class PeakMemory:
         if self._thread is not None:
             self._stop.set()
             self._thread.join()
-            self.peak = max(self.peak, _rss_bytes() or 0)
+            self.peak = max(self.peak, rss_bytes() or 0)
         else:
             self.peak = _maxrss_bytes()
         return False
@@ -465,13 +465,13 @@ def environment(single_cpu: bool) -> dict:
 # --------------------------------------------------------------------------------------------------
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(
+    p = argparse.ArgumentParser(prog="python -m experiments.bench_fabric",
         description=__doc__.split("\n\n")[0] + " JAX vs the serial reference on 25/45/65 grids, "
                     "then JAX alone on large grids.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  python experiments/bench_fabric.py --quick\n"
-               "  python experiments/bench_fabric.py --seeds 10 --big-sizes 128 256 512\n"
-               "  python experiments/bench_fabric.py --targets")
+        epilog="examples:\n  python -m experiments.bench_fabric --quick\n"
+               "  python -m experiments.bench_fabric --seeds 10 --big-sizes 128 256 512\n"
+               "  python -m experiments.bench_fabric --targets")
     p.add_argument("--quick", action="store_true",
                    help="smoke run: 1 seed, grids 25/45/65 and big sizes 128/256; writes "
                         "<results>/fabric_quick.{json,md}")

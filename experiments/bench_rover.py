@@ -36,8 +36,8 @@ Results: a markdown table on stdout, ``experiments/results/rover.json`` and ``ro
 
 Examples::
 
-    python experiments/bench_rover.py --quick      # 2 routes per scene, tiny MJX comparison only
-    python experiments/bench_rover.py              # 6 routes per scene, both MJX comparisons
+    python -m experiments.bench_rover --quick      # 2 routes per scene, tiny MJX comparison only
+    python -m experiments.bench_rover              # 6 routes per scene, both MJX comparisons
 """
 from __future__ import annotations
 
@@ -52,6 +52,17 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from jaxplan.transport.physics import check_routes, plan_routes, pursuit_policy, world_for_routes
+from jaxplan.transport.spillage import (
+    FIT_FIELDS,
+    SpillParams,
+    evaluate_route,
+    fit_capacity,
+    predict_delivered,
+    predict_missed,
+    sample_route,
+)
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCENES = ("default", "corridor", "two_targets", "sparse65")
@@ -69,16 +80,17 @@ TARGET_FRACTION = 0.95
 # 2D prediction and the lambda fit
 # --------------------------------------------------------------------------------------------------
 
-def _route_inputs(scene, routes):
+def route_inputs(scene, routes):
     """Per route: ``(waypoints f32[S+1, 2], n_points, pickup f32[S+1])`` for ``evaluate_route``."""
-    from jaxplan.transport import execute
-    from jaxplan.transport.rover import bridge
+    import jax
+
+    from jaxplan.transport import waypoint_pickup, waypoints
 
     out = []
     for i in range(int(np.asarray(routes.n_cells).shape[0])):
-        r = bridge._index(routes, i)
-        pts, n = execute.waypoints(scene, r)
-        pickup, _ = execute.waypoint_pickup(scene, r)
+        r = jax.tree_util.tree_map(lambda a: a[i], routes)
+        pts, n = waypoints(scene, r)
+        pickup, _ = waypoint_pickup(scene, r)
         out.append((np.asarray(pts), int(n), np.asarray(pickup)))
     return out
 
@@ -88,7 +100,6 @@ def make_predictor(inputs):
     import jax
     import jax.numpy as jnp
 
-    from jaxplan.transport import spillage
 
     s_max = max(p.shape[0] for p, _, _ in inputs)
 
@@ -101,7 +112,7 @@ def make_predictor(inputs):
                        jnp.float32)
 
     def one(lam, p, n, k):
-        return spillage.evaluate_route(p, n, k, spillage.SpillParams(lam=lam))[0]
+        return evaluate_route(p, n, k, SpillParams(lam=lam))[0]
 
     per_lam = jax.jit(jax.vmap(jax.vmap(one, in_axes=(None, 0, 0, 0)), in_axes=(0, None, None, None)))
     return lambda lams: np.asarray(per_lam(jnp.asarray(np.atleast_1d(lams), jnp.float32), pts, npts, pick),
@@ -123,13 +134,12 @@ def fit_capacity_model(stacked, sim, idx, steps, left=None):
     routes' cells, and the model with the turning terms: ``miss`` fitted to ``left`` first, then
     capacity, lam, mu and turn_saturation to the deliveries.
     """
-    from jaxplan.transport.spillage import fit as spill_fit
 
     pts, n, pick = stacked
     idx = np.asarray(idx)
-    extra = {} if left is None else {"fields": spill_fit.FIT_FIELDS, "left_behind": left[idx]}
-    fit = spill_fit.fit_capacity(pts[idx], n[idx], pick[idx], sim[idx], temperature=TEMPERATURE, steps=steps, **extra)
-    pred = np.asarray(spill_fit.predict_delivered(pts, n, pick, fit.params), np.float64)
+    extra = {} if left is None else {"fields": FIT_FIELDS, "left_behind": left[idx]}
+    fit = fit_capacity(pts[idx], n[idx], pick[idx], sim[idx], temperature=TEMPERATURE, steps=steps, **extra)
+    pred = np.asarray(predict_delivered(pts, n, pick, fit.params), np.float64)
     return fit, pred
 
 
@@ -214,7 +224,7 @@ def errors(pred, sim, lateral, idx, sim_layouts=None):
 # --------------------------------------------------------------------------------------------------
 
 def small_scene():
-    from jaxplan.transport.scene import Scene, box
+    from jaxplan.transport import Scene, box
 
     obj = np.zeros((6, 12))
     obj[1, 2:5] = [1, 2, 1]
@@ -228,26 +238,25 @@ def throughput(scene, n_routes, n_ticks, repeats, label):
 
     n_ticks None: whole routes (``check_routes``' horizon, fixed by the first engine's run and reused).
     """
-    from jaxplan.physics.rollout import Simulator
-    from jaxplan.transport.rover import bridge
+    from jaxplan.physics import Simulator
 
-    _, routes, _ = bridge.plan_routes(scene, n_routes=n_routes)
+    _, routes, _ = plan_routes(scene, n_routes=n_routes)
     b = int(np.asarray(routes.n_cells).shape[0])
-    world = bridge.world_for_routes(scene, routes)
+    world = world_for_routes(scene, routes)
     sub = world.config.substeps
     res = {"label": label, "scene": scene.name, "routes": b, "ticks": n_ticks, "substeps": sub,
            "particle_bodies": world.n_particles, "nq": int(world.model.nq), "engines": {}}
     outcomes = {}
     for be in ("c", "mjx"):
-        sim = Simulator(world.model, bridge.pursuit_policy, substeps=sub, bounds=world.bounds, backend=be)
+        sim = Simulator(world.model, pursuit_policy, substeps=sub, bounds=world.bounds, backend=be)
         t0 = time.perf_counter()
-        chk = bridge.check_routes(scene, routes, n_ticks=n_ticks, world=world, simulator=sim)
+        chk = check_routes(scene, routes, n_ticks=n_ticks, world=world, simulator=sim)
         n_ticks = res["ticks"] = chk.n_ticks
         cold = time.perf_counter() - t0
         warm = []
         for _ in range(repeats):
             t0 = time.perf_counter()
-            chk = bridge.check_routes(scene, routes, n_ticks=n_ticks, world=world, simulator=sim)
+            chk = check_routes(scene, routes, n_ticks=n_ticks, world=world, simulator=sim)
             warm.append(time.perf_counter() - t0)
         w = float(np.median(warm))
         steps = b * n_ticks * sub
@@ -271,7 +280,7 @@ def throughput(scene, n_routes, n_ticks, repeats, label):
 # --------------------------------------------------------------------------------------------------
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.bench_rover", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="2 routes per scene, small-scene MJX comparison only")
     ap.add_argument("--routes", type=int, default=None, help="routes per scene (default 4, 2 with --quick)")
     ap.add_argument("--repeats", type=int, default=2, help="warm repeats per engine in the throughput part")
@@ -293,19 +302,18 @@ def main(argv=None):
     import jax
 
     from jaxplan import builtin_scene
-    from jaxplan.transport.rover import bridge
 
     t_start = time.perf_counter()
     rows, inputs, scene_of = [], [], []
     sim_runs = {}
     for name in SCENES:
         scene = builtin_scene(name)
-        _, routes, sources = bridge.plan_routes(scene, n_routes=n_routes)
+        _, routes, sources = plan_routes(scene, n_routes=n_routes)
         b = int(np.asarray(routes.n_cells).shape[0])
         # batch element i * L + k is route i under layout k (check_routes seeds the jitter by element)
         batch = jax.tree.map(lambda a: np.repeat(np.asarray(a), args.layouts, 0), routes)
         t0 = time.perf_counter()
-        chk = bridge.check_routes(scene, batch, backend="c", push_in=args.push_in)
+        chk = check_routes(scene, batch, backend="c", push_in=args.push_in)
         dt = time.perf_counter() - t0
         nb = b * args.layouts
         sim_runs[name] = {"routes": b, "layouts": args.layouts, "rollouts": nb, "ticks": chk.n_ticks,
@@ -320,7 +328,7 @@ def main(argv=None):
                        n_cells=int(np.asarray(routes.n_cells)[i]), fallback=bool(np.asarray(routes.fallback)[i]))
             rows.append(row)
             scene_of.append(name)
-        inputs += _route_inputs(scene, routes)
+        inputs += route_inputs(scene, routes)
 
     sim = np.array([r["delivered"] for r in rows])
     sim_layouts = [r["delivered_layouts"] for r in rows]
@@ -371,9 +379,8 @@ def main(argv=None):
                                                   f"{fits[m][split]['frac_within_10pct']:.2f}" for m in fits),
               flush=True)
     # the miss term against what it was fitted to: objects left on the routes' own cells
-    from jaxplan.transport.spillage import fit as spill_fit
     miss_in = fits["turning"]["in_sample"]["params"][0]["miss"]
-    pred_left = np.asarray(spill_fit.predict_missed(*stacked, miss_in), np.float64)
+    pred_left = np.asarray(predict_missed(*stacked, miss_in), np.float64)
     fits["turning"]["in_sample"]["left_behind"] = {
         "miss": miss_in, "rmse": float(np.sqrt(np.mean((pred_left - left) ** 2))),
         "corr": float(np.corrcoef(pred_left, left)[0, 1]) if np.std(left) > 0 and np.std(pred_left) > 0 else None,
@@ -401,8 +408,7 @@ def main(argv=None):
         r["meets_target_scene_held_out"] = bool(r["within_10pct_held_out"] and lateral[i] < TARGET_LATERAL)
     turn = []
     for p, n, _ in inputs:
-        from jaxplan.transport import spillage
-        smp = spillage.sample_route(p, n, 8)
+        smp = sample_route(p, n, 8)
         turn.append(float(np.sum(np.abs(np.asarray(smp.turn)))))
     for r, t in zip(rows, turn):
         r["total_turn_rad"] = t
@@ -413,9 +419,9 @@ def main(argv=None):
     print("noise floor (one route, several particle layouts) ...", flush=True)
     import jax as _jax
     scene = builtin_scene(NOISE_SCENE)
-    _, routes, sources = bridge.plan_routes(scene, n_routes=1)
+    _, routes, sources = plan_routes(scene, n_routes=1)
     reps = _jax.tree.map(lambda a: np.repeat(np.asarray(a)[:1], args.noise_reps, 0), routes)
-    chk = bridge.check_routes(scene, reps, backend="c", push_in=args.push_in)
+    chk = check_routes(scene, reps, backend="c", push_in=args.push_in)
     rep = np.asarray(chk.outcome.delivered, np.float64)
     centre = float(np.median(rep))
     noise = {"scene": NOISE_SCENE, "source": [int(v) for v in sources[0]], "collected": float(chk.outcome.collected[0]),

@@ -25,8 +25,8 @@ that an interrupted run keeps what it measured.
 
 Examples::
 
-    python experiments/bench_rover_throughput.py --batches 2 8 --ticks 40          # CPU smoke run
-    python experiments/bench_rover_throughput.py --batches 16 128 1024 --ticks 400  # on a GPU
+    python -m experiments.bench_rover_throughput --batches 2 8 --ticks 40          # CPU smoke run
+    python -m experiments.bench_rover_throughput --batches 16 128 1024 --ticks 400  # on a GPU
 """
 from __future__ import annotations
 
@@ -40,6 +40,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from jaxplan.transport.physics import plan_routes, world_for_routes
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
@@ -71,19 +73,19 @@ def tile_routes(routes, batch):
 
 
 def measure_engine(scene, routes, world, backend, n_ticks, repeats):
-    from jaxplan.physics.rollout import Simulator
-    from jaxplan.transport.rover import bridge
+    from jaxplan.physics import Simulator
+    from jaxplan.transport.physics import check_routes, pursuit_policy
 
-    sim = _TimedSimulator(Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps,
+    sim = _TimedSimulator(Simulator(world.model, pursuit_policy, substeps=world.config.substeps,
                                     bounds=world.bounds, backend=backend))
     t0 = time.perf_counter()
-    chk = bridge.check_routes(scene, routes, n_ticks=n_ticks, world=world, simulator=sim)
+    chk = check_routes(scene, routes, n_ticks=n_ticks, world=world, simulator=sim)
     cold = time.perf_counter() - t0
     cold_physics = sim.last_s
     physics, whole = [], []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        chk = bridge.check_routes(scene, routes, n_ticks=n_ticks, world=world, simulator=sim)
+        chk = check_routes(scene, routes, n_ticks=n_ticks, world=world, simulator=sim)
         whole.append(time.perf_counter() - t0)
         physics.append(sim.last_s)
     o = chk.outcome
@@ -151,7 +153,8 @@ def _save(result, stem, t_start, row, n_ticks):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.bench_rover_throughput",
+                                 description=__doc__.split("\n")[0])
     ap.add_argument("--scene", default="default",
                     help="built-in scene, or 'small' (bench_rover's few piles on a 6 x 12 grid); default: default")
     ap.add_argument("--routes", type=int, default=6, help="distinct routes tiled to each batch (default 6)")
@@ -178,16 +181,15 @@ def main(argv=None):
 
     from experiments.bench_rover import small_scene
     from jaxplan import builtin_scene
-    from jaxplan.transport.rover import bridge
-    from jaxplan.transport.rover.model import RoverConfig
+    from jaxplan.transport.physics import RoverConfig
 
     t_start = time.perf_counter()
     gpu = any(d.platform == "gpu" for d in jax.devices())
     device = "gpu" if gpu else "cpu"
     scene = small_scene() if args.scene == "small" else builtin_scene(args.scene)
-    _, routes, _ = bridge.plan_routes(scene, n_routes=args.routes)
+    _, routes, _ = plan_routes(scene, n_routes=args.routes)
     n_distinct = int(np.asarray(routes.n_cells).shape[0])
-    world = bridge.world_for_routes(scene, routes, RoverConfig(solver=args.solver))
+    world = world_for_routes(scene, routes, RoverConfig(solver=args.solver))
     sub = world.config.substeps
     result = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "device": device,
               "host": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": os.cpu_count(),

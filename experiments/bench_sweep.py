@@ -21,8 +21,8 @@ Results: a markdown table on stdout, ``experiments/results/sweep.json`` and ``sw
 
 Examples::
 
-    python experiments/bench_sweep.py --quick      # ~2 minutes on a shared 2-core machine
-    python experiments/bench_sweep.py              # the full run
+    python -m experiments.bench_sweep --quick      # ~2 minutes on a shared 2-core machine
+    python -m experiments.bench_sweep              # the full run
 """
 from __future__ import annotations
 
@@ -42,8 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan import build_fabric, sweep
-from jaxplan.transport import fabric
-from jaxplan.transport.params import FabricParams
+from jaxplan.transport import FabricParams, fabric_of
 from jaxplan.transport.spillage import SpillParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -95,7 +94,7 @@ def run(args) -> dict:
     params = [(scenes[i], FabricParams(**dict(zip(fkeys, map(np.float32, f)))),
                SpillParams(**dict(zip(skeys, map(np.float32, s))))) for i, f, s in settings]
     tables = params[::per_table]
-    build = jax.jit(fabric.fabric_of)
+    build = jax.jit(fabric_of)
     after = jax.jit(lambda scene, fab, fp, sp: sweep.metrics_of(scene, fp, sp, top, max_steps,
                                                               fab=sweep.with_highways(fab, scene, fp)))
     plain = jax.jit(jax.vmap(lambda scene, fp, sp: sweep.metrics_of(scene, fp, sp, top, max_steps)))
@@ -230,7 +229,7 @@ def markdown(res: dict, quick: bool) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m experiments.bench_sweep", description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="fewer settings and repeats")
     p.add_argument("--size", type=int, default=65)
     p.add_argument("--scenes", type=int, default=2)

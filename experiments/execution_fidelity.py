@@ -18,7 +18,7 @@ Results: a markdown table on stdout, ``experiments/results/execution_fidelity.js
 Example::
 
     jaxplan pusharound --seed 1 --time-limit 150 --no-execute --out out/pa1
-    python experiments/execution_fidelity.py out/pa1/result.json out/tiny/result.json
+    python -m experiments.execution_fidelity out/pa1/result.json out/tiny/result.json
 """
 from __future__ import annotations
 
@@ -96,7 +96,7 @@ def table(rows: list) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.execution_fidelity", description=__doc__.split("\n\n")[0])
     ap.add_argument("results", nargs="+", type=Path, help="result.json files of `jaxplan pusharound`")
     ap.add_argument("--name", default="execution_fidelity", help="output stem under experiments/results/")
     args = ap.parse_args(argv)

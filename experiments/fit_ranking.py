@@ -1,10 +1,10 @@
 """Learned ranking weights: fit lambda_p and eta (Eqs. 8-9) on the search's records of training
 scenes, then run the tuned and the paper's weights side by side on held-out Table I scenes.
 
-    PYTHONPATH=. python experiments/fit_ranking.py                     # collect, fit, evaluate
-    PYTHONPATH=. python experiments/fit_ranking.py --train-nominal 6 --train-density 0 --draws 2 \\
-        --eval-nominal 4 --eval-density 0                                # a small smoke run
-    PYTHONPATH=. python experiments/fit_ranking.py --weights 1,1.6,0.35 # evaluate given weights only
+    python -m experiments.fit_ranking                            # collect, fit, evaluate
+    python -m experiments.fit_ranking --train-nominal 6 --train-density 0 --draws 2 \\
+        --eval-nominal 4 --eval-density 0                        # a small smoke run
+    python -m experiments.fit_ranking --weights 1,1.6,0.35       # evaluate given weights only
 
 1. Collect. Training scenes: ``nominal_scene(s)`` for s = 1000.. (``--train-nominal``) and
    ``density_scene(s, n)`` for s = 1000.. and n in ``--densities`` (``--train-density`` per n); seeds
@@ -35,21 +35,16 @@ import gzip
 import io
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments._results import write_results  # noqa: E402
-from experiments.table1 import HARNESS_MAX_EXPANSIONS, make_scene  # noqa: E402
-from jaxplan.pusharound.physics import build_push_world  # noqa: E402
-from jaxplan.pusharound.push import make_push_simulator  # noqa: E402
-from jaxplan.pusharound.ranking import PresearchFeatures, RankingParams  # noqa: E402
-from jaxplan.pusharound.search import ExpansionRecord, SearchConfig, plan_pushes  # noqa: E402
-from jaxplan.tune import fit_ranking, ranking_data  # noqa: E402
+from experiments.results_io import write_results
+from experiments.table1 import HARNESS_MAX_EXPANSIONS, make_scene
+from jaxplan.pusharound import PresearchFeatures, RankingParams, build_push_world, make_push_simulator
+from jaxplan.pusharound.search import ExpansionRecord, SearchConfig, plan_pushes
+from jaxplan.tune import fit_ranking, ranking_data
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TRAIN_SEED0 = 1000
@@ -304,8 +299,8 @@ def markdown(doc: dict) -> str:
 # ------------------------------------------------------------------------------------------- main
 
 def parse(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 epilog="example: PYTHONPATH=. python experiments/fit_ranking.py --train-nominal 24 "
+    ap = argparse.ArgumentParser(prog="python -m experiments.fit_ranking", description=__doc__.split("\n\n")[0],
+                                 epilog="example: python -m experiments.fit_ranking --train-nominal 24 "
                                         "--train-density 2 --draws 4 --eval-nominal 40 --eval-density 5",
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--train-nominal", type=int, default=24, help="training nominal scenes (seeds 1000..)")

@@ -8,9 +8,9 @@ assigned and no push ended (assignment, distance fields and motion; the shared f
 apart); beside it, the median time of one full fabric build of the site, measured in the same run.
 Writes ``experiments/results/NAME.{json,md}`` (``--name``, default fleet) after every run.
 
-    python experiments/fleet.py                                   # site128, N = 1, 2, 4, 8
-    python experiments/fleet.py --sites site128 site256 --rovers 1 2 4 8 16 32 64
-    python experiments/fleet.py --quick                           # a 24x24 piles scene, N = 1, 2
+    python -m experiments.fleet                                   # site128, N = 1, 2, 4, 8
+    python -m experiments.fleet --sites site128 site256 --rovers 1 2 4 8 16 32 64
+    python -m experiments.fleet --quick                           # a 24x24 piles scene, N = 1, 2
 """
 from __future__ import annotations
 
@@ -23,10 +23,10 @@ from pathlib import Path
 
 import jax
 
-from experiments._results import write_results
+from experiments.results_io import write_results
 from jaxplan import FabricParams, build_fabric, random_scene
 from jaxplan.fleet import STRATEGIES, FleetConfig, run_fleet, site, summary_of
-from jaxplan.transport.episode import EpisodeParams
+from jaxplan.transport import EpisodeParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
@@ -72,11 +72,11 @@ def _markdown(rows, builds, meta) -> str:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="python -m experiments.fleet", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="examples:\n  python experiments/fleet.py\n"
-                                            "  python experiments/fleet.py --sites site128 --rovers 1 2 4 8 "
-                                            "--strategies coordinated\n  python experiments/fleet.py --quick")
+                                     epilog="examples:\n  python -m experiments.fleet\n"
+                                            "  python -m experiments.fleet --sites site128 --rovers 1 2 4 8 "
+                                            "--strategies coordinated\n  python -m experiments.fleet --quick")
     parser.add_argument("--sites", nargs="+", default=["site128"], help="built-in fleet sites; default site128")
     parser.add_argument("--rovers", nargs="+", type=int, default=[1, 2, 4, 8], help="fleet sizes; default 1 2 4 8")
     parser.add_argument("--strategies", nargs="+", default=list(STRATEGIES), choices=STRATEGIES)

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._results import write_results
+from experiments.results_io import write_results
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SHAPE = (64, 64)
@@ -46,26 +46,26 @@ def run_scene(name: str, scene, rovers: int, candidates: int, spill, swept: bool
     """One scene: pick the disjoint routes, push them together and alone. None if too few routes."""
     import jax
 
-    from jaxplan.fleet import physics as fp
-    from jaxplan.transport.rover import bridge
+    from jaxplan.fleet import TOLERANCE, check_concurrent_pushes, disjoint_routes, route_footprint, within_tolerance
+    from jaxplan.transport.physics import check_routes, plan_routes
 
     t0 = time.perf_counter()
-    _, routes, sources = bridge.plan_routes(scene, n_routes=candidates)
-    chosen = fp.disjoint_routes(scene, routes, rovers, swept=swept)
+    _, routes, sources = plan_routes(scene, n_routes=candidates)
+    chosen = disjoint_routes(scene, routes, rovers, swept=swept)
     plan_s = time.perf_counter() - t0
     if chosen.size < rovers:
         print(f"{name}: only {chosen.size} disjoint routes among {candidates} candidates, skipped", flush=True)
         return None
     routes = _take(routes, chosen)
-    swept = [fp.route_footprint(scene, jax.tree.map(lambda a, i=i: a[i], routes), swept=True) for i in range(rovers)]
+    swept = [route_footprint(scene, jax.tree.map(lambda a, i=i: a[i], routes), swept=True) for i in range(rovers)]
     overlaps = [[int(a), int(b)] for a, b in itertools.combinations(range(rovers), 2) if np.any(swept[a] & swept[b])]
     t0 = time.perf_counter()
-    chk = fp.check_concurrent_pushes(scene, routes, spill=spill)
+    chk = check_concurrent_pushes(scene, routes, spill=spill)
     together_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    alone = bridge.check_routes(scene, routes, spill=spill, backend="c").outcome
+    alone = check_routes(scene, routes, spill=spill, backend="c").outcome
     alone_s = time.perf_counter() - t0
-    alone_within = fp.within_tolerance(alone.delivered, alone.predicted_delivered, fp.TOLERANCE)
+    alone_within = within_tolerance(alone.delivered, alone.predicted_delivered, TOLERANCE)
     rows = chk.rows()
     for i, row in enumerate(rows):
         row.update(source=[int(v) for v in sources[chosen[i]]], n_cells=int(np.asarray(routes.n_cells)[i]),
@@ -124,11 +124,11 @@ def markdown(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+    ap = argparse.ArgumentParser(prog="python -m experiments.fleet_physics", description=__doc__.split("\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
-                                 epilog="examples:\n  python experiments/fleet_physics.py\n"
-                                        "  python experiments/fleet_physics.py --seed 3 --scenes 1 --rovers 3\n"
-                                        "  python experiments/fleet_physics.py --scenes 0 --sites site128 "
+                                 epilog="examples:\n  python -m experiments.fleet_physics\n"
+                                        "  python -m experiments.fleet_physics --seed 3 --scenes 1 --rovers 3\n"
+                                        "  python -m experiments.fleet_physics --scenes 0 --sites site128 "
                                         "--footprint swept --name fleet_physics_swept")
     ap.add_argument("--rovers", type=int, default=4, help="rovers (= disjoint routes) per scene (default 4)")
     ap.add_argument("--seed", type=int, default=0, help="first random-scene seed to try (default 0)")
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
 
     import jaxplan
     from jaxplan.fleet import SITES, site
-    from jaxplan.transport.spillage.capacity import ROVER_FIT
+    from jaxplan.transport.spillage import ROVER_FIT
 
     bad = [s for s in args.sites if s not in SITES]
     if bad:

@@ -7,8 +7,8 @@ step, so their footprints are pairwise disjoint) is then driven at once in one M
 gravel (``physics.check_first_round``, C engine): rover-rover contacts, and each push's simulated
 delivery against the 2D model's, within 15% or not.
 
-    python experiments/fleet_physics_round.py                      # site128, 4 rovers, clearances 0 1 2
-    python experiments/fleet_physics_round.py --clearances 2 --rovers 8
+    python -m experiments.fleet_physics_round                      # site128, 4 rovers, clearances 0 1 2
+    python -m experiments.fleet_physics_round --clearances 2 --rovers 8
 
 Results: ``experiments/results/fleet_physics_round.{json,md}`` (``--name`` sets the stem).
 """
@@ -20,12 +20,11 @@ import platform
 import time
 from pathlib import Path
 
-from experiments._results import write_results
+from experiments.results_io import write_results
 from jaxplan import FabricParams
-from jaxplan.fleet import FleetConfig, run_fleet, site
-from jaxplan.fleet.physics import check_first_round
-from jaxplan.transport.episode import EpisodeParams
-from jaxplan.transport.spillage.capacity import ROVER_FIT
+from jaxplan.fleet import FleetConfig, check_first_round, run_fleet, site
+from jaxplan.transport import EpisodeParams
+from jaxplan.transport.spillage import ROVER_FIT
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
@@ -61,9 +60,10 @@ def _markdown(result) -> str:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="python -m experiments.fleet_physics_round",
+                                     description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="example:\n  python experiments/fleet_physics_round.py --clearances 2")
+                                     epilog="example:\n  python -m experiments.fleet_physics_round --clearances 2")
     parser.add_argument("--site", default="site128", help="built-in fleet site; default site128")
     parser.add_argument("--rovers", type=int, default=4, help="fleet size; default 4")
     parser.add_argument("--clearances", type=int, nargs="+", default=[0, 1, 2], choices=(0, 1, 2))

@@ -5,8 +5,8 @@ each: the first call of the jitted step (compile and one step) and the median wa
 steps that applied a push and assigned none (the refresh, with motion), and whether both runs gave
 the same rover cells and counts at every step. Results: ``experiments/results/fleet_rebuild.{json,md}``.
 
-    python experiments/fleet_rebuild.py                  # site128, 4 rovers, 400 steps
-    python experiments/fleet_rebuild.py --site site256 --rovers 8
+    python -m experiments.fleet_rebuild                  # site128, 4 rovers, 400 steps
+    python -m experiments.fleet_rebuild --site site256 --rovers 8
 """
 from __future__ import annotations
 
@@ -20,17 +20,17 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from experiments._results import write_results
+from experiments.results_io import write_results
 from jaxplan import FabricParams
 from jaxplan.fleet import FleetConfig, reset, site, step
-from jaxplan.transport import spillage
-from jaxplan.transport.episode import EpisodeParams
+from jaxplan.transport import EpisodeParams
+from jaxplan.transport.spillage import SpillParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 
 def _run(scene, n: int, steps: int, rebuild: str) -> dict:
-    params, spill, ep = FabricParams(), spillage.SpillParams(), EpisodeParams(max_pushes=0, rebuild=rebuild)
+    params, spill, ep = FabricParams(), SpillParams(), EpisodeParams(max_pushes=0, rebuild=rebuild)
     config = FleetConfig(n, "coordinated")
     state = jax.jit(reset, static_argnames="config")(scene, params, spill, ep, config, max_pushes=1_000_000)
     jitted = jax.jit(step, static_argnames=("config", "evaluator"))
@@ -53,9 +53,9 @@ def _run(scene, n: int, steps: int, rebuild: str) -> dict:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="python -m experiments.fleet_rebuild", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="example:\n  python experiments/fleet_rebuild.py --rovers 4")
+                                     epilog="example:\n  python -m experiments.fleet_rebuild --rovers 4")
     parser.add_argument("--site", default="site128", help="built-in fleet site; default site128")
     parser.add_argument("--rovers", type=int, default=4, help="fleet size; default 4")
     parser.add_argument("--steps", type=int, default=400, help="steps per run; default 400")

@@ -17,19 +17,20 @@ row: ``experiments/results/gpu_check.{json,md}`` (``--stem`` to rename).
 
 Examples::
 
-    python experiments/gpu_check.py                       # on a GPU machine
-    python experiments/gpu_check.py --tiny --engines c    # CPU smoke run (seconds)
+    python -m experiments.gpu_check                       # on a GPU machine
+    python -m experiments.gpu_check --tiny --engines c    # CPU smoke run (seconds)
 """
 from __future__ import annotations
 
 import argparse
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from jaxplan.transport.physics import plan_routes, world_for_routes
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -44,8 +45,7 @@ def device_name() -> str:
 
 def push_row(spec: str, batch: int, engine: str, repeats: int) -> dict:
     from experiments.mjx_scale import make_scene, push_candidates
-    from jaxplan.pusharound.physics import build_push_world
-    from jaxplan.pusharound.push import make_push_simulator, simulate_pushes
+    from jaxplan.pusharound import build_push_world, make_push_simulator, simulate_pushes
 
     world = build_push_world(make_scene(spec))
     tasks = push_candidates(world, batch)
@@ -67,14 +67,13 @@ def rover_rows(scene_name: str, n_routes: int, batches, engines, ticks: int, rep
     from experiments.bench_rover import small_scene
     from experiments.bench_rover_throughput import measure_engine, tile_routes
     from jaxplan import builtin_scene
-    from jaxplan.transport.rover import bridge
-    from jaxplan.transport.rover.model import RoverConfig
+    from jaxplan.transport.physics import RoverConfig
 
     if not room():
         return [{"part": "rover", "engine": e, "batch": b, "skipped": "time budget"} for b in batches for e in engines]
     scene = small_scene() if scene_name == "small" else builtin_scene(scene_name)
-    _, routes, _ = bridge.plan_routes(scene, n_routes=n_routes)
-    world = bridge.world_for_routes(scene, routes, RoverConfig())
+    _, routes, _ = plan_routes(scene, n_routes=n_routes)
+    world = world_for_routes(scene, routes, RoverConfig())
     sub = world.config.substeps
     rows = []
     for b in batches:
@@ -126,7 +125,7 @@ def markdown(result: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.gpu_check", description=__doc__.split("\n")[0])
     ap.add_argument("--engines", nargs="+", default=["c", "mjx", "warp"], choices=["c", "mjx", "warp"])
     ap.add_argument("--push-scene", default="nominal:0")
     ap.add_argument("--push-batch", type=int, default=64)
@@ -145,9 +144,8 @@ def main(argv=None) -> dict:
     if args.tiny:
         args.push_scene, args.push_batch, args.rover_scene, args.routes = "corridor:0", 2, "small", 2
         args.batches, args.ticks, args.fabric_sizes, args.repeats = [2], 4, [25], 1
-    sys.path.insert(0, str(ROOT))
-    from experiments._results import write_results
-    from jaxplan.physics.rollout import warp_available
+    from experiments.results_io import write_results
+    from jaxplan.physics import warp_available
 
     engines = [e for e in args.engines if e != "warp" or warp_available()]
     t_start = time.perf_counter()

@@ -14,10 +14,10 @@ verdicts and final poses per engine in ``mjx_scale_outcomes.json.gz``.
 
 Examples::
 
-    python experiments/mjx_scale.py --scenes nominal:0 --batch 4          # smoke run
-    python experiments/mjx_scale.py                                        # 3 nominal, dense, density x 64
-    python experiments/mjx_scale.py --compile-only --stem mjx_scale_compile  # compile time and peak only
-    python experiments/mjx_scale.py --rover 1 4 16 --stem mjx_rover        # rover, 64 / 256 / 1,024 particles
+    python -m experiments.mjx_scale --scenes nominal:0 --batch 4          # smoke run
+    python -m experiments.mjx_scale                                        # 3 nominal, dense, density x 64
+    python -m experiments.mjx_scale --compile-only --stem mjx_scale_compile  # compile time and peak only
+    python -m experiments.mjx_scale --rover 1 4 16 --stem mjx_rover        # rover, 64 / 256 / 1,024 particles
 
 ``--rover K ...``: the rover world of the ``default`` scene's 6 first routes with ``K`` particles
 per object (64 particle bodies per unit of K), ``--batch`` routes (the 6 tiled) x ``--rover-ticks``
@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxplan.transport.physics import check_routes, plan_routes, pursuit_policy, world_for_routes
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCENES = ("nominal:0", "nominal:1", "nominal:2", "dense:0", "density:0:45")
@@ -46,7 +48,7 @@ POSE_TOL = (0.01, np.deg2rad(2.0))   # m, rad
 
 def make_scene(spec: str):
     """``nominal:SEED``, ``dense:SEED``, ``density:SEED:N`` or ``corridor:SEED`` -> PushScene."""
-    from jaxplan.pusharound.scenarios import corridor_scene, dense_scene, density_scene, nominal_scene
+    from jaxplan.pusharound import corridor_scene, dense_scene, density_scene, nominal_scene
 
     kind, *args = spec.split(":")
     if kind == "nominal":
@@ -63,7 +65,7 @@ def make_scene(spec: str):
 def push_candidates(world, n: int, speed: float = 0.3, duration: float = 2.0):
     """``n`` candidate pushes (a batched PushTask): every movable in turn, 8 world directions, teams
     of 1 and 2, kept when they pass the quick-pass; cycled when fewer pass."""
-    from jaxplan.pusharound.push import direction_tasks, quick_pass, stack_tasks
+    from jaxplan.pusharound import direction_tasks, quick_pass, stack_tasks
 
     tasks = []
     for m in range(len(world.scene.movables)):
@@ -113,12 +115,11 @@ def child(spec: str, batch: int, backend: str, opt: str = "fast", compile_only: 
           sleep: bool = True) -> dict:
     """One engine's batched rollout in this process (the peak RSS is this run's). ``sleep``: the C
     engine's island sleeping (MJX has none)."""
-    from jaxplan.pusharound.physics import PushPhysicsConfig, build_push_world
-    from jaxplan.pusharound.push import make_push_simulator, simulate_pushes
+    from jaxplan.pusharound import PushPhysicsConfig, build_push_world, make_push_simulator, simulate_pushes
 
     world = build_push_world(make_scene(spec), PushPhysicsConfig(sleep=sleep))
     tasks = push_candidates(world, batch)
-    from jaxplan.physics.rollout import FAST_COMPILE
+    from jaxplan.physics import FAST_COMPILE
 
     sim = make_push_simulator(world, backend, compiler_options=FAST_COMPILE if opt == "fast" else None)
     if compile_only:   # trace + XLA compile of the batched rollout, no run
@@ -152,20 +153,19 @@ def rover_child(per_object: int, batch: int, ticks: int, opt: str, compile_only:
     particles per object."""
     from experiments.bench_rover_throughput import tile_routes
     from jaxplan import builtin_scene
-    from jaxplan.physics.rollout import FAST_COMPILE, Simulator
-    from jaxplan.transport.rover import bridge
-    from jaxplan.transport.rover.model import RoverConfig
+    from jaxplan.physics import FAST_COMPILE, Simulator
+    from jaxplan.transport.physics import RoverConfig
 
     scene = builtin_scene("default")
-    _, routes, _ = bridge.plan_routes(scene, n_routes=6)
-    world = bridge.world_for_routes(scene, routes, RoverConfig(particles_per_object=per_object))
-    sim = Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps, bounds=world.bounds,
+    _, routes, _ = plan_routes(scene, n_routes=6)
+    world = world_for_routes(scene, routes, RoverConfig(particles_per_object=per_object))
+    sim = Simulator(world.model, pursuit_policy, substeps=world.config.substeps, bounds=world.bounds,
                     backend="mjx", compiler_options=FAST_COMPILE if opt == "fast" else None)
     row = {"per_object": per_object, "particles": world.n_particles, "batch": batch, "ticks": ticks,
            "geoms": int(world.model.ngeom), **world.caps, "xla": opt}
     t0 = time.perf_counter()
     try:
-        chk = bridge.check_routes(scene, tile_routes(routes, batch), n_ticks=ticks, world=world,
+        chk = check_routes(scene, tile_routes(routes, batch), n_ticks=ticks, world=world,
                                   simulator=CompileOnly(sim) if compile_only else sim)
         row.update(run_s=time.perf_counter() - t0 - sim.compile_seconds, finite=float(np.mean(chk.outcome.finite)))
     except Compiled:
@@ -197,10 +197,9 @@ def markdown_rover(rows: list, meta: dict) -> str:
 
 
 def _subprocess(cmd: list, timeout: float, failed: dict) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    try:
-        proc = subprocess.run([sys.executable, __file__] + cmd, capture_output=True, text=True, env=env,
-                              timeout=timeout)
+    try:   # from the repository root, where ``experiments`` is importable
+        proc = subprocess.run([sys.executable, "-m", "experiments.mjx_scale", *cmd], capture_output=True, text=True,
+                              cwd=ROOT, timeout=timeout)
     except subprocess.TimeoutExpired:
         return {**failed, "error": f"timed out after {timeout:.0f} s"}
     if proc.returncode != 0:
@@ -281,7 +280,7 @@ def markdown_compile(rows: list, meta: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.mjx_scale", description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="+", default=list(SCENES))
     ap.add_argument("--batch", type=int, default=64)
     ap.add_argument("--backend", default="mjx")
@@ -304,8 +303,7 @@ def main(argv=None) -> dict:
     if args.rover_child:
         print(json.dumps(rover_child(args.rover_child, args.batch, args.rover_ticks, args.xla, args.compile_only)))
         return {}
-    sys.path.insert(0, str(ROOT))
-    from experiments._results import write_results
+    from experiments.results_io import write_results
 
     rows = []
     meta = {"machine": f"{platform.machine()}, {os.cpu_count()} cores", "batch": args.batch, "ticks": 80,

@@ -10,9 +10,9 @@ episode (sources and delivered mass per tick), and which one ``auto`` picks. Wri
 (``bench_fabric.make_scene``: the paper's protocol, density ``--density``, seed 0), named ``randomN``,
 to place the threshold between the built-in scenes' sizes.
 
-    python experiments/rebuild_modes.py
-    python experiments/rebuild_modes.py --scenes default sparse65 --repeats 3
-    python experiments/rebuild_modes.py --random 35 40 45 50 55
+    python -m experiments.rebuild_modes
+    python -m experiments.rebuild_modes --scenes default sparse65 --repeats 3
+    python -m experiments.rebuild_modes --random 35 40 45 50 55
 """
 from __future__ import annotations
 
@@ -25,9 +25,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from experiments._results import write_results
+from experiments.results_io import write_results
 from jaxplan import BUILTIN_SCENES, builtin_scene, run_episode
-from jaxplan.transport.episode import SELECTIVE_MIN_CELLS, EpisodeParams, rebuild_mode
+from jaxplan.transport import SELECTIVE_MIN_CELLS, EpisodeParams, rebuild_mode
 from jaxplan.transport.spillage import SpillParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -78,7 +78,7 @@ def markdown(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.rebuild_modes", description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="+", default=list(BUILTIN_SCENES), choices=list(BUILTIN_SCENES))
     ap.add_argument("--repeats", type=int, default=2, help="episodes per scene and rebuild (default 2)")
     ap.add_argument("--max-pushes", type=int, default=30, help="push budget per episode (default 30)")

@@ -13,8 +13,8 @@ call both ways: ``selection.reselect`` (only sources with two or more candidates
 ``--repeats`` interleaved warm calls each, and whether the two fabrics are identical. Writes
 ``experiments/results/reselect_episodes.{json,md}``.
 
-    python experiments/reselect_episodes.py                      # the four built-in scenes
-    python experiments/reselect_episodes.py --scenes default --lam 0.3
+    python -m experiments.reselect_episodes                      # the four built-in scenes
+    python -m experiments.reselect_episodes --scenes default --lam 0.3
 """
 from __future__ import annotations
 
@@ -30,8 +30,7 @@ import jax
 import numpy as np
 
 from jaxplan import BUILTIN_SCENES, FabricParams, build_fabric, builtin_scene, run_episode
-from jaxplan.transport import selection
-from jaxplan.transport.episode import EpisodeParams, default_walk_cap
+from jaxplan.transport import EpisodeParams, default_walk_cap, reselect, reselect_jit
 from jaxplan.transport.spillage import SpillParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -58,8 +57,8 @@ def one_call(scene_name: str, lam: float, repeats: int) -> dict:
     scene, params, spill = builtin_scene(scene_name), FabricParams(), SpillParams(lam=lam)
     fabric = build_fabric(scene, params)
     walk = default_walk_cap(scene.shape)
-    compact = lambda: selection.reselect(scene, params, fabric, spill, max_steps=walk)  # noqa: E731
-    every = lambda: selection.reselect_jit(scene, params, fabric, spill, max_steps=walk)  # noqa: E731
+    compact = lambda: reselect(scene, params, fabric, spill, max_steps=walk)  # noqa: E731
+    every = lambda: reselect_jit(scene, params, fabric, spill, max_steps=walk)  # noqa: E731
     same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(jax.tree.leaves(compact()),
                                                                              jax.tree.leaves(every())))
     times = [(_call_ms(compact), _call_ms(every)) for _ in range(repeats)]
@@ -90,7 +89,8 @@ def markdown(rows: list, calls: list, args) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="python -m experiments.reselect_episodes", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", nargs="+", default=list(BUILTIN_SCENES), choices=BUILTIN_SCENES)
     parser.add_argument("--lam", type=float, default=SpillParams().lam, help="spill per radian of turning")
     parser.add_argument("--max-pushes", type=int, default=200, help="push budget per episode")

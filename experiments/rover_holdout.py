@@ -12,8 +12,8 @@ under 0.25 cell, as the issue's target. Nothing here is fitted.
 
 Results: ``experiments/results/rover_holdout.{json,md}``.
 
-    python experiments/rover_holdout.py
-    python experiments/rover_holdout.py --routes 2 --layouts 2 --sparse 25 --dense 20
+    python -m experiments.rover_holdout
+    python -m experiments.rover_holdout --routes 2 --layouts 2 --sparse 25 --dense 20
 """
 from __future__ import annotations
 
@@ -26,17 +26,19 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._results import write_results
 from experiments.bench_fabric import make_scene
 from experiments.bench_rover import (
     PUSH_IN,
     RESULTS_DIR,
     TARGET_LATERAL,
-    _route_inputs,
     layout_row,
+    route_inputs,
     stack_inputs,
     within_target,
 )
+from experiments.results_io import write_results
+from jaxplan.transport.physics import check_routes, plan_routes
+from jaxplan.transport.spillage import predict_delivered, predict_missed
 
 SEED = 1
 SPARSE_DENSITY = 0.15     # sparse65's share of occupied cells
@@ -44,34 +46,32 @@ DENSE_DENSITY = 0.5
 
 
 def _models(results_dir: Path) -> dict:
-    from jaxplan.transport.spillage import capacity as sc
+    from jaxplan.transport.spillage import ROVER_FIT, CapacitySpillParams
 
-    models = {"turning (ROVER_FIT)": sc.ROVER_FIT}
+    models = {"turning (ROVER_FIT)": ROVER_FIT}
     fitted = results_dir / "rover.json"
     if fitted.exists():
         p = json.loads(fitted.read_text())["fits"]["capacity"]["in_sample"]["params"][0]
-        models["three-term (rover.json, in sample)"] = sc.CapacitySpillParams(**p)
+        models["three-term (rover.json, in sample)"] = CapacitySpillParams(**p)
     return models
 
 
 def run_scene(name: str, scene, routes_n: int, layouts: int, models: dict) -> list[dict]:
     import jax
 
-    from jaxplan.transport.rover import bridge
-    from jaxplan.transport.spillage import fit as spill_fit
 
-    _, routes, sources = bridge.plan_routes(scene, n_routes=routes_n)
+    _, routes, sources = plan_routes(scene, n_routes=routes_n)
     b = int(np.asarray(routes.n_cells).shape[0])
     batch = jax.tree.map(lambda a: np.repeat(np.asarray(a), layouts, 0), routes)
     t0 = time.perf_counter()
-    chk = bridge.check_routes(scene, batch, backend="c", push_in=PUSH_IN)
+    chk = check_routes(scene, batch, backend="c", push_in=PUSH_IN)
     wall = time.perf_counter() - t0
     per_rollout = chk.outcome.rows()
-    stacked = stack_inputs(_route_inputs(scene, routes))
-    preds = {label: np.asarray(spill_fit.predict_delivered(*stacked, params), np.float64)
+    stacked = stack_inputs(route_inputs(scene, routes))
+    preds = {label: np.asarray(predict_delivered(*stacked, params), np.float64)
              for label, params in models.items()}
     # where the 2D model puts the rest: left on the route's cells (the miss term) and spilled
-    left = {label: np.asarray(spill_fit.predict_missed(*stacked, params.miss), np.float64)
+    left = {label: np.asarray(predict_missed(*stacked, params.miss), np.float64)
             for label, params in models.items()}
     collected_2d = np.asarray(stacked[2], np.float64).sum(-1)
     rows = []
@@ -122,7 +122,7 @@ def markdown(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.rover_holdout", description=__doc__.split("\n")[0])
     ap.add_argument("--routes", type=int, default=6, help="routes per scene (default 6)")
     ap.add_argument("--layouts", type=int, default=6, help="particle layouts per route (default 6)")
     ap.add_argument("--sparse", type=int, default=45, help=f"side of the sparse scene (density {SPARSE_DENSITY})")

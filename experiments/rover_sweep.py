@@ -13,8 +13,8 @@ time to the stop (s), reached, finite; and the wall time of the whole batch. Res
 
 Examples::
 
-    python experiments/rover_sweep.py                       # default scene, C engine
-    python experiments/rover_sweep.py --backend mjx         # on a GPU (the device tool)
+    python -m experiments.rover_sweep                       # default scene, C engine
+    python -m experiments.rover_sweep --backend mjx         # on a GPU (the device tool)
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.transport.scenes import BUILTIN_SCENES
+from jaxplan.transport import BUILTIN_SCENES
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
@@ -46,7 +46,7 @@ def _floats(text):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.rover_sweep", description=__doc__.split("\n")[0])
     ap.add_argument("--scene", default="default", choices=BUILTIN_SCENES, help="built-in scene (default: default)")
     ap.add_argument("--frictions", type=_floats, default=[0.3, 0.6, 0.9], help="sliding frictions, e.g. 0.3,0.6,0.9")
     ap.add_argument("--speeds", type=_floats, default=[0.5, 0.8, 1.2], help="blade speeds in cells/s, e.g. 0.5,0.8")
@@ -56,10 +56,10 @@ def main(argv=None):
     import jax
 
     from jaxplan import builtin_scene
-    from jaxplan.transport.rover import bridge
+    from jaxplan.transport.physics import check_routes, plan_routes
 
     scene = builtin_scene(args.scene)
-    _, routes, sources = bridge.plan_routes(scene, n_routes=1)
+    _, routes, sources = plan_routes(scene, n_routes=1)
     pairs = list(itertools.product(args.frictions, args.speeds))
     batch = jax.tree.map(lambda a: np.repeat(np.asarray(a)[:1], len(pairs), 0), routes)
     friction = np.array([f for f, _ in pairs])
@@ -67,7 +67,7 @@ def main(argv=None):
     print(f"{scene.name or args.scene}: route from {tuple(int(v) for v in sources[0])}, "
           f"{len(pairs)} (friction, speed) pairs in one batch on {args.backend} ...", flush=True)
     t0 = time.perf_counter()
-    chk = bridge.check_routes(scene, batch, backend=args.backend, friction=friction, speed=speed)
+    chk = check_routes(scene, batch, backend=args.backend, friction=friction, speed=speed)
     wall = time.perf_counter() - t0
     rows = []
     for (f, v), row in zip(pairs, chk.outcome.rows()):

@@ -13,8 +13,8 @@ output (value, raw, psi, heat, highways, anchor weights) with central finite dif
 random directions, w.r.t. theta_tol, tau_h, anchor_lambda and the counts, at t = 0.05 and 0.2.
 Writes ``experiments/results/soft_convergence.{json,md,png}``.
 
-    python experiments/soft_convergence.py                  # 200 grids (about 5 minutes on 1 core)
-    python experiments/soft_convergence.py --grids 20
+    python -m experiments.soft_convergence                  # 200 grids (about 5 minutes on 1 core)
+    python -m experiments.soft_convergence --grids 20
 """
 from __future__ import annotations
 
@@ -28,8 +28,9 @@ import jax.numpy as jnp
 import numpy as np
 from shapely.geometry import MultiPolygon
 
-from experiments._results import write_results
+from experiments.results_io import write_results
 from jaxplan import FabricParams, Scene, box, build_fabric, circle
+from jaxplan.tune import gradient_probe
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 TEMPERATURES = (0.5, 0.2, 0.1, 0.05, 0.02, 0.01)
@@ -85,17 +86,8 @@ def grid_errors(scene, params) -> dict:
     return out
 
 
-def probe_scalar(scene, theta, tau, lam, obj, t):
-    """A scalar touching value, raw, psi, heat, highways and the anchor weights (the gradient probe)."""
-    f = build_fabric(scene.with_obj(obj), FabricParams(theta_tol_deg=theta, tau_h=tau, anchor_lambda=lam,
-                                                       temperature=t))
-    pos = jnp.arange(f.anchor_weights.shape[-1], dtype=jnp.float32)
-    return (jnp.sum(f.value) + jnp.sum(f.raw) + jnp.sum(f.psi) + jnp.sum(f.heat)
-            + jnp.sum(f.highways * f.heat) + jnp.sum(f.anchor_weights * pos) * 0.1)
-
-
-_value = jax.jit(probe_scalar)
-_grad = jax.jit(jax.grad(probe_scalar, argnums=(1, 2, 3, 4)))
+_value = jax.jit(gradient_probe)
+_grad = jax.jit(jax.grad(gradient_probe, argnums=(1, 2, 3, 4)))
 
 
 def gradient_checks(scene, params, rng) -> list[dict]:
@@ -198,7 +190,7 @@ def plot(result: dict, path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.soft_convergence", description=__doc__.split("\n")[0])
     ap.add_argument("--grids", type=int, default=200, help="random grids (default 200)")
     ap.add_argument("--fd-grids", type=int, default=10, help="grids of side 8 for the gradient checks (default 10)")
     ap.add_argument("--seed", type=int, default=0)

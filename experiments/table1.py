@@ -21,9 +21,9 @@ Every trial is appended to ``<out>/table1_trials.jsonl`` as soon as it ends; a r
 already there (resume). Then ``<out>/table1.json`` and ``<out>/table1.md`` are written from all
 recorded trials, with the paper's numbers beside ours.
 
-    python experiments/table1.py                           # 40 trials, all planners, nominal
-    python experiments/table1.py --planners ours --trials 40 --scenes nominal,dense30,density
-    python experiments/table1.py --quick                    # smoke run: corridor scene, 1 trial
+    python -m experiments.table1                           # 40 trials, all planners, nominal
+    python -m experiments.table1 --planners ours --trials 40 --scenes nominal,dense30,density
+    python -m experiments.table1 --quick                    # smoke run: corridor scene, 1 trial
 
 The machine is a 2-core CPU shared with other agents: timings are noisy (said in the outputs).
 """
@@ -33,20 +33,22 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from jaxplan.pusharound.baselines import BASELINES, BaselineConfig, schedule_duration  # noqa: E402
-from jaxplan.pusharound.physics import build_push_world  # noqa: E402
-from jaxplan.pusharound.push import make_push_simulator  # noqa: E402
-from jaxplan.pusharound.ranking import RankingParams  # noqa: E402
-from jaxplan.pusharound.scenarios import corridor_scene, dense_scene, density_scene, nominal_scene  # noqa: E402
-from jaxplan.pusharound.search import SearchConfig, plan_pushes  # noqa: E402
+from jaxplan.pusharound import (
+    RankingParams,
+    build_push_world,
+    corridor_scene,
+    dense_scene,
+    density_scene,
+    make_push_simulator,
+    nominal_scene,
+)
+from jaxplan.pusharound.baselines import BASELINES, BaselineConfig, schedule_duration
+from jaxplan.pusharound.search import SearchConfig, plan_pushes
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SHARED_NOTE = ("2-core CPU, shared while the trials ran (two harness processes side by side, and other work): "
@@ -289,7 +291,7 @@ def _trial_key(r: dict) -> tuple:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.table1", description=__doc__.split("\n")[0])
     ap.add_argument("--trials", type=int, default=40, help="trials (seeds 0..T-1) per planner and scene")
     ap.add_argument("--planners", default=",".join(PLANNERS), help=f"comma list of {PLANNERS}")
     ap.add_argument("--scenes", default="nominal", help="comma list of nominal,dense30,density,corridor")

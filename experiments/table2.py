@@ -40,18 +40,16 @@ from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):   # run as a script: make ``experiments`` importable
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from experiments.bench_fabric import (  # noqa: E402
+from experiments.bench_fabric import (
     RESULTS_DIR,
     PeakMemory,
-    _rss_bytes,
     bootstrap_ci,
     environment,
     loglog_fit,
     make_scene,
+    rss_bytes,
 )
+from jaxplan.transport import execute_jit, quantize, routes_from_paths, selective_rebuild
 
 PAPER = {  # Table 2: medians (95% CI) in ms
     "full": {25: 420.0, 45: 980.0, 65: 1910.0},
@@ -136,15 +134,15 @@ def run_instance(n: int, density: float, seed: int, args, params, spill) -> dict
     import jax
 
     from jaxplan import build_fabric
-    from jaxplan.transport import execute, rebuild
+    from jaxplan.transport import quantize, selective_rebuild
 
     scene = make_scene(n, density, seed)
-    scene = scene.with_obj(execute.quantize(scene.obj))
+    scene = scene.with_obj(quantize(scene.obj))
     objects = float(np.sum(np.where(np.asarray(scene.target_mask), 0.0, np.asarray(scene.obj))))
     fabric = jax.block_until_ready(build_fabric(scene, params))
     # warm-up: compiles the rebuild's listing (nothing is dirty, so no buffer); the buffers compile when
     # first needed, inside a tick, where the median of the repeats keeps the compile out of the timing
-    jax.block_until_ready(rebuild.selective_rebuild(scene, params, fabric, np.zeros(scene.shape, bool)))
+    jax.block_until_ready(selective_rebuild(scene, params, fabric, np.zeros(scene.shape, bool)))
     with PeakMemory() as warm_peak:
         ticks = _ticks(scene, fabric, args, params, spill)
     row = {"n": n, "density": density, "seed": seed, "objects": objects,
@@ -165,11 +163,10 @@ def _best_route(scene, fabric, max_steps: int):
     import jax.numpy as jnp
 
     from jaxplan import extract_paths
-    from jaxplan.transport import execute
 
     source = jnp.unravel_index(jnp.argmax(jnp.where(fabric.occupied, fabric.value, -jnp.inf)), scene.shape)
     paths = extract_paths(fabric, jnp.stack(source)[None], max_steps=max_steps)
-    return jax.tree.map(lambda a: a[0], execute.routes_from_paths(scene, paths)), jnp.any(fabric.occupied)
+    return jax.tree.map(lambda a: a[0], routes_from_paths(scene, paths)), jnp.any(fabric.occupied)
 
 
 _best_route_jit = None
@@ -180,7 +177,6 @@ def _ticks(scene, fabric, args, params, spill) -> list[dict]:
     import jax
 
     from jaxplan import build_fabric
-    from jaxplan.transport import execute, rebuild
 
     global _best_route_jit
     if _best_route_jit is None:
@@ -191,18 +187,18 @@ def _ticks(scene, fabric, args, params, spill) -> list[dict]:
         route, any_left = _best_route_jit(scene, fabric, 4 * 2 * n)
         if not bool(any_left):
             break
-        new_obj, push = execute.execute_jit(scene, route, spill)
+        new_obj, push = execute_jit(scene, route, spill)
         scene = scene.with_obj(new_obj)
         before = fabric
         full_times, sel_times = [], []
         mem = {}
         for r in range(args.repeats):   # alternate, so drifts hit both alike
-            rss0 = _rss_bytes()
+            rss0 = rss_bytes()
             full, t_full = _timed(lambda: build_fabric(scene, params), 1)
-            rss1 = _rss_bytes()
-            (sel, affected), t_sel = _timed(lambda: rebuild.selective_rebuild(scene, params, before,
+            rss1 = rss_bytes()
+            (sel, affected), t_sel = _timed(lambda: selective_rebuild(scene, params, before,
                                                                                 push.changed), 1)
-            rss2 = _rss_bytes()
+            rss2 = rss_bytes()
             if r == 0:
                 mem = {"full_delta_mb": _mb(rss0, rss1), "selective_delta_mb": _mb(rss1, rss2)}
             full_times += t_full
@@ -217,10 +213,9 @@ def _ticks(scene, fabric, args, params, spill) -> list[dict]:
 
 def reference_ablation(n: int, density: float, seed: int, args) -> dict:
     from jaxplan.reference import reference_fabric
-    from jaxplan.transport import execute
 
     scene = make_scene(n, density, seed)
-    scene = scene.with_obj(execute.quantize(scene.obj))
+    scene = scene.with_obj(quantize(scene.obj))
     call = (np.asarray(scene.obj), np.asarray(scene.target_mask), np.asarray(scene.dist), np.asarray(scene.tvec),
             float(np.asarray(scene.cell_size)), args.theta_tol)
     out = {}
@@ -340,7 +335,7 @@ def markdown(result) -> str:
               "Selective update = the upstream closure of the changed cells (by whole-grid dilation up to "
               "80^2, listed breadth-first above) + their tables by the compact warm-started policy "
               "iteration and sidetracks + psi and heatmap refreshed along their old and new paths (grids "
-              "from 128^2; the whole grid below) and the highways (docs/conventions.md). Connectors are "
+              "from 128^2; the whole grid below) and the highways (docs/transport.md). Connectors are "
               "not part of either column (timed separately below).", ""]
     if result.get("connectors"):
         lines.append("Connector planning (plan_connectors, all roots, up to 32 anchors), ms: " + "; ".join(
@@ -440,7 +435,7 @@ def memory_only(args) -> int:
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="python -m experiments.table2", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sizes", type=int, nargs="*", default=[25, 45, 65], help="paper grid sides")
     p.add_argument("--big-sizes", type=int, nargs="*", default=[128, 256, 512], help="larger grid sides")
@@ -486,7 +481,7 @@ def main(argv=None) -> int:
         return _probe(args.probe, args)
     if args.memory_only:
         return memory_only(args)
-    baseline = _rss_bytes() or 0
+    baseline = rss_bytes() or 0
     import jax
 
     from jaxplan import FabricParams, SpillParams

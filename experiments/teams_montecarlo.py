@@ -23,8 +23,8 @@ Results: ``experiments/results/teams_montecarlo.json`` and ``.md`` (``teams_mont
 
 Examples::
 
-    python experiments/teams_montecarlo.py              # 10,000 sites
-    python experiments/teams_montecarlo.py --quick      # 500 sites, smoke run
+    python -m experiments.teams_montecarlo              # 10,000 sites
+    python -m experiments.teams_montecarlo --quick      # 500 sites, smoke run
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ TARGET_SITES = 10_000
 
 
 def _parse(argv):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.teams_montecarlo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--sites", type=int, default=TARGET_SITES, help="number of random sites")
     ap.add_argument("--seed", type=int, default=0, help="seed of the site draws")
     ap.add_argument("--steps", type=int, default=1350, help="steps of 1 s (deadline 900 s + 450)")
@@ -109,9 +109,7 @@ def main(argv=None) -> int:
     import jax
     import numpy as np
 
-    from jaxplan.teams import STRATEGIES, TeamsConfig, random_sites
-    from jaxplan.teams.params import validate_site
-    from jaxplan.teams.sim import _run_sites
+    from jaxplan.teams import STRATEGIES, TeamsConfig, random_sites, run_sites_jit, validate_site
 
     sites = random_sites(args.seed, args.sites)
     cfg0 = TeamsConfig(n_trucks=10, n_steps=args.steps)
@@ -121,7 +119,7 @@ def main(argv=None) -> int:
     for strategy in STRATEGIES:
         cfg = cfg0.replace(strategy=strategy)
         start = time.perf_counter()
-        compiled = _run_sites.lower(cfg, params).compile()
+        compiled = run_sites_jit.lower(cfg, params).compile()
         compile_s = time.perf_counter() - start
         times = []
         for _ in range(args.repeats):

@@ -1,7 +1,7 @@
 """Tune theta_tol, tau_H and the anchor lambda by gradient through the soft fabric, then check the
 tuned parameters against the defaults on held-out scenes with the hard episode loop.
 
-    PYTHONPATH=. python experiments/tune_fabric.py [--train 12 --heldout 16 --side 16 --steps 80 --seeds 0 1 2]
+    python -m experiments.tune_fabric [--train 12 --heldout 16 --side 16 --steps 80 --seeds 0 1 2]
 
 For every seed and every objective variant: fit on ``--train`` random scenes (that seed), evaluate
 default and tuned parameters on ``--heldout`` other scenes with ``jaxplan.run_episode``. Variants
@@ -68,7 +68,7 @@ def run_one(seed: int, variant: str, args) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m experiments.tune_fabric", description=__doc__.splitlines()[0])
     ap.add_argument("--train", type=int, default=12, help="training scenes per seed")
     ap.add_argument("--heldout", type=int, default=16, help="held-out scenes per seed (seed + 10000)")
     ap.add_argument("--side", type=int, default=16, help="grid side (cells)")
@@ -100,7 +100,7 @@ def _markdown(out: dict, path: Path) -> None:
     lines = [
         "# Fabric parameters tuned by gradient (soft fabric) vs defaults, held-out hard episodes",
         "",
-        f"Command: `PYTHONPATH=. python experiments/tune_fabric.py --train {a['train']} --heldout {a['heldout']} "
+        f"Command: `python -m experiments.tune_fabric --train {a['train']} --heldout {a['heldout']} "
         f"--side {a['side']} --steps {a['steps']} --lr {a['lr']} --temperature {a['temperature']} "
         f"--spill-lam {a['spill_lam']} --max-pushes {a['max_pushes']} --seeds {' '.join(map(str, a['seeds']))} "
         f"--variants {' '.join(a['variants'])}{' --tune-spill' if a.get('tune_spill') else ''}`",

@@ -11,8 +11,8 @@ Reports: the recovery on clean data (target: both parameters within 2%), the err
 
 Examples::
 
-    python experiments/tune_spill.py            # ~1 minute
-    python experiments/tune_spill.py --seeds 10 --routes 256
+    python -m experiments.tune_spill            # ~1 minute
+    python -m experiments.tune_spill --seeds 10 --routes 256
 """
 from __future__ import annotations
 
@@ -102,7 +102,7 @@ def markdown(res: dict) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m experiments.tune_spill", description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, default=5, help="data sets per noise level")
     p.add_argument("--routes", type=int, default=128, help="routes per data set")
     args = p.parse_args(argv)

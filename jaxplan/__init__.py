@@ -8,13 +8,14 @@ Public API::
     episode = jaxplan.run_episode(scene)      # plan, push, spill, rebuild until delivered
 
 Each system is a package (``jaxplan.transport``, ``jaxplan.fleet``, ``jaxplan.pusharound``,
-``jaxplan.teams``) whose public API is re-exported here; docs/architecture.md is the map.
+``jaxplan.teams``) whose entry points are re-exported here; docs/architecture.md is the map. Names
+that only make sense inside one system (the transport episode's ``reset`` and ``step``, its ``Push``
+and ``Route`` records) stay in that system's package.
 """
 from jaxplan.core import limit_malloc_arenas, single_cpu
 from jaxplan.transport import (
     BUILTIN_SCENES,
     DEFAULT_SCENE,
-    Affected,
     Connectors,
     Episode,
     EpisodeParams,
@@ -22,14 +23,10 @@ from jaxplan.transport import (
     Fabric,
     FabricParams,
     Paths,
-    Push,
-    Route,
     Scene,
     Selection,
     SoftFabric,
     SpillParams,
-    StepRecord,
-    Table,
     box,
     build_fabric,
     builtin_scene,
@@ -39,11 +36,9 @@ from jaxplan.transport import (
     random_scene,
     refresh_connectors,
     reselect,
-    reset,
     run_episode,
     select_routes,
     selective_rebuild,
-    step,
 )
 
 # PushAround, the team model, sweeps and tuning load on first use: each pulls in libraries (MuJoCo,
@@ -58,14 +53,20 @@ _LAZY = {
 _LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference", "cli", "fleet")
 
 __all__ = [
-    "BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState",
-    "Fabric", "FabricParams", "FleetConfig", "FleetRun", "Paths", "Push", "PushScene", "RankingParams", "Route",
-    "Scene", "SearchConfig",
-    "Selection", "SiteParams", "SoftFabric", "SpillParams", "StepRecord", "Table", "TeamsConfig", "box",
-    "build_fabric", "build_wccg", "builtin_scene", "circle", "connectivity", "extract_paths", "limit_malloc_arenas",
-    "nominal_scene", "paper_scenario", "plan_connectors", "plan_pushes", "random_scene", "random_sites",
-    "rank_gaps", "refresh_connectors", "reselect", "reset", "run_episode", "run_fleet", "run_sites", "select_routes",
-    "selective_rebuild", "simulate_site", "single_cpu", "step", "sweep", "tune",
+    # shared
+    "limit_malloc_arenas", "single_cpu", "sweep", "tune",
+    # transport
+    "BUILTIN_SCENES", "DEFAULT_SCENE", "Connectors", "Episode", "EpisodeParams", "EpisodeState", "Fabric",
+    "FabricParams", "Paths", "Scene", "Selection", "SoftFabric", "SpillParams", "box", "build_fabric",
+    "builtin_scene", "circle", "extract_paths", "plan_connectors", "random_scene", "refresh_connectors", "reselect",
+    "run_episode", "select_routes", "selective_rebuild",
+    # fleet
+    "FleetConfig", "FleetRun", "run_fleet",
+    # PushAround
+    "PushScene", "RankingParams", "SearchConfig", "build_wccg", "connectivity", "nominal_scene", "plan_pushes",
+    "rank_gaps",
+    # teams
+    "SiteParams", "TeamsConfig", "paper_scenario", "random_sites", "run_sites", "simulate_site",
 ]
 __version__ = "0.1.0"
 

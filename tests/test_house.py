@@ -9,6 +9,11 @@
   ``jaxplan.cli``.
 - Each package lists its public API in ``__all__``, every listed name exists, and the names users
   call are importable from ``jaxplan``.
+- A module imports another package only through names in that package's ``__all__`` (or a
+  subpackage's), never through its modules; ``experiments/`` obeys the same rule, and the private-name
+  rule.
+- ``reference/`` imports nothing from the kernels it checks (only itself), and production code
+  imports nothing from ``reference/``.
 """
 from __future__ import annotations
 
@@ -18,8 +23,10 @@ from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "jaxplan"
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "jaxplan"
 MODULES = sorted(PACKAGE.rglob("*.py"))
+EXPERIMENTS = sorted((ROOT / "experiments").rglob("*.py"))
 
 
 def _module_name(path: Path) -> str:
@@ -45,7 +52,7 @@ def _is_module(dotted: str) -> bool:
     return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
 
 
-@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
+@pytest.mark.parametrize("path", MODULES + EXPERIMENTS, ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_private_name_crosses_a_module_boundary(path):
     tree = ast.parse(path.read_text())
     problems = []
@@ -68,13 +75,13 @@ def test_no_private_name_crosses_a_module_boundary(path):
 ALLOWED = {
     "core": set(),
     "physics": set(),
-    "reference": {"transport", "pusharound", "teams"},   # the oracles read the kernels' constants
+    "reference": set(),
     "transport": {"physics"},
     "pusharound": {"physics"},
     "teams": set(),
     "tune": {"transport", "pusharound"},   # fits the fabric's and the gap ranking's parameters
     "sweep": {"transport"},
-    "fleet": {"transport", "reference"},
+    "fleet": {"transport"},
     "cli": {"transport", "pusharound", "teams", "physics", "sweep", "tune", "fleet"},
 }
 
@@ -118,3 +125,73 @@ def test_users_names_import_from_the_top(name):
 
     assert getattr(jaxplan, name) is not None
     assert name in jaxplan.__all__
+
+
+def _owner(path: Path) -> str | None:
+    """The top-level jaxplan package ``path`` belongs to; None for ``jaxplan/__init__.py`` and experiments."""
+    parts = path.relative_to(ROOT).parts
+    return parts[1] if parts[0] == "jaxplan" and len(parts) > 2 else None
+
+
+def _public_names(package: str) -> set[str]:
+    return set(getattr(importlib.import_module(package), "__all__", ()))
+
+
+def _is_package(dotted: str) -> bool:
+    return (ROOT / Path(*dotted.split(".")) / "__init__.py").is_file()
+
+
+@pytest.mark.parametrize("path", [m for m in MODULES if _owner(m)] + EXPERIMENTS,
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_other_packages_are_imported_through_their_public_api(path):
+    owner = _owner(path)
+    bad = []
+    for line, module, name, _ in _jaxplan_imports(ast.parse(path.read_text())):
+        parts = module.split(".")
+        if len(parts) > 1 and parts[1] == owner:
+            continue
+        shown = f"line {line}: {'from ' + module + ' import ' + name if name else 'import ' + module}"
+        if not _is_package(module):
+            bad.append(f"{shown} ({module} is a module, not a package: import from its package)")
+        elif name is not None and name not in _public_names(module):
+            bad.append(f"{shown} ({name} is not in {module}.__all__)")
+    assert not bad, f"{path.relative_to(ROOT)} reaches past another package's public API: {bad}"
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_reference_and_production_code_stay_apart(path):
+    in_reference = _owner(path) == "reference"
+    bad = []
+    for line, module, name, _ in _jaxplan_imports(ast.parse(path.read_text())):
+        parts = module.split(".") + ([name] if name else [])
+        imports_reference = len(parts) > 1 and parts[1] == "reference"
+        if in_reference != imports_reference and _owner(path) is not None:
+            bad.append(f"line {line}: {module}{'.' + name if name else ''}")
+    what = "imports kernels it checks" if in_reference else "imports the serial references"
+    assert not bad, f"{path.relative_to(ROOT)} {what}: {bad}"
+
+
+def test_the_architecture_picture_is_current():
+    """docs/architecture.md's package graph is what ``tools/import_graph.py`` finds in the tree."""
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, str(ROOT / "tools" / "import_graph.py"), "--check"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout + run.stderr
+
+
+SYSTEMS_WITH_SCENES = ("transport", "pusharound", "fleet", "teams")
+SYSTEMS_WITH_PHYSICS = ("transport", "pusharound", "fleet")
+
+
+@pytest.mark.parametrize("system", SYSTEMS_WITH_SCENES)
+def test_scene_generators_have_one_name_in_every_system(system):
+    importlib.import_module(f"jaxplan.{system}.generators")
+    others = [p.name for p in (PACKAGE / system).glob("*.py") if p.stem in ("scenes", "scenarios", "sites", "scenario")]
+    assert not others, f"jaxplan/{system}: scene generators live in generators.py, not {others}"
+
+
+@pytest.mark.parametrize("system", SYSTEMS_WITH_PHYSICS)
+def test_physics_checks_have_one_name_in_every_system(system):
+    assert _is_module(f"jaxplan.{system}.physics"), f"jaxplan/{system}: its MuJoCo check is jaxplan.{system}.physics"

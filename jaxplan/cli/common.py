@@ -11,9 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.core.files import path_kind
-from jaxplan.core.outputs import RunFolder
-from jaxplan.transport.scenes import BUILTIN_SCENES
+from jaxplan.core import RunFolder, path_kind
+from jaxplan.transport import BUILTIN_SCENES
 
 EXIT_BAD_INPUT = 2
 _WARN_BUILD_BYTES = 10**9   # a fabric build estimated above this gets a warning line
@@ -89,8 +88,7 @@ def load_scene(spec: str):
     A bad file -- missing, a directory, unreadable, damaged, wrong keys or values -- is one
     ``CLIError("--scene: Scene file <path>: ...")`` (``Scene.load`` names what is wrong).
     """
-    from jaxplan.transport.scene import Scene
-    from jaxplan.transport.scenes import builtin_scene
+    from jaxplan.transport import Scene, builtin_scene
 
     if spec in BUILTIN_SCENES:
         return builtin_scene(spec)
@@ -123,7 +121,7 @@ def check_fabric_memory(args, scene, params) -> None:
     """Refuse, before any work, a fabric whose estimated build memory
     (``jaxplan.transport.fabric.estimate_build_bytes``) exceeds the memory available; the message
     names ``--k`` where the command has it, else ``--scene`` (the grid is what is too large)."""
-    from jaxplan.transport.fabric import check_build_memory
+    from jaxplan.transport import check_build_memory
 
     flag = "--k" if hasattr(args, "k") else "--scene"
     try:
@@ -170,7 +168,7 @@ def _check_creatable(path: str, flag: str, verb: str) -> None:
 
 
 def fabric_params(args):
-    from jaxplan.transport.params import FabricParams, validate_params
+    from jaxplan.transport import FabricParams, validate_params
 
     params = FabricParams(theta_tol_deg=args.theta_tol, tau_h=getattr(args, "tau_h", 0.5),
                           k=getattr(args, "k", 4), monotone=not getattr(args, "no_monotone", False))

@@ -21,13 +21,13 @@ MAX_STEPS = 1_000_000   # the step counter is an int32 in the compiled step; a m
 
 def _fleet_scene(spec: str):
     """A built-in fleet site (site128, site256, site512), a built-in scene, or a scene file."""
-    from jaxplan.fleet.sites import SITES, site
+    from jaxplan.fleet import SITES, site
 
     return site(spec) if spec in SITES else load_scene(spec)
 
 
 def _episode_params(args):
-    from jaxplan.transport.episode import EpisodeParams, validate_episode_params
+    from jaxplan.transport import EpisodeParams, validate_episode_params
 
     ep = EpisodeParams(stop_fraction=args.stop_fraction, max_pushes=args.max_pushes,
                        rearrange_margin=args.rearrange_margin)
@@ -81,7 +81,7 @@ def _cells_outside_targets(scene) -> int:
 
 def _physics_check(fleet, spill) -> dict:
     """The first round of concurrent pushes (every rover's first push) driven in one MuJoCo world."""
-    from jaxplan.fleet.physics import check_first_round
+    from jaxplan.fleet import check_first_round
 
     return check_first_round(fleet, spill)
 

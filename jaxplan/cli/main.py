@@ -14,8 +14,8 @@ import sys
 
 from jaxplan.cli import fleet, pusharound, rover, sweep, teams, transport
 from jaxplan.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CLIError, Parser, wrap
-from jaxplan.core.files import shown_path
-from jaxplan.transport.scenes import BUILTIN_SCENES
+from jaxplan.core import shown_path
+from jaxplan.transport import BUILTIN_SCENES
 
 __all__ = ["main"]
 
@@ -23,7 +23,7 @@ __all__ = ["main"]
 def build_parser() -> argparse.ArgumentParser:
     fmt = argparse.RawDescriptionHelpFormatter
     scene_help = (f"a built-in scene name ({', '.join(BUILTIN_SCENES)}) or a scene file "
-                  "(.npz or .json, see docs/scene-format.md)")
+                  "(.npz or .json, see docs/scene-files.md)")
     parser = Parser(
         prog="jaxplan", formatter_class=fmt,
         description=wrap("Plan how robots move bulk material and clear paths on a construction "
@@ -60,11 +60,11 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.low_memory:
-            from jaxplan.core.compilation import limit_malloc_arenas
+            from jaxplan.core import limit_malloc_arenas
 
             limit_malloc_arenas()
         if args.single_cpu:
-            from jaxplan.core.compilation import single_cpu
+            from jaxplan.core import single_cpu
 
             try:
                 single_cpu()

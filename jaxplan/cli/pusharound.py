@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxplan.cli.common import FPS, SEED, CLIError, check_out_dir, cli_path_kind, ranged, run_folder, wrap
-from jaxplan.core.outputs import atomic_write
+from jaxplan.core import atomic_write
 
 PUSHAROUND_RESULT_FORMAT = "jaxplan.pusharound.result"
 MAX_TIME_LIMIT = 86_400.0   # s: a day; the search's result does not improve much after minutes
@@ -38,7 +38,7 @@ def _mode_table(name):
 
     The file is written after planning, so its folder must exist and the path must not be a directory.
     """
-    from jaxplan.pusharound.modetable import ModeTable
+    from jaxplan.pusharound import ModeTable
 
     if name is None:
         return None
@@ -195,8 +195,15 @@ def _plan_execute_write(args, scene, source, table, run):
 
     from tqdm import tqdm
 
-    from jaxplan.pusharound import PushScene, build_push_world, build_wccg, connectivity, w_clear_path
-    from jaxplan.pusharound.animation import animate_execution, save_final_png
+    from jaxplan.pusharound import (
+        PushScene,
+        animate_execution,
+        build_push_world,
+        build_wccg,
+        connectivity,
+        save_final_png,
+        w_clear_path,
+    )
     from jaxplan.pusharound.execution import ExecutionConfig, execute_schedule, plan_frames
     from jaxplan.pusharound.search import SearchConfig, plan_pushes
 

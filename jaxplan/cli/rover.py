@@ -18,7 +18,7 @@ from jaxplan.cli.common import (
     wrap,
 )
 from jaxplan.cli.transport import add_spill_options, spill_dict, spill_params
-from jaxplan.transport.scenes import DEFAULT_SCENE
+from jaxplan.transport import DEFAULT_SCENE
 
 MAX_ROUTES = 64          # routes per batch: each is a MuJoCo world with its own gravel particles
 MIN_SPEED, MAX_SPEED = 0.05, 2.0   # cells/s: the wheel limit is 2 cells/s (rover.model); ticks grow as 1/speed
@@ -31,7 +31,7 @@ def _cmd_rover(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from jaxplan.transport.spillage.capacity import ROVER_FIT
+    from jaxplan.transport.spillage import ROVER_FIT
 
     # the prediction the physics is compared with: the model fitted to this rover unless asked otherwise
     spill = spill_params(args, default=ROVER_FIT)
@@ -57,24 +57,30 @@ def _check_and_write(args, scene, params, spill, run) -> dict:
     import matplotlib.pyplot as plt
     from tqdm import tqdm
 
-    from jaxplan.transport.rover import bridge, report
-    from jaxplan.transport.rover.model import RoverConfig
-    from jaxplan.transport.spillage.capacity import ROVER_FIT
+    from jaxplan.transport.physics import (
+        RoverConfig,
+        check_routes,
+        plan_routes,
+        plot_check,
+        render_frames,
+        table_markdown,
+    )
+    from jaxplan.transport.spillage import ROVER_FIT
 
     stages = ["plan (build_fabric + extract_paths)", "physics rollouts", "figure", "rendering"]
     with tqdm(total=len(stages), desc="jaxplan rover", unit="stage", file=sys.stderr, leave=False) as bar:
         bar.set_postfix_str(stages[0])
-        _, routes, sources = bridge.plan_routes(scene, params, args.routes)
+        _, routes, sources = plan_routes(scene, params, args.routes)
         bar.update()
         bar.set_postfix_str(stages[1])
         start = time.perf_counter()
-        check = bridge.check_routes(scene, routes, config=RoverConfig(solver=args.solver), spill=spill,
+        check = check_routes(scene, routes, config=RoverConfig(solver=args.solver), spill=spill,
                                     speed=args.speed, backend=args.backend, friction=args.friction)
         rollout_s = time.perf_counter() - start
         bar.update()
         bar.set_postfix_str(stages[2])
         rows = check.outcome.rows()
-        fig = report.plot_check(scene, check, route=0)
+        fig = plot_check(scene, check, route=0)
         bar.update()
         bar.set_postfix_str(stages[3])
         frames_note = None
@@ -83,13 +89,13 @@ def _check_and_write(args, scene, params, spill, run) -> dict:
             frames_note = "skipped (--no-render)"
         else:
             try:
-                frames = report.render_frames(check, route=0)
+                frames = render_frames(check, route=0)
             except Exception as exc:  # any GL failure: report it, keep the other outputs
                 frames_note = f"rendering unavailable ({type(exc).__name__}: {exc})"
         bar.update()
 
     b = len(rows)
-    table = report.table_markdown(rows)
+    table = table_markdown(rows)
     summary = {
         "scene": scene.name or args.scene,
         "shape": list(scene.shape),
@@ -107,7 +113,7 @@ def _check_and_write(args, scene, params, spill, run) -> dict:
         "spill": spill_dict(spill),
         "spill_preset": "ROVER_FIT" if spill is ROVER_FIT else None,
         "notes": ("masses in objects (1 particle = 1 object); predicted_* from the 2D push "
-                  "(execute.execute); lateral errors in cells, blade point to spline; rollout_seconds "
+                  "(execute.execute_push); lateral errors in cells, blade point to spline; rollout_seconds "
                   "includes compilation on MJX"),
     }
     outputs = {}

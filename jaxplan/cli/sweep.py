@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 from jaxplan.cli.common import CLIError, check_out_file, ranged, wrap
-from jaxplan.sweep.run import MAX_BUDGET_MB
+from jaxplan.sweep import MAX_BUDGET_MB
 
 
 def _cmd_sweep(args) -> int:
-    from jaxplan.core.outputs import RunInterrupted
+    from jaxplan.core import RunInterrupted
     from jaxplan.sweep import run_sweep
 
     if args.address is not None and args.backend != "ray":

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from jaxplan.cli.common import SEED, check_out_dir, ranged, run_folder, wrap
-from jaxplan.teams.params import STRATEGIES
+from jaxplan.teams import STRATEGIES
 
 MAX_V_AFTER = 50.0    # m/s (180 km/h): far above any dump truck; the spec speed is 4 m/s
 MAX_SECONDS = 86_400  # s: a day of 1 s steps; the trace is recorded every step
@@ -13,7 +13,7 @@ def _cmd_teams(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")  # writes files only; works without a display
-    from jaxplan.teams.report import check_paper_options, run_paper
+    from jaxplan.teams import check_paper_options, run_paper
 
     check_paper_options(args.strategy, args.v_after, args.deadline, args.seed, args.steps)
     check_out_dir(args.out)

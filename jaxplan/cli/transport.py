@@ -24,11 +24,8 @@ from jaxplan.cli.common import (
     run_folder,
     wrap,
 )
-from jaxplan.core.outputs import atomic_write
-from jaxplan.core.timing import timed
-from jaxplan.transport.episode import MAX_PUSHES
-from jaxplan.transport.params import K_MAX
-from jaxplan.transport.scenes import BUILTIN_SCENES, DEFAULT_SCENE
+from jaxplan.core import atomic_write, timed
+from jaxplan.transport import BUILTIN_SCENES, DEFAULT_SCENE, K_MAX, MAX_PUSHES
 
 FABRIC_ARRAYS = ("value", "length", "first_hop", "heading", "psi", "heat", "highways", "fallback",
                  "occupied", "table_raw", "table_len", "table_next_dir", "table_next_rank", "rounds",
@@ -46,7 +43,7 @@ _WARM_REPEATS = 5
 def _cmd_fabric(args) -> int:
     import jax
 
-    from jaxplan.transport.fabric import build_fabric
+    from jaxplan.transport import build_fabric
 
     out = Path(args.out)
     if out.suffix.lower() != ".npz":
@@ -90,9 +87,7 @@ def _cmd_demo(args) -> int:
     import matplotlib.pyplot as plt
     from tqdm import tqdm
 
-    from jaxplan.transport.connectors import plan_connectors
-    from jaxplan.transport.fabric import build_fabric
-    from jaxplan.transport.viz import plot_fabric
+    from jaxplan.transport import build_fabric, plan_connectors, plot_fabric
 
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
     scene = load_scene(args.scene)  # bad input fails here, before the progress bar starts
@@ -212,7 +207,7 @@ def spill_params(args, default=None):
         spill = SpillParams(lam=lam, threshold=args.spill_threshold)
         validate_spill_params(spill)
         return spill
-    from jaxplan.transport.spillage.capacity import CapacitySpillParams, validate_capacity_params
+    from jaxplan.transport.spillage import CapacitySpillParams, validate_capacity_params
 
     spill = CapacitySpillParams(lam=lam, threshold=args.spill_threshold,
                                 capacity=_NO_CAPACITY if capacity is None else capacity,
@@ -229,7 +224,7 @@ def spill_params(args, default=None):
 
 
 def episode_params(args):
-    from jaxplan.transport.episode import EpisodeParams, validate_episode_params
+    from jaxplan.transport import EpisodeParams, validate_episode_params
 
     ep = EpisodeParams(rearrange_margin=args.rearrange_margin, stop_fraction=args.stop_fraction,
                        max_pushes=args.max_pushes, source_rule=args.source_rule, reselect=args.reselect,
@@ -260,7 +255,7 @@ def _episode_files(scene, episode, run, *, animate: bool, fps: int) -> dict:
     import matplotlib.pyplot as plt
     from tqdm import tqdm
 
-    from jaxplan.transport.viz import animate_episode, plot_episode
+    from jaxplan.transport import animate_episode, plot_episode
 
     per_tick = episode.per_tick()
     paths = {"metrics_json": run.write_json("metrics.json", {"totals": episode.totals(), "per_tick": per_tick}),
@@ -279,7 +274,7 @@ def _episode_files(scene, episode, run, *, animate: bool, fps: int) -> dict:
 
 
 def _run_episode(scene, params, spill, ep, *, record: bool):
-    from jaxplan.transport.episode import run_episode
+    from jaxplan.transport import run_episode
     from jaxplan.transport.spillage import evaluator_for
 
     return run_episode(scene, params, spill, ep, record=record, progress=True, evaluator=evaluator_for(spill))
@@ -349,7 +344,7 @@ def _cmd_episode(args) -> int:
 
 
 def _cmd_scenes(args) -> int:
-    from jaxplan.transport.scenes import builtin_scene
+    from jaxplan.transport import builtin_scene
 
     rows = []
     for name in BUILTIN_SCENES:
@@ -438,7 +433,7 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                         "refused when its estimated build memory (estimate_build_bytes: about 0.3 GB at 8, "
                         "1.8 GB at 12, 7 GB at 16) exceeds the memory available; default 4")
     p.add_argument("--no-monotone", action="store_true",
-                   help="drop the strict monotone rule (hop-capped DP; see docs/conventions.md)")
+                   help="drop the strict monotone rule (hop-capped DP; see docs/transport.md)")
     p.add_argument("--out", required=True, metavar="OUT.npz", help="output file (.npz)")
     p.set_defaults(func=_cmd_fabric)
 
@@ -465,7 +460,7 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
     p = sub.add_parser(
         "episode", formatter_class=fmt,
         help="run a whole transport job on a scene: plan, push, spill, rebuild until delivered",
-        description=wrap("Run an episode (docs/conventions.md, 'Episodes'): each tick picks a "
+        description=wrap("Run an episode (docs/transport.md, 'Episodes'): each tick picks a "
                           "source, chooses Deliver (its best route to the target under the spill "
                           "model) or Rearrange (a connector to a highway, then the highway), pushes "
                           "it on the grid (collect, spill beside the path, deposit in the target) and "

@@ -7,10 +7,14 @@
 - ``outputs``: files written atomically and output folders with a ``run.json`` manifest (``RunFolder``).
 - ``memory``: ``available_memory_bytes``, the room a cost estimate is checked against.
 """
-from jaxplan.core.compilation import grid_jit, limit_malloc_arenas, single_cpu, traced
+from jaxplan.core import lattice
+from jaxplan.core.animation import save_animation
+from jaxplan.core.compilation import SMALL_GRID_CELLS, grid_jit, limit_malloc_arenas, single_cpu, traced
+from jaxplan.core.files import path_kind, read_text, shown_path
 from jaxplan.core.memory import available_memory_bytes
 from jaxplan.core.outputs import RunFolder, RunInterrupted, atomic_write, read_manifest
 from jaxplan.core.timing import timed
 
-__all__ = ["RunFolder", "RunInterrupted", "atomic_write", "available_memory_bytes", "grid_jit",
-           "limit_malloc_arenas", "read_manifest", "single_cpu", "timed", "traced"]
+__all__ = ["RunFolder", "RunInterrupted", "SMALL_GRID_CELLS", "atomic_write", "available_memory_bytes", "grid_jit",
+           "lattice", "limit_malloc_arenas", "path_kind", "read_manifest", "read_text", "save_animation",
+           "shown_path", "single_cpu", "timed", "traced"]

@@ -1,6 +1,6 @@
 """Grid helpers shared by every kernel: the 8 neighbour directions and neighbour gathers.
 
-Direction order (see docs/conventions.md) is fixed everywhere: index ``i`` of ``DIRS`` is the step
+Direction order (see docs/transport.md) is fixed everywhere: index ``i`` of ``DIRS`` is the step
 ``(dr, dc)``; ``8`` marks a boundary fallback in continuation tables.
 """
 from __future__ import annotations

@@ -8,9 +8,17 @@ move), ``assign`` (the strategies), ``state`` (``FleetConfig``, ``FleetState``, 
 sites ``site128``, ``site256``, ``site512``), ``report`` (a run's summary, files, figure and
 animation), ``physics`` (concurrent pushes in one MuJoCo world).
 """
+from jaxplan.fleet.generators import SITES, site
+from jaxplan.fleet.physics import (
+    TOLERANCE,
+    check_concurrent_pushes,
+    check_first_round,
+    disjoint_routes,
+    route_footprint,
+    within_tolerance,
+)
 from jaxplan.fleet.report import FLEET_OUTPUTS, plot_fleet, summary_of, write_fleet_outputs
 from jaxplan.fleet.run import FleetRun, run_fleet
-from jaxplan.fleet.sites import SITES, site
 from jaxplan.fleet.state import (
     STOP_REASONS,
     STRATEGIES,
@@ -22,6 +30,7 @@ from jaxplan.fleet.state import (
     step,
 )
 
-__all__ = ["FLEET_OUTPUTS", "SITES", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord", "FleetRun",
-           "FleetState", "plot_fleet", "reset", "rollout", "run_fleet", "site", "step", "summary_of",
-           "write_fleet_outputs"]
+__all__ = ["FLEET_OUTPUTS", "FleetConfig", "FleetRecord", "FleetRun", "FleetState", "SITES", "STOP_REASONS",
+           "STRATEGIES", "TOLERANCE", "check_concurrent_pushes", "check_first_round", "disjoint_routes",
+           "plot_fleet", "reset", "rollout", "route_footprint", "run_fleet", "site", "step", "summary_of",
+           "within_tolerance", "write_fleet_outputs"]

@@ -24,7 +24,7 @@ boundary (``route.end``), which the spline, and so the spill, follows.
   - r = 2 (**body**): the cells the rover's body passes over, target cells included: the push
     path, the spline's samples, the points up to ``BODY_BEHIND`` cells behind the spline's start
     (where the physical rover starts) and up to
-    ``BODY_AHEAD`` cells past its end (the shovel rover of ``transport.rover.model`` drives its blade
+    ``BODY_AHEAD`` cells past its end (the shovel rover of ``transport.physics.model`` drives its blade
     past the route's end), all grown by one cell (the blade is one cell wide). It holds the r = 1
     footprint's cells outside the targets; it is what two rovers need so that their bodies never
     touch in physics (``jaxplan.fleet.physics``), at the price of serialising pushes into a target
@@ -43,7 +43,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxplan.core import lattice
-from jaxplan.transport import execute, spillage
+from jaxplan.transport import SPLINE_CHUNK, spill_cells, waypoints
+from jaxplan.transport.spillage import PathSamples, SpillParams, sample_route_prefix
 
 __all__ = ["CLEARANCES", "core_cells", "dilate", "footprint_mask", "mask_from_core", "path_cell", "path_length",
            "path_slots", "push_steps", "route_samples"]
@@ -94,14 +95,14 @@ def path_cell(route, k):
     return _path_cells(route, jnp.asarray(k, jnp.int32)[None])[0]
 
 
-def route_samples(scene, route, spill: spillage.SpillParams) -> spillage.PathSamples:
+def route_samples(scene, route, spill: SpillParams) -> PathSamples:
     """The spline samples ``execute`` evaluates the spill at for ``route`` (the same call)."""
-    points, n_points = execute.waypoints(scene, route)
-    return spillage.sample_route_prefix(points, n_points, spill.samples_per_step, spill.spline_alpha,
-                                        chunk=execute.SPLINE_CHUNK)
+    points, n_points = waypoints(scene, route)
+    return sample_route_prefix(points, n_points, spill.samples_per_step, spill.spline_alpha,
+                                        chunk=SPLINE_CHUNK)
 
 
-def core_cells(scene, route, samples: spillage.PathSamples, clearance: int = 1):
+def core_cells(scene, route, samples: PathSamples, clearance: int = 1):
     """``(cells i32[C, 2], valid bool[C], on_path bool[C])``: the footprint's core for a static
     ``clearance`` (module docstring), invalid rows -1; on_path marks the push path's cells. Cells may
     repeat. samples: ``route_samples`` of the route."""
@@ -110,7 +111,7 @@ def core_cells(scene, route, samples: spillage.PathSamples, clearance: int = 1):
     path_valid = k < path_length(route)
     path = jnp.where(path_valid[:, None], _path_cells(route, k), -1)
     if clearance == 0:
-        flat = execute.spill_cells(scene, route, samples)
+        flat = spill_cells(scene, route, samples)
         beside = jnp.stack([flat // w, flat % w], -1).astype(jnp.int32)
     else:
         beside = _cells_of(scene, samples.pos)
@@ -132,7 +133,7 @@ def _cells_of(scene, points):
     return jnp.stack([jnp.clip(rc[:, 1], 0, h - 1), jnp.clip(rc[:, 0], 0, w - 1)], -1)
 
 
-def _body_points(samples: spillage.PathSamples, cell_size):
+def _body_points(samples: PathSamples, cell_size):
     """``(points f32[BODY_POINTS, 2], valid bool[BODY_POINTS])``: world points of the rover's body
     beyond the spline: its back behind the first sample, and its blade and side plates past the last,
     ``_BODY_STEP`` cells apart (module docstring)."""
@@ -183,6 +184,6 @@ def mask_from_core(target_mask, cells, valid, on_path, clearance: int = 1):
     return (dilate(core, clearance) & ~target_mask) | _mark(target_mask.shape, cells, valid & on_path)
 
 
-def footprint_mask(scene, route, samples: spillage.PathSamples, clearance: int = 1):
+def footprint_mask(scene, route, samples: PathSamples, clearance: int = 1):
     """bool[H, W]: the task's footprint (module docstring); samples: ``route_samples`` of the route."""
     return mask_from_core(scene.target_mask, *core_cells(scene, route, samples, clearance), clearance)

@@ -1,14 +1,14 @@
 """Concurrent pushes in physics: N shovel rovers push N routes at once in ONE MuJoCo world.
 
 The fleet's pushes run at the same time on disjoint footprints. This check drives them together
-through gravel, as the single-rover bridge (``jaxplan.transport.rover.bridge``) drives one route per
+through gravel, as the single-rover bridge (``jaxplan.transport.physics.bridge``) drives one route per
 world, and reports what the 2D fleet model assumes but cannot see:
 
 - rover-rover contacts: every (physics step, rover pair) with at least one contact between bodies of
   the two rovers in MuJoCo's contact list (geom -> its root body -> rover id). Rovers of one world
   collide with each other (``rover.model``, collision bit 8), so a contact is a real touch; with
   disjoint footprints and rovers started on their routes there must be none;
-- per route: the 2D model's delivered mass (``execute.execute`` with ``spill``, as the bridge
+- per route: the 2D model's delivered mass (``execute.execute_push`` with ``spill``, as the bridge
   predicts) against the simulated delivered mass, and whether they agree within ``tolerance``
   (15%: the fleet issue's target).
 
@@ -41,9 +41,28 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxplan.transport import execute, spillage
-from jaxplan.transport.rover import bridge
-from jaxplan.transport.rover import model as rover_mod
+from jaxplan.transport import Route, execute_jit, route_from_path
+from jaxplan.transport.physics import (
+    PUSH_IN,
+    PursuitParams,
+    RoverConfig,
+    World,
+    build_world,
+    cells_of,
+    friction_fields,
+    initial_qpos,
+    pad_paths,
+    particle_fates,
+    particle_layout,
+    pursuit_params,
+    pursuit_policy,
+    route_mask,
+    route_path,
+    rover_geometry,
+    rover_prefix,
+    rover_qpos_adr,
+)
+from jaxplan.transport.spillage import Evaluator, SpillParams, evaluator_for
 
 __all__ = ["ConcurrentCheck", "check_concurrent_pushes", "fleet_policy", "route_footprint", "disjoint_routes",
            "relative_error", "within_tolerance", "TOLERANCE"]
@@ -96,7 +115,7 @@ class ConcurrentCheck:
     tick_seconds: float
     rover_xy: np.ndarray
     final_qpos: np.ndarray
-    world: rover_mod.World
+    world: World
     particle_route: np.ndarray
     particle_cells: np.ndarray
 
@@ -130,21 +149,21 @@ class ConcurrentCheck:
                 "simulated_seconds": float(self.n_ticks * self.tick_seconds)}
 
 
-def fleet_policy(rover_adr, params: bridge.PursuitParams, pstate, qpos):
+def fleet_policy(rover_adr, params: PursuitParams, pstate, qpos):
     """The bridge's pure pursuit for every rover of one world: ``(wheels f[N, 2], pstate)``.
 
     rover_adr: i32[N] qpos address of each rover's free joint; params: ``PursuitParams`` with
     leading axis N; pstate: (progress f[N], done bool[N]); qpos: f[nq] of the whole world.
     """
     q = qpos[rover_adr[:, None] + jnp.arange(7)]
-    return jax.vmap(lambda p, s, qq: bridge.pursuit_policy(p, s, qq, None, None))(params, pstate, q)
+    return jax.vmap(lambda p, s, qq: pursuit_policy(p, s, qq, None, None))(params, pstate, q)
 
 
 _fleet_policy_jit = jax.jit(fleet_policy)
 
 
-def route_footprint(scene, route: execute.Route, radius: int = 1, *, swept: bool = False,
-                    config: rover_mod.RoverConfig | None = None, push_in: float = bridge.PUSH_IN) -> np.ndarray:
+def route_footprint(scene, route: Route, radius: int = 1, *, swept: bool = False,
+                    config: RoverConfig | None = None, push_in: float = PUSH_IN) -> np.ndarray:
     """``bool[H, W]``: the cells a push may touch, dilated by ``radius`` cells (Chebyshev), clipped.
 
     swept=False: the route's cells (target cells included). swept=True: also the cells the rover
@@ -158,7 +177,7 @@ def route_footprint(scene, route: execute.Route, radius: int = 1, *, swept: bool
     core = np.zeros((h, w), bool)
     core[cells[:, 0], cells[:, 1]] = True
     if swept:
-        row, col, inside = bridge.cells_of(scene, _swept_points(scene, route, config, push_in))
+        row, col, inside = cells_of(scene, _swept_points(scene, route, config, push_in))
         core[row[inside], col[inside]] = True
     mask = np.zeros((h + 2 * radius, w + 2 * radius), bool)
     rows, cols = np.nonzero(core)
@@ -175,10 +194,10 @@ _SWEEP_STEP = 0.25        # cells between the points sampled along the swept cen
 def _swept_points(scene, route, config, push_in: float) -> np.ndarray:
     """``f[K, 2]`` world points, at most ``_SWEEP_STEP`` cells apart, along the rover's centre line
     from its back at the start pose to the side plates' tips past the end of the tracked path."""
-    cfg = rover_mod.RoverConfig() if config is None else config
+    cfg = RoverConfig() if config is None else config
     s = float(np.asarray(scene.cell_size))
-    g = rover_mod.rover_geometry(s, cfg)
-    poly, _, _, end_dir, axle, yaw = bridge.route_path(scene, route, g, push_in)
+    g = rover_geometry(s, cfg)
+    poly, _, _, end_dir, axle, yaw = route_path(scene, route, g, push_in)
     back = np.asarray(axle) - _REAR * s * np.array([math.cos(yaw), math.sin(yaw)])
     line = np.concatenate([back[None], poly, (poly[-1] + end_dir * g.wing_reach)[None]], 0)
     out = [line[:1]]
@@ -188,8 +207,8 @@ def _swept_points(scene, route, config, push_in: float) -> np.ndarray:
     return np.concatenate(out, 0)
 
 
-def disjoint_routes(scene, routes: execute.Route, k: int, radius: int = 1, *, swept: bool = False,
-                    config: rover_mod.RoverConfig | None = None, push_in: float = bridge.PUSH_IN) -> np.ndarray:
+def disjoint_routes(scene, routes: Route, k: int, radius: int = 1, *, swept: bool = False,
+                    config: RoverConfig | None = None, push_in: float = PUSH_IN) -> np.ndarray:
     """``i32[<=k]``: greedily, in the given order (best first), the indices of up to ``k`` routes of
     the batch ``routes`` whose footprints (:func:`route_footprint` with ``radius``, ``swept``)
     overlap no route taken before."""
@@ -232,7 +251,7 @@ def _validate(n_cells, starts_xy, speed, settle_ticks, n: int):
                          "parked). Use e.g. 20.")
 
 
-def _particles(scene, routes, n: int, cfg: rover_mod.RoverConfig):
+def _particles(scene, routes, n: int, cfg: RoverConfig):
     """Particles of every route's non-target cells, each cell once (lowest route index first).
 
     Returns ``(xyz f[P, 3], cells i32[P, 2], route i32[P], masks bool[N, H, W])``, masks being each
@@ -241,9 +260,9 @@ def _particles(scene, routes, n: int, cfg: rover_mod.RoverConfig):
     claimed = np.zeros(scene.shape, bool)
     xyz, cells, owner, masks = [], [], [], []
     for i in range(n):
-        mask = bridge.route_mask(scene, _index(routes, i))
+        mask = route_mask(scene, _index(routes, i))
         masks.append(mask)
-        p_xyz, p_cells, _ = rover_mod.particle_layout(scene, mask & ~claimed, cfg, seed=i)
+        p_xyz, p_cells, _ = particle_layout(scene, mask & ~claimed, cfg, seed=i)
         claimed |= mask
         xyz.append(p_xyz)
         cells.append(p_cells)
@@ -251,11 +270,11 @@ def _particles(scene, routes, n: int, cfg: rover_mod.RoverConfig):
     return np.concatenate(xyz), np.concatenate(cells), np.concatenate(owner), np.stack(masks)
 
 
-def _geom_rover(world: rover_mod.World) -> np.ndarray:
+def _geom_rover(world: World) -> np.ndarray:
     """``i32[ngeom]``: the rover each geom belongs to (its root body's), -1 for the floor and particles."""
     m = world.model
     roots = {int(m.body_rootid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY,
-                                                  rover_mod.rover_prefix(i, world.n_rovers) + "rover")]): i
+                                                  rover_prefix(i, world.n_rovers) + "rover")]): i
              for i in range(world.n_rovers)}
     return np.array([roots.get(int(m.body_rootid[b]), -1) for b in m.geom_bodyid], np.int32)
 
@@ -269,7 +288,7 @@ def _rover_pairs(d: mujoco.MjData, geom_rover: np.ndarray) -> set:
     return {(int(min(a, b)), int(max(a, b))) for a, b in r[hit]}
 
 
-def _state_ok(world: rover_mod.World, free_adr, d: mujoco.MjData) -> bool:
+def _state_ok(world: World, free_adr, d: mujoco.MjData) -> bool:
     """The state is finite and every free body lies inside the world box."""
     if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
         return False
@@ -290,10 +309,10 @@ def within_tolerance(sim, pred, tolerance: float = TOLERANCE) -> np.ndarray:
     return relative_error(sim, pred) <= float(tolerance)
 
 
-def check_concurrent_pushes(scene, routes: execute.Route, starts_xy=None, *, spill: spillage.SpillParams,
-                            evaluator: spillage.Evaluator | None = None,
-                            config: rover_mod.RoverConfig | None = None, speed=0.8, friction=None,
-                            push_in: float = bridge.PUSH_IN, lookahead: float = _LOOKAHEAD,
+def check_concurrent_pushes(scene, routes: Route, starts_xy=None, *, spill: SpillParams,
+                            evaluator: Evaluator | None = None,
+                            config: RoverConfig | None = None, speed=0.8, friction=None,
+                            push_in: float = PUSH_IN, lookahead: float = _LOOKAHEAD,
                             horizon_factor: float = 1.5, n_ticks: int | None = None,
                             settle_ticks: int = _SETTLE_TICKS, tolerance: float = TOLERANCE) -> ConcurrentCheck:
     """Drive N rovers along the N routes of ``routes`` at once in one MuJoCo world (module docstring).
@@ -312,17 +331,17 @@ def check_concurrent_pushes(scene, routes: execute.Route, starts_xy=None, *, spi
     n_cells = np.asarray(routes.n_cells)
     n = int(n_cells.shape[0]) if n_cells.ndim == 1 else 0
     _validate(n_cells, starts_xy, speed, settle_ticks, n)
-    cfg = rover_mod.RoverConfig() if config is None else config
-    evaluator = spillage.evaluator_for(spill) if evaluator is None else evaluator
+    cfg = RoverConfig() if config is None else config
+    evaluator = evaluator_for(spill) if evaluator is None else evaluator
     s = float(np.asarray(scene.cell_size))
 
     xyz, cells, owner, masks = _particles(scene, routes, n, cfg)
-    world = rover_mod.build_world(scene, len(xyz), cfg, n_rovers=n)
+    world = build_world(scene, len(xyz), cfg, n_rovers=n)
     g = world.geometry
-    paths = bridge.pad_paths([bridge.route_path(scene, _index(routes, i), g, push_in) for i in range(n)])
-    params = bridge.pursuit_params(paths, g, speed, lookahead, s)
+    paths = pad_paths([route_path(scene, _index(routes, i), g, push_in) for i in range(n)])
+    params = pursuit_params(paths, g, speed, lookahead, s)
     axle = np.stack([p[4] for p in paths]) if starts_xy is None else np.asarray(starts_xy, np.float64)
-    q0 = rover_mod.initial_qpos(world, axle, np.array([p[5] for p in paths]), xyz)
+    q0 = initial_qpos(world, axle, np.array([p[5] for p in paths]), xyz)
     if n_ticks is None:
         speeds = np.broadcast_to(np.asarray(speed, np.float64), (n,)) * s
         longest = max(p[2] / v for p, v in zip(paths, speeds))
@@ -347,7 +366,7 @@ def check_concurrent_pushes(scene, routes: execute.Route, starts_xy=None, *, spi
         particle_route=owner, particle_cells=cells)
 
 
-def _rollout(world: rover_mod.World, q0, params: bridge.PursuitParams, friction, n_ticks: int,
+def _rollout(world: World, q0, params: PursuitParams, friction, n_ticks: int,
              settle_ticks: int) -> dict:
     """Step the world on the C engine one physics step at a time (module docstring).
 
@@ -360,13 +379,13 @@ def _rollout(world: rover_mod.World, q0, params: bridge.PursuitParams, friction,
     model = copy.copy(world.model)    # a copy: the world's model keeps its flags and frictions
     model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)   # a blow-up shows as NaN
     if friction is not None:
-        model.geom_friction[:] = bridge.friction_fields(world, friction, 1)["geom_friction"][0]
+        model.geom_friction[:] = friction_fields(world, friction, 1)["geom_friction"][0]
     d = mujoco.MjData(model)
     d.qpos[:] = q0
     mujoco.mj_forward(model, d)
-    rover_adr = rover_mod.rover_qpos_adr(world)
+    rover_adr = rover_qpos_adr(world)
     xy_idx = rover_adr[:, None] + np.arange(2)
-    ctrl_idx = np.array([[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, rover_mod.rover_prefix(i, n) + side)
+    ctrl_idx = np.array([[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, rover_prefix(i, n) + side)
                           for side in ("wheel_left", "wheel_right")] for i in range(n)]).reshape(-1)
     free_adr = model.jnt_qposadr[model.jnt_type == mujoco.mjtJoint.mjJNT_FREE]
     geom_rover = _geom_rover(world)
@@ -396,10 +415,10 @@ def _rollout(world: rover_mod.World, q0, params: bridge.PursuitParams, friction,
             "steps": steps, "qpos": np.asarray(d.qpos, np.float64).copy()}
 
 
-def _masses(scene, routes, world: rover_mod.World, roll: dict, owner, masks, spill, evaluator):
+def _masses(scene, routes, world: World, roll: dict, owner, masks, spill, evaluator):
     """Per route: the simulated masses (dict of f64[N]: collected, delivered, left_behind, spilled,
     lost; ``bridge.particle_fates`` of the route's own particles) and the 2D model's collected and
-    delivered mass (``execute.execute``)."""
+    delivered mass (``execute.execute_push``)."""
     n = masks.shape[0]
     end_xy = world.particle_xyz(roll["qpos"])[:, :2]
     mass = np.full(len(owner), 1.0 / world.config.particles_per_object)
@@ -407,11 +426,11 @@ def _masses(scene, routes, world: rover_mod.World, roll: dict, owner, masks, spi
     pred_collected, pred_delivered = np.zeros(n), np.zeros(n)
     for i in range(n):
         mine = owner == i
-        fates = bridge.particle_fates(scene, end_xy[mine], masks[i], roll["finite"])
+        fates = particle_fates(scene, end_xy[mine], masks[i], roll["finite"])
         sim["collected"][i] = mass[mine].sum()
         for key, fate in zip(("delivered", "left_behind", "spilled", "lost"), fates):
             sim[key][i] = mass[mine][fate].sum()
-        _, push = execute.execute_jit(scene, _index(routes, i), spill, evaluator)
+        _, push = execute_jit(scene, _index(routes, i), spill, evaluator)
         pred_collected[i], pred_delivered[i] = float(push.collected), float(push.delivered)
     return sim, pred_collected, pred_delivered
 
@@ -430,7 +449,7 @@ def first_round(run) -> list:
     return sorted((p for p, on in zip(run.pushes, running[at]) if on), key=lambda p: p["rover"])
 
 
-def routes_of(scene, pushes) -> execute.Route:
+def routes_of(scene, pushes) -> Route:
     """The ``execute.Route`` batch (leading axis = len(pushes)) of fleet push records: their cells, a
     fallback end where the last cell lies outside the targets (the route then ends on the boundary)."""
     slots = max(len(p["cells"]) for p in pushes)
@@ -441,12 +460,12 @@ def routes_of(scene, pushes) -> execute.Route:
         cells[:len(p["cells"])] = np.asarray(p["cells"], np.int32)
         last = cells[len(p["cells"]) - 1]
         fallback = not bool(target[last[0], last[1]])
-        routes.append(execute.route_from_path(scene, jnp.asarray(cells), jnp.int32(len(p["cells"])),
+        routes.append(route_from_path(scene, jnp.asarray(cells), jnp.int32(len(p["cells"])),
                                               jnp.bool_(fallback)))
     return jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *routes)
 
 
-def check_first_round(run, spill: spillage.SpillParams, **kwargs) -> dict:
+def check_first_round(run, spill: SpillParams, **kwargs) -> dict:
     """Drive a fleet run's first round of concurrent pushes (``first_round``) in one MuJoCo world on the
     run's initial counts, each rover starting on its route's start (the approach is not simulated).
 

@@ -24,9 +24,9 @@ import math
 
 import numpy as np
 
-from jaxplan.core.animation import save_animation
+from jaxplan.core import save_animation
 from jaxplan.fleet.run import FleetRun
-from jaxplan.transport.viz import PALETTE, cell_edges, polygon_rings
+from jaxplan.transport import PALETTE, cell_edges, polygon_rings
 
 __all__ = ["DEFAULT_MAX_FRAMES", "FLEET_OUTPUTS", "animate_fleet", "frame_steps", "plot_fleet", "pushes_records",
            "summary_of", "t_fraction", "trajectory_arrays", "write_fleet_outputs"]

@@ -8,15 +8,13 @@ import time
 import jax
 import numpy as np
 
-from jaxplan.core.compilation import grid_jit
+from jaxplan.core import grid_jit
 from jaxplan.fleet import footprint
+from jaxplan.fleet.conflicts import conflicts
 from jaxplan.fleet.motion import IDLE
 from jaxplan.fleet.state import STOP_REASONS, FleetConfig, reset, step
-from jaxplan.reference import fleet as reference_fleet
-from jaxplan.transport import spillage
-from jaxplan.transport.episode import EpisodeParams, require_hard, validate_episode_params
-from jaxplan.transport.params import FabricParams, validate_params
-from jaxplan.transport.scene import Scene
+from jaxplan.transport import EpisodeParams, FabricParams, Scene, require_hard, validate_episode_params, validate_params
+from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill, validate_spill_params
 
 __all__ = ["MAX_STEPS_LIMIT", "FleetRun", "run_fleet", "validate_fleet_inputs"]
 
@@ -38,7 +36,7 @@ class FleetRun:
     plan_ms: wall ms of each step in which a task was assigned and no push ended (the whole step:
     assignment, distance fields and motion, without a fabric refresh). conflicts: invariant
     violations the serial checker
-    (``jaxplan.reference.fleet.conflicts``) found in ``pos`` and the reserved footprints (must be 0).
+    (``jaxplan.fleet.conflicts``) found in ``pos`` and the reserved footprints (must be 0).
     stop_reason: one of ``STOP_REASONS``; message: a sentence for people.
     frames: with ``record=True``, T+1 dicts (0 = start) {"obj": f32[H, W], "heat": f32[H, W],
     "highways": bool[H, W], "routes": N entries, i32[k, 2] cells of the rover's task or None}.
@@ -75,7 +73,7 @@ def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max
     FleetConfig(n_rovers, strategy).validate()
     validate_params(params)
     require_hard(params, "run_fleet")
-    spillage.validate_spill_params(spill)
+    validate_spill_params(spill)
     validate_episode_params(episode)
     if episode.reselect:
         raise ValueError("EpisodeParams.reselect: True is not supported by the fleet, which plans on the "
@@ -139,10 +137,10 @@ def _frame(state, shown) -> dict:
 
 
 def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: FabricParams | None = None,
-              spill: spillage.SpillParams | None = None, episode: EpisodeParams | None = None,
+              spill: SpillParams | None = None, episode: EpisodeParams | None = None,
               max_steps: int = 10_000, *, starts=None, record: bool = False, progress: bool = False,
               config: FleetConfig | None = None,
-              evaluator: spillage.Evaluator = spillage.curvature_spill) -> FleetRun:
+              evaluator: Evaluator = curvature_spill) -> FleetRun:
     """Run a fleet of ``n_rovers`` on ``scene`` with ``strategy`` until it stops (``state`` module
     docstring) or ``max_steps`` steps. Returns ``FleetRun``.
 
@@ -151,7 +149,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     (its n_rovers and strategy must match). All inputs are checked before any work.
     """
     params = FabricParams() if params is None else params
-    spill = spillage.SpillParams() if spill is None else spill
+    spill = SpillParams() if spill is None else spill
     episode = EpisodeParams() if episode is None else episode
     validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts)
     if params.temperature is not None:    # a concrete 0 is the hard fabric
@@ -235,7 +233,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
         pos=pos, delivered=np.asarray(inside, np.float64), outside=np.asarray(outside, np.float64),
         initial_mass=float(first.initial_mass), initial_outside=float(first.initial_outside), pushes=pushes,
         rover_pushes=np.asarray(final.pushes, np.int32), idle_steps=np.asarray(final.idle_steps, np.int32),
-        plan_ms=plan_ms, conflicts=len(reference_fleet.conflicts(pos, reservations)), stop_reason=reason,
+        plan_ms=plan_ms, conflicts=len(conflicts(pos, reservations)), stop_reason=reason,
         message=_message(reason, final, episode, int(max_steps)), frames=frames,
         kernel_conflicts=kernel_conflicts, dropped=dropped)
 

@@ -44,22 +44,26 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.fleet import assign, footprint, motion
+from jaxplan.fleet import assign, footprint, motion, sectors
 from jaxplan.fleet.motion import APPROACH, FAR, IDLE, PUSH
-from jaxplan.transport import execute, spillage
-from jaxplan.transport.episode import (
+from jaxplan.transport import (
     BUDGET,
     DONE,
     NO_MATERIAL,
     RUNNING,
     EpisodeParams,
+    Fabric,
+    FabricParams,
+    Route,
+    build_fabric,
     default_walk_cap,
+    execute_push,
     outside_mass,
+    quantize,
     require_hard,
+    selective_rebuild,
 )
-from jaxplan.transport.fabric import Fabric, build_fabric
-from jaxplan.transport.params import FabricParams
-from jaxplan.transport.rebuild import selective_rebuild
+from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill
 
 __all__ = ["DEADLOCK", "MAX_STEPS", "NO_REACHABLE", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord",
            "FleetState", "fleet_rebuild", "max_rovers", "reset", "rollout", "step"]
@@ -185,7 +189,7 @@ class FleetState(NamedTuple):
     pos: jax.Array
     home: jax.Array
     phase: jax.Array
-    route: execute.Route
+    route: Route
     mode: jax.Array
     task_step: jax.Array
     progress: jax.Array
@@ -266,15 +270,15 @@ def route_slots(config: FleetConfig, shape) -> int:
     return 2 * (config.resolved(shape).walk_cap + 1)
 
 
-def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams | None = None,
+def reset(scene, params: FabricParams | None = None, spill: SpillParams | None = None,
           episode: EpisodeParams | None = None, config: FleetConfig | None = None, starts=None,
           max_steps: int | None = None, max_pushes=None) -> FleetState:
     """The state before the first step: counts rounded to ``execute.QUANTUM``, the fabric built,
     every rover idle at its start cell, the stop checks of an episode's start applied (no material,
     done, budget 0). Pure and jittable (``vmap`` it over scenes of one shape).
 
-    starts: i32[N, 2] distinct cells outside the targets (default: ``assign.spread_starts``, or
-    ``assign.sector_starts`` for ``partitioned``, so rover i starts in sector i); not checked here
+    starts: i32[N, 2] distinct cells outside the targets (default: ``sectors.spread_starts``, or
+    ``sectors.sector_starts`` for ``partitioned``, so rover i starts in sector i); not checked here
     (``run_fleet`` does). max_steps: step limit (default 100,000). max_pushes: the push budget
     (default ``episode.max_pushes``; an argument so a traced one needs no recompile). Only spill's
     static sizes are read (they shape the candidate cache): pass the spill ``step`` will get.
@@ -283,23 +287,23 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
     ep = EpisodeParams() if episode is None else episode
     config = FleetConfig(1, "independent") if config is None else config
     _check_static(params, ep, config, "reset")
-    spill = spillage.SpillParams() if spill is None else spill
+    spill = SpillParams() if spill is None else spill
     shape = scene.shape
     cfg = config.resolved(shape)
     n = cfg.n_rovers
-    scene = scene.with_obj(execute.quantize(scene.obj))
+    scene = scene.with_obj(quantize(scene.obj))
     fabric = build_fabric(scene, params)
     target = jnp.asarray(scene.target_mask, bool)
     if cfg.strategy == "partitioned":
-        sectors = assign.sectors(shape, n)
-        region = jnp.asarray(sectors)
-        default_starts = assign.sector_starts(target, sectors)
+        cells = sectors.sectors(shape, n)
+        region = jnp.asarray(cells)
+        default_starts = sectors.sector_starts(target, cells)
     else:
         region = jnp.full(shape, -1, jnp.int32)
-        default_starts = assign.spread_starts(target, n)
+        default_starts = sectors.spread_starts(target, n)
     pos = default_starts if starts is None else _i32(starts).reshape(n, 2)
     s = route_slots(cfg, shape)
-    route = execute.Route(jnp.full((n, s, 2), -1, jnp.int32), jnp.ones(n, jnp.int32), jnp.zeros(n, bool),
+    route = Route(jnp.full((n, s, 2), -1, jnp.int32), jnp.ones(n, jnp.int32), jnp.zeros(n, bool),
                           jnp.zeros((n, 2), jnp.float32))
     outside = _f32(outside_mass(scene))
     stop_at = _f32(_f32(ep.stop_fraction) * outside)
@@ -323,7 +327,7 @@ def _no_candidates(scene, params, ep, spill, fabric, cfg: FleetConfig) -> assign
     m = min(cfg.candidates, scene.shape[0] * scene.shape[1]) if cfg.strategy == "coordinated" else 0
     shapes = jax.eval_shape(lambda: assign.plan_candidates(
         scene, params, ep, spill, fabric, jnp.full(scene.shape, -1, jnp.int32), candidates=1, cap=cfg.walk_cap,
-        evaluator=spillage.curvature_spill, clearance=cfg.clearance))
+        evaluator=curvature_spill, clearance=cfg.clearance))
     return jax.tree.map(lambda a: jnp.zeros((m,) + a.shape[1:], a.dtype), shapes)
 
 
@@ -413,7 +417,7 @@ def _apply(scene, route, ended, spill, evaluator):
         def push(carry):
             obj, collected, delivered, spilled = carry
             mine = jax.tree.map(lambda a: a[r], route)
-            new_obj, result = execute.execute(scene.with_obj(obj), mine, spill, evaluator)
+            new_obj, result = execute_push(scene.with_obj(obj), mine, spill, evaluator)
             return (new_obj, collected.at[r].set(result.collected), delivered.at[r].set(result.delivered),
                     spilled.at[r].set(result.spilled))
 
@@ -511,8 +515,8 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     return new, record
 
 
-def step(state: FleetState, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams,
-         config: FleetConfig, evaluator: spillage.Evaluator = spillage.curvature_spill):
+def step(state: FleetState, params: FabricParams, spill: SpillParams, episode: EpisodeParams,
+         config: FleetConfig, evaluator: Evaluator = curvature_spill):
     """One step of the fleet (module docstring): ``(state, FleetRecord)``. Pure, one jittable program;
     config and evaluator are static. A done state is returned as it is, with an invalid record. The
     push budget is ``state.max_pushes`` (``episode.max_pushes`` is not read); ``episode.rebuild``
@@ -523,8 +527,8 @@ def step(state: FleetState, params: FabricParams, spill: spillage.SpillParams, e
                         lambda s: _live(s, params, spill, episode, cfg, evaluator), state)
 
 
-def rollout(state: FleetState, params: FabricParams, spill: spillage.SpillParams, episode: EpisodeParams,
-            config: FleetConfig, n_steps: int, evaluator: spillage.Evaluator = spillage.curvature_spill):
+def rollout(state: FleetState, params: FabricParams, spill: SpillParams, episode: EpisodeParams,
+            config: FleetConfig, n_steps: int, evaluator: Evaluator = curvature_spill):
     """``n_steps`` (static) steps in one ``lax.scan``: ``(state, FleetRecord stacked over n_steps)``."""
     return jax.lax.scan(lambda s, _: step(s, params, spill, episode, config, evaluator), state, None,
                         length=n_steps)

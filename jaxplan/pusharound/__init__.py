@@ -10,30 +10,40 @@ and the ranking of blocking gaps (Section III-B).
     ranking = rank_gaps(scene, g=g)                      # Eqs. 8-9: ranked gaps + adjacent movables
 
 Physics (Section III-C/D): ``build_push_world`` (the scene in MuJoCo), ``PushTask`` / ``face_contacts``
-(candidate pushes), ``quick_pass`` (geometric rejection), ``simulate_pushes`` (one batched rollout on
-MJX or the C engine), ``push_cost`` (Eq. 11); see ``jaxplan.pusharound.push``.
+(candidate pushes), ``simulate_pushes`` (one batched rollout on MJX or the C engine), ``push_cost``
+(Eq. 11); see ``jaxplan.pusharound.push``. ``quick_pass`` (geometric rejection before physics) is in
+``jaxplan.pusharound.quickpass``; the seeded scene generators (``nominal_scene``, ...) in
+``jaxplan.pusharound.generators``; the Table I baselines (``BASELINES``, ``BaselineConfig``) in the
+package ``jaxplan.pusharound.baselines``.
 
-See docs/pusharound.md for the definitions and the JSON scene format.
+See docs/pusharound.md for the definitions and docs/scene-files.md for the JSON scene format.
 """
-from jaxplan.pusharound.animation import animate_execution, plot_state
-from jaxplan.pusharound.baselines import BASELINES
+from jaxplan.pusharound.animation import animate_execution, plot_state, save_final_png
+from jaxplan.pusharound.baselines import BASELINES, BaselineConfig
 from jaxplan.pusharound.execution import Execution, ExecutionConfig, execute_schedule, load_schedule
+from jaxplan.pusharound.generators import corridor_scene, dense_scene, density_scene, nominal_scene
 from jaxplan.pusharound.modetable import ModeTable
 from jaxplan.pusharound.physics import PushPhysicsConfig, PushWorld, build_push_world
 from jaxplan.pusharound.push import (
-                                     PushOutcome,
-                                     PushTask,
-                                     QuickPass,
-                                     direction_tasks,
-                                     face_contacts,
-                                     make_push_simulator,
-                                     push_cost,
-                                     quick_pass,
-                                     simulate_pushes,
-                                     stack_tasks,
+    PushOutcome,
+    PushTask,
+    direction_tasks,
+    face_contacts,
+    make_push_simulator,
+    push_cost,
+    simulate_pushes,
+    stack_tasks,
 )
-from jaxplan.pusharound.ranking import Gap, Ranking, RankingParams, gap_costs, rank_gaps
-from jaxplan.pusharound.scenarios import corridor_scene, dense_scene, density_scene, nominal_scene
+from jaxplan.pusharound.quickpass import QuickPass, quick_pass
+from jaxplan.pusharound.ranking import (
+    Gap,
+    PresearchFeatures,
+    Ranking,
+    RankingParams,
+    gap_costs,
+    rank_gaps,
+    validate_ranking_params,
+)
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene
 from jaxplan.pusharound.search import ScheduledPush, SearchConfig, SearchResult, SearchStats, plan_pushes
 from jaxplan.pusharound.viz import plot_wccg
@@ -47,12 +57,11 @@ from jaxplan.pusharound.wccg import (
     w_clear_path,
 )
 
-__all__ = ["BASELINES", "Execution", "ExecutionConfig", "ModeTable", "ScheduledPush", "SearchConfig", "SearchResult",
-           "SearchStats", "animate_execution", "corridor_scene", "dense_scene", "density_scene", "execute_schedule",
-           "load_schedule", "plan_pushes", "plot_state", "WCCG", "Connectivity", "Fixed", "Gap", "Movable",
-           "PushOutcome", "PushPhysicsConfig", "PushScene",
-           "PushTask", "PushWorld", "QuickPass", "Ranking", "RankingParams", "build_push_world", "build_wccg",
-           "check_feasible",
-           "clearance", "connectivity", "direction_tasks", "face_contacts", "gap_costs", "make_push_simulator",
-           "nominal_scene",
-           "plot_wccg", "push_cost", "quick_pass", "rank_gaps", "simulate_pushes", "stack_tasks", "w_clear_path"]
+__all__ = ["BASELINES", "BaselineConfig", "Connectivity", "Execution", "ExecutionConfig", "Fixed", "Gap",
+           "ModeTable", "Movable", "PresearchFeatures", "PushOutcome", "PushPhysicsConfig", "PushScene", "PushTask",
+           "PushWorld", "QuickPass", "Ranking", "RankingParams", "ScheduledPush", "SearchConfig", "SearchResult",
+           "SearchStats", "WCCG", "animate_execution", "build_push_world", "build_wccg", "check_feasible",
+           "clearance", "connectivity", "corridor_scene", "dense_scene", "density_scene", "direction_tasks",
+           "execute_schedule", "face_contacts", "gap_costs", "load_schedule", "make_push_simulator", "nominal_scene",
+           "plan_pushes", "plot_state", "plot_wccg", "push_cost", "quick_pass", "rank_gaps", "save_final_png",
+           "simulate_pushes", "stack_tasks", "validate_ranking_params", "w_clear_path"]

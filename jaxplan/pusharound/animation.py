@@ -123,7 +123,7 @@ def animate_execution(scene, execution, path, *, fps: int = 10, dpi: int = 80, m
     """
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    from jaxplan.core.animation import save_animation  # noqa: PLC0415
+    from jaxplan.core import save_animation  # noqa: PLC0415
 
     fr = execution.frames
     n_rec = len(fr.time)

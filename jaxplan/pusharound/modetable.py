@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 import shapely
 
-from jaxplan.core.files import read_text
+from jaxplan.core import read_text
 
 __all__ = ["ModeKey", "ModeRecord", "ModeTable", "shape_signature"]
 

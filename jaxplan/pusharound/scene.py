@@ -22,7 +22,7 @@ from shapely import affinity
 from shapely.geometry import Point, Polygon
 from shapely.geometry import box as _box
 
-from jaxplan.core.files import read_text
+from jaxplan.core import read_text
 from jaxplan.pusharound.shapes import convex_decomposition, is_convex, polygon_inertia
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "Fixed", "Movable", "PushScene"]
@@ -242,7 +242,7 @@ def _check_keys(entry: dict, allowed: tuple, field: str, required: tuple = ()) -
                          f"{', '.join(allowed)} (docs/pusharound.md).")
     for key in required:
         if key not in entry:
-            raise ValueError(f"{key}: missing; see docs/pusharound.md for the scene format.")
+            raise ValueError(f"{key}: missing; see docs/scene-files.md for the scene format.")
 
 
 def _list(v, field: str) -> list:

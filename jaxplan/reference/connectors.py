@@ -1,6 +1,6 @@
 """Serial reference for anchors (Eq. 12) and highway connectors (Section 3.4, Algorithm 4).
 
-Plain Python, float64, following docs/conventions.md ("Anchors and connectors"):
+Plain Python, float64, following docs/transport.md ("Anchors and connectors"):
 
 - roots: occupied cells that are not highway cells; anchor candidates: occupied highway cells;
 - ``h*(R) = argmax_h H(h) - lambda * |c_R - c_h|`` (world units), ties to the lowest row-major index;

@@ -1,7 +1,7 @@
 """Serial reference of the spill model and of pushing a route (``jaxplan.transport.spillage``,
 ``jaxplan.transport.execute``).
 
-Plain Python, float64, one sample at a time, written straight from docs/conventions.md.
+Plain Python, float64, one sample at a time, written straight from docs/transport.md.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Serial reference fabric: every source's A* search, then psi, heatmap, highways and connectors.
 
 ``reference_fabric`` is the oracle the JAX kernels are tested against and the peer benchmarks compare
-with. It follows docs/conventions.md literally and favours readability over speed (plain Python,
+with. It follows docs/transport.md literally and favours readability over speed (plain Python,
 float64, one priority-queue search per source cell).
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Serial reference for the scene geometry: one shapely query per cell, float64.
 
-This is the obviously-correct twin of :func:`jaxplan.transport.scene._geometry` (docs/conventions.md, "Grid and
+This is the obviously-correct twin of :func:`jaxplan.transport.scene._geometry` (docs/transport.md, "Grid and
 geometry"). It is slow (a Python double loop) and meant for tests on small grids only.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Serial reference for psi (Eqs. 7-8), the look-back heatmap (Eq. 10, Algorithm 3) and highways (Eq. 11).
 
-Plain Python loops, float64, following docs/conventions.md ("Propagated mass", "Heatmap", "Highways").
+Plain Python loops, float64, following docs/transport.md ("Propagated mass", "Heatmap", "Highways").
 """
 from __future__ import annotations
 

@@ -7,7 +7,12 @@
   boundary; a path is W-clear iff it lies in the workspace and this is >= W/2.
 - :func:`reference_pair_distances`: component distances with one shapely call per pair.
 - :func:`swept_polygon`: the region a movable sweeps along a push, placed pose by pose with shapely's
-  affine transforms and merged with one union (the peer of ``push.swept_hulls``).
+  affine transforms and merged with one union (the peer of ``quickpass.swept_hulls``).
+- :func:`reference_gap_costs`: Eq. 9 by exhaustive recursion, with Eq. 8's one-hop terms and the
+  dead-end penalty restated here; the WCCG's frontier gaps come from the caller.
+
+This module imports none of the kernels it checks: where a twin needs the WCCG (which gaps lie on the
+frontier), the caller computes that with the kernels and passes it in.
 
 Tolerance: shapely buffers approximate the disk by a polygon whose vertices lie on the circle (here 64
 per quarter), so ``F_W`` is too large by at most ``W/2 (1 - cos(pi/256)) ~ 4e-5 W``; scenes with a gap
@@ -20,10 +25,11 @@ import shapely
 from shapely.geometry import LineString, Point
 from shapely.geometry import box as _box
 
-__all__ = ["free_space", "path_clearance", "reference_connected", "reference_gap_costs",
+__all__ = ["DEAD_END_PENALTY", "free_space", "path_clearance", "reference_connected", "reference_gap_costs",
            "reference_pair_distances", "swept_polygon"]
 
 _QUAD_SEGS = 64
+DEAD_END_PENALTY = 1e3   # Eq. 9: added to a first-hop gap's cost when every branch after it dead-ends
 
 
 def free_space(scene):
@@ -74,24 +80,32 @@ def reference_pair_distances(pieces) -> np.ndarray:
     return out
 
 
-def reference_gap_costs(scene, params, g=None) -> dict:
+def _one_hop_terms(gap, team, width: float, mass_ref: float) -> tuple:
+    """Eq. 8's (C_t, C_p) of crossing ``gap`` with robots at ``team`` f[N, 2]: the farthest robot's
+    distance to the gap's insertion point, and the width deficit ``max(W - width, 0)`` times the
+    lighter movable's mass over ``mass_ref``."""
+    team = np.asarray(team, np.float64).reshape(-1, 2)
+    c_t = max((float(np.linalg.norm(p - gap.insertion)) for p in team), default=0.0)
+    c_p = max(width - gap.width, 0.0) * gap.mass / mass_ref
+    return c_t, c_p
+
+
+def reference_gap_costs(scene, params, frontier_gaps) -> dict:
     """Eq. 9 by exhaustive recursion (no beam): ``{gap.bodies: Cost(g)}`` for the first-hop gaps.
 
     Every sequence of at most ``params.depth`` further gaps is enumerated; the minimum runs over the
     sequences that reach the goal's face if any, else over those stopped at the depth limit, else
-    (every branch dead-ends) over the dead ends plus the penalty. Equal to
+    (every branch dead-ends) over the dead ends plus :data:`DEAD_END_PENALTY`. Equal to
     :func:`jaxplan.pusharound.ranking.rank_gaps` whenever its beam keeps every state.
-    Shares the geometric primitives (connectivity, candidate gaps, one-hop terms) with it.
+
+    frontier_gaps: the WCCG's answer, computed by the caller with the kernels (``connectivity`` and
+    ``candidate_gaps`` on the scene's WCCG): a function of ``removed`` (a frozenset of crossed gaps'
+    ``bodies``) returning ``(same_face, gaps)``, whether start and goal share a face once those gaps are
+    crossed and, if not, the frontier's candidate gaps (with ``bodies``, ``insertion`` f[2], ``width``
+    [m] and ``mass`` [kg]). The costs (Eqs. 8-9) are computed here, with W = ``scene.width``.
     """
-    from jaxplan.pusharound.ranking import DEAD_END_PENALTY, candidate_gaps, one_hop_terms  # noqa: PLC0415
-    from jaxplan.pusharound.wccg import build_wccg, connectivity  # noqa: PLC0415
-
-    g = build_wccg(scene) if g is None else g
+    width = float(scene.width)
     lt, lp, eta = float(params.lambda_t), float(params.lambda_p), float(params.eta)
-
-    def frontier_gaps(removed):
-        conn = connectivity(g, scene.start, scene.goal, removed=removed)
-        return conn.same_face, ([] if conn.same_face else candidate_gaps(g, conn.frontier, removed))
 
     def tails(removed, team, level):
         """List of (status, cost) of every continuation from this state."""
@@ -104,7 +118,7 @@ def reference_gap_costs(scene, params, g=None) -> dict:
             return [(0, 0.0)]
         out = []
         for gap in gaps:
-            c_t, c_p = one_hop_terms(gap, team, g.width, params.mass_ref)
+            c_t, c_p = _one_hop_terms(gap, team, width, params.mass_ref)
             step = lt * c_t + lp * c_p + eta * float(np.linalg.norm(gap.insertion - np.asarray(scene.goal)))
             out += [(s, step + c) for s, c in tails(removed | {gap.bodies}, gap.insertion, level + 1)]
         return out
@@ -112,7 +126,7 @@ def reference_gap_costs(scene, params, g=None) -> dict:
     same_face, first = frontier_gaps(frozenset())
     costs = {}
     for gap in first:
-        c_t, c_p = one_hop_terms(gap, scene.robots, g.width, params.mass_ref)
+        c_t, c_p = _one_hop_terms(gap, scene.robots, width, params.mass_ref)
         leaves = tails(frozenset([gap.bodies]), gap.insertion, 0)
         for status, penalty in ((2, 0.0), (1, 0.0), (0, DEAD_END_PENALTY)):
             pool = [c for s, c in leaves if s == status]

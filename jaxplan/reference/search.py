@@ -4,7 +4,7 @@ One search per source cell, a ``heapq`` priority queue, plain Python. The search
 oriented successor graph (``Graph``): the fabric orients it to the target (``fabric.py``), connectors
 orient it to an anchor cell (``connectors.py``).
 
-Scores and order (docs/conventions.md, "Paths and the fabric")
+Scores and order (docs/transport.md, "Paths and the fabric")
 ----------------------------------------------------------------
 A complete path has ``raw`` (objects on its non-goal cells, source included) and ``len`` (world
 units: every grid step in full, plus the fallback segment when it ends with a fallback). Paths are

@@ -1,6 +1,6 @@
 """Serial reference of the soft fabric kernels (``jaxplan.transport.soft``): plain loops over cells, float64.
 
-Follows docs/conventions.md, "Soft kernels", one cell and one option at a time.
+Follows docs/transport.md, "Soft kernels", one cell and one option at a time.
 """
 from __future__ import annotations
 

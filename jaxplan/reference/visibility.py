@@ -1,6 +1,6 @@
 """Serial reference for visibility (Section 3.1, Algorithm 1): occupied successors and the fallback hop.
 
-Plain Python over one cell at a time, float64. Definitions follow docs/conventions.md, "Visibility":
+Plain Python over one cell at a time, float64. Definitions follow docs/transport.md, "Visibility":
 
 - candidates of an occupied cell ``C`` are its in-grid 8-neighbours that are occupied or target cells;
 - cone rule (Eq. 1): ``t(C) . step_unit >= cos(theta_tol) - 1e-6``;
@@ -20,7 +20,7 @@ __all__ = [
     "step_unit", "step_cells", "in_grid", "cone_ok", "cos_tol", "successors", "fallback_alignments", "fallback_hop",
 ]
 
-# The 8 neighbour directions as (dr, dc), in the one order used everywhere (docs/conventions.md).
+# The 8 neighbour directions as (dr, dc), in the one order used everywhere (docs/transport.md).
 DIRS: tuple[tuple[int, int], ...] = (
     (-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1),
 )

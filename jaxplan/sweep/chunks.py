@@ -8,11 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.transport import fabric as _fabric
-from jaxplan.transport import heatmap as _heatmap
-from jaxplan.transport import selection as _selection
-from jaxplan.transport.params import FabricParams
-from jaxplan.transport.scene import Scene
+from jaxplan.transport import FabricParams, Scene, count_table_hops, fabric_of, highways, select_routes
 from jaxplan.transport.spillage import SpillParams
 
 # Per-setting bytes = this factor x (the fabric's output bytes + the scene's bytes): the DP's working
@@ -27,7 +23,7 @@ def metrics_of(scene, fp: FabricParams, sp: SpillParams, top: int, max_steps: in
 
     fab: the fabric of ``scene`` under ``fp`` (built here when None).
     """
-    fab = _fabric.fabric_of(scene, fp) if fab is None else fab
+    fab = fabric_of(scene, fp) if fab is None else fab
     occ = fab.occupied
     n = jnp.sum(occ)
     denom = jnp.maximum(n, 1).astype(jnp.float32)
@@ -43,11 +39,11 @@ def metrics_of(scene, fp: FabricParams, sp: SpillParams, top: int, max_steps: in
     best, idx = jax.lax.top_k(scores, top)
     valid = best > -jnp.inf
     sources = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
-    sel = _selection.select_routes(scene, fab, sources, fp.slack_tau, sp, max_steps=max_steps)
+    sel = select_routes(scene, fab, sources, fp.slack_tau, sp, max_steps=max_steps)
     entry = sel.entry[:, None]
     raw = jnp.take_along_axis(fab.table.raw[sources[:, 0], sources[:, 1]], entry, -1)[:, 0]
     delivered = jnp.take_along_axis(sel.delivered, entry, -1)[:, 0]
-    hops = jnp.take_along_axis(_fabric.count_table_hops(fab.table)[sources[:, 0], sources[:, 1]], entry, -1)[:, 0]
+    hops = jnp.take_along_axis(count_table_hops(fab.table)[sources[:, 0], sources[:, 1]], entry, -1)[:, 0]
     # +1: a route ending in a boundary fallback takes one more walk step (conservative for the others)
     truncated = valid & (hops + 1 > max_steps)
     return dict(out, top_collected=jnp.sum(jnp.where(valid, raw, 0.0)),
@@ -57,9 +53,9 @@ def metrics_of(scene, fp: FabricParams, sp: SpillParams, top: int, max_steps: in
 def with_highways(fab, scene, fp: FabricParams):
     """``fab`` with its highways (Eq. 11) recomputed for ``fp.tau_h``: the only part of the fabric that
     depends on a field in ``AFTER_TABLE``."""
-    highways = _heatmap.highways(fab.heat, jnp.asarray(scene.target_mask, bool), fp.tau_h,
+    mask = highways(fab.heat, jnp.asarray(scene.target_mask, bool), fp.tau_h,
                                  relative=fp.highway_relative, smoothing=fp.highway_smoothing, nms=fp.highway_nms)
-    return fab._replace(highways=highways)
+    return fab._replace(highways=mask)
 
 
 def _outer_mode(tables: str) -> str:
@@ -88,7 +84,7 @@ def _chunk_kernel(fabric_static: tuple, spill_static: tuple, table_keys: tuple, 
     def one_table(scenes, i, tvals, ovals, svals):
         scene = jax.tree_util.tree_map(lambda a: a[i], scenes)
         table_fields = {k: tvals[j] for j, k in enumerate(table_keys)}
-        fab = _fabric.fabric_of(scene, FabricParams(**fstat, **table_fields))
+        fab = fabric_of(scene, FabricParams(**fstat, **table_fields))
 
         def one_setting(o, s):
             fp = FabricParams(**fstat, **table_fields, **{k: o[j] for j, k in enumerate(other_keys)})
@@ -147,7 +143,7 @@ def bytes_per_table(scene: Scene, fabric_static: dict | None = None, per_table: 
     arrays), plus per setting ``WORKSPACE_FACTOR`` f32 grids (highways and route metrics).
     """
     fp = FabricParams(**(fabric_static or {}))
-    out = jax.eval_shape(_fabric.fabric_of, scene, fp)
+    out = jax.eval_shape(fabric_of, scene, fp)
     h, w = scene.shape
     return WORKSPACE_FACTOR * (_bytes(out) + _bytes(scene) + per_table * 4 * h * w)
 

@@ -48,8 +48,7 @@ import numpy as np
 
 from jaxplan.sweep.chunks import Chunk, chunk_size_for, evaluate_chunk
 from jaxplan.sweep.spec import METRICS, SweepSpec, columns_of, load_spec, settings_of, tables_of
-from jaxplan.transport.fabric import check_build_memory
-from jaxplan.transport.params import FabricParams
+from jaxplan.transport import FabricParams, check_build_memory
 
 
 def _fmt(v) -> str:

@@ -11,10 +11,16 @@ from typing import NamedTuple
 
 import jax
 
-from jaxplan.core.files import path_kind, read_text
-from jaxplan.transport.params import FabricParams, validate_params
-from jaxplan.transport.scene import MAX_FILE_SIDE, Scene
-from jaxplan.transport.scenes import BUILTIN_SCENES, builtin_scene, random_scene
+from jaxplan.core import path_kind, read_text
+from jaxplan.transport import (
+    BUILTIN_SCENES,
+    MAX_FILE_SIDE,
+    FabricParams,
+    Scene,
+    builtin_scene,
+    random_scene,
+    validate_params,
+)
 from jaxplan.transport.spillage import SpillParams, validate_spill_params
 
 __all__ = ["METRICS", "REFUSED", "SweepSpec", "columns_of", "load_spec", "settings_of", "tables_of"]

@@ -8,9 +8,11 @@ dump trucks (cooperators) through a blackboard so that every site meets its dead
 
 See docs/teams.md for the model (Eqs. 1-4) and the simulation's conventions.
 """
-from jaxplan.teams.params import STRATEGIES, SiteParams, TeamsConfig
-from jaxplan.teams.scenario import PAPER, paper_config, paper_scenario, random_sites
-from jaxplan.teams.sim import SiteResult, Trace, run_sites, simulate_site
+from jaxplan.teams.generators import PAPER, paper_config, paper_scenario, random_sites
+from jaxplan.teams.params import STRATEGIES, SiteParams, TeamsConfig, validate_site
+from jaxplan.teams.report import check_paper_options, run_paper
+from jaxplan.teams.sim import SiteResult, Trace, run_sites, run_sites_jit, simulate_site
 
-__all__ = ["PAPER", "STRATEGIES", "SiteParams", "SiteResult", "TeamsConfig", "Trace",
-           "paper_config", "paper_scenario", "random_sites", "run_sites", "simulate_site"]
+__all__ = ["PAPER", "STRATEGIES", "SiteParams", "SiteResult", "TeamsConfig", "Trace", "check_paper_options",
+           "paper_config", "paper_scenario", "random_sites", "run_paper", "run_sites", "run_sites_jit",
+           "simulate_site", "validate_site"]

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxplan.teams.generators import PAPER, paper_config, paper_scenario
 from jaxplan.teams.params import STRATEGIES
-from jaxplan.teams.scenario import PAPER, paper_config, paper_scenario
 
 __all__ = ["check_paper_options", "plot_performance", "run_paper", "summarize"]
 

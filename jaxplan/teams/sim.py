@@ -395,7 +395,9 @@ def simulate_site(cfg: TeamsConfig, params: SiteParams):
 
 
 @functools.partial(jax.jit, static_argnums=0)
-def _run_sites(cfg: TeamsConfig, params: SiteParams):
+def run_sites_jit(cfg: TeamsConfig, params: SiteParams):
+    """``run_sites`` without the input checks, jitted: for ahead-of-time compiles
+    (``run_sites_jit.lower(cfg, params).compile()``) on inputs already checked by ``validate_site``."""
     return jax.vmap(functools.partial(simulate_site, cfg))(params)
 
 
@@ -405,4 +407,4 @@ def run_sites(cfg: TeamsConfig, params: SiteParams):
     Returns ``(SiteResult, Trace or None)`` with a leading axis B (Trace: ``[B, T, ...]``).
     """
     validate_site(params, cfg)
-    return _run_sites(cfg, params)
+    return run_sites_jit(cfg, params)

@@ -4,33 +4,92 @@ counts, and the push loop that plans on it.
 Data flows one way (docs/architecture.md): ``scene`` -> ``visibility`` (successor graph) ->
 ``fabric`` (K-best DP, ``kbest``; values, table, psi) -> ``heatmap`` (heat, highways) ->
 ``connectors`` (anchors) -> ``selection`` (Eq. 6 with ``spillage``) -> ``execute`` (push) ->
-``rebuild`` (selective, ``compact``) -> ``episode`` (``reset`` / ``step`` / ``run_episode``).
-``soft`` is the differentiable relaxation of the fabric; ``rover`` checks routes in MuJoCo; ``viz``
+``rebuild`` (selective, ``compact``). ``plan`` makes one tick's push; ``episode`` is the pure state
+machine (``reset`` / ``step`` / ``rollout``); ``run`` its host driver (``run_episode``).
+``soft`` is the differentiable relaxation of the fabric; ``physics`` checks routes with a rover in MuJoCo; ``viz``
 draws fabrics and episodes.
 """
-from jaxplan.transport.connectors import Connectors, plan_connectors
-from jaxplan.transport.episode import Episode, EpisodeParams, EpisodeState, StepRecord, reset, run_episode, step
-from jaxplan.transport.execute import Push, Route
+from jaxplan.transport.connectors import Connectors, plan_connectors, slot_anchors
+from jaxplan.transport.episode import (
+    BUDGET,
+    CLEARED,
+    DONE,
+    MAX_PUSHES,
+    NO_MATERIAL,
+    NO_ROUTE,
+    RUNNING,
+    SELECTIVE_MIN_CELLS,
+    STOP_REASONS,
+    WALK_CAP,
+    EpisodeParams,
+    EpisodeState,
+    StepRecord,
+    act,
+    default_walk_cap,
+    outside_mass,
+    plan_code,
+    rebuild_mode,
+    require_hard,
+    reset,
+    rollout_scenes_jit,
+    step,
+    validate_episode_params,
+)
+from jaxplan.transport.execute import (
+    SPLINE_CHUNK,
+    Push,
+    Route,
+    execute_jit,
+    execute_push,
+    quantize,
+    route_from_path,
+    routes_from_paths,
+    spill_cells,
+    waypoint_pickup,
+    waypoints,
+)
 from jaxplan.transport.fabric import (
     Fabric,
     Paths,
     Table,
     build_fabric,
     check_build_memory,
+    count_table_hops,
     estimate_build_bytes,
     extract_paths,
+    fabric_of,
 )
-from jaxplan.transport.params import FabricParams
+from jaxplan.transport.generators import BUILTIN_SCENES, DEFAULT_SCENE, builtin_scene, random_scene
+from jaxplan.transport.heatmap import highways
+from jaxplan.transport.params import K_MAX, FabricParams, validate_params
+from jaxplan.transport.plan import (
+    Plan,
+    anchor_connector,
+    choose_source,
+    plan_episode_tick,
+    plan_for_source,
+    plan_tick,
+    plan_with_connector,
+    source_anchor,
+)
 from jaxplan.transport.rebuild import Affected, refresh_connectors, selective_rebuild
-from jaxplan.transport.scene import Scene, box, circle
-from jaxplan.transport.scenes import BUILTIN_SCENES, DEFAULT_SCENE, builtin_scene, random_scene
-from jaxplan.transport.selection import Selection, reselect, select_routes
+from jaxplan.transport.run import Episode, run_episode
+from jaxplan.transport.scene import MAX_FILE_SIDE, Scene, box, circle, stack_scenes
+from jaxplan.transport.selection import Selection, reselect, reselect_jit, select_routes
 from jaxplan.transport.soft import SoftFabric
 from jaxplan.transport.spillage import SpillParams
+from jaxplan.transport.viz import PALETTE, animate_episode, cell_edges, plot_episode, plot_fabric, polygon_rings
 
-__all__ = ["BUILTIN_SCENES", "DEFAULT_SCENE", "Affected", "Connectors", "Episode", "EpisodeParams", "EpisodeState",
-           "Fabric", "FabricParams", "Paths", "Push", "Route", "Scene", "Selection", "SoftFabric", "SpillParams",
-           "StepRecord", "Table", "box", "build_fabric", "builtin_scene", "check_build_memory", "circle",
-           "estimate_build_bytes", "extract_paths",
-           "plan_connectors", "random_scene", "refresh_connectors", "reselect", "reset", "run_episode",
-           "select_routes", "selective_rebuild", "step"]
+__all__ = ["Affected", "BUDGET", "BUILTIN_SCENES", "CLEARED", "Connectors", "DEFAULT_SCENE", "DONE", "Episode",
+           "EpisodeParams", "EpisodeState", "Fabric", "FabricParams", "K_MAX", "MAX_FILE_SIDE", "MAX_PUSHES",
+           "NO_MATERIAL", "NO_ROUTE", "PALETTE", "Paths", "Plan", "Push", "RUNNING", "Route", "SELECTIVE_MIN_CELLS",
+           "SPLINE_CHUNK", "STOP_REASONS", "Scene", "Selection", "SoftFabric", "SpillParams", "StepRecord", "Table",
+           "WALK_CAP", "act", "anchor_connector", "animate_episode", "box", "build_fabric", "builtin_scene",
+           "cell_edges", "check_build_memory", "choose_source", "circle", "count_table_hops", "default_walk_cap",
+           "estimate_build_bytes", "execute_jit", "execute_push", "extract_paths", "fabric_of", "highways",
+           "outside_mass", "plan_code", "plan_connectors", "plan_episode_tick", "plan_for_source", "plan_tick",
+           "plan_with_connector", "plot_episode", "plot_fabric", "polygon_rings", "quantize", "random_scene",
+           "rebuild_mode", "refresh_connectors", "require_hard", "reselect", "reselect_jit", "reset",
+           "rollout_scenes_jit", "route_from_path", "routes_from_paths", "run_episode", "select_routes",
+           "selective_rebuild", "slot_anchors", "source_anchor", "spill_cells", "stack_scenes", "step",
+           "validate_episode_params", "validate_params", "waypoint_pickup", "waypoints"]

@@ -6,8 +6,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.core import lattice
-from jaxplan.core.compilation import grid_jit
+from jaxplan.core import grid_jit, lattice
 from jaxplan.transport.fabric import Fabric, Table, continuation_dp
 from jaxplan.transport.params import FabricParams, validate_params
 

@@ -1,6 +1,6 @@
 """Pushing a route on the grid: collect, carry, spill beside the path, deposit in the target.
 
-Mass bookkeeping (docs/conventions.md, "Executing a route"): the route's non-target cells are emptied
+Mass bookkeeping (docs/transport.md, "Executing a route"): the route's non-target cells are emptied
 (each cell once), every spline sample's spill is dropped one cell size to the *outside* of the turn
 (or, if that point is off the grid or in the target, back on the cell the sample's segment leaves),
 and the rest, ``delivered = collected - sum(spill)``, is added to one target cell: the cell the route
@@ -14,7 +14,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.core.compilation import grid_jit
+from jaxplan.core import grid_jit
 from jaxplan.transport import spillage
 from jaxplan.transport.fabric import Paths
 
@@ -156,7 +156,7 @@ def deposit_cell(scene, route: Route):
     return jnp.where(route.fallback, nearest, last[0] * w + last[1])
 
 
-def execute(scene, route: Route, spill: spillage.SpillParams,
+def execute_push(scene, route: Route, spill: spillage.SpillParams,
             evaluator: spillage.Evaluator = spillage.curvature_spill):
     """Push ``route`` on ``scene``: ``(obj f32[H, W] after the push, Push)``. Jit-compatible.
 
@@ -185,4 +185,4 @@ def execute(scene, route: Route, spill: spillage.SpillParams,
     return new_obj, Push(collected, spilled, delivered, jnp.sum(samples.ds), changed, samples, spill_per_sample)
 
 
-execute_jit = grid_jit(execute, static_argnums=3)
+execute_jit = grid_jit(execute_push, static_argnums=3)

@@ -18,9 +18,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.core import lattice
-from jaxplan.core.compilation import SMALL_GRID_CELLS, grid_jit, traced
-from jaxplan.core.memory import available_memory_bytes
+from jaxplan.core import SMALL_GRID_CELLS, available_memory_bytes, grid_jit, lattice, traced
 from jaxplan.transport import heatmap, kbest, visibility
 from jaxplan.transport.params import FabricParams, validate_params
 

@@ -186,7 +186,7 @@ def highways(heat_map, target, tau_h, *, relative: bool = True, smoothing: bool 
     """``bool[H, W]`` highway cells (Eq. 11): non-target, positive heat at or above the threshold.
 
     heat_map: f32[H, W] objects; target: bool[H, W]; tau_h: f32[], fraction of max heat when
-    ``relative`` (static) else objects. ``smoothing`` / ``nms`` (static) as in docs/conventions.md.
+    ``relative`` (static) else objects. ``smoothing`` / ``nms`` (static) as in docs/transport.md.
     """
     h = smooth_3x3(heat_map) if smoothing else heat_map
     threshold = tau_h * jnp.max(h) if relative else tau_h

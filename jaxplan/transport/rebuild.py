@@ -33,8 +33,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.core import lattice
-from jaxplan.core.compilation import grid_jit, traced
+from jaxplan.core import grid_jit, lattice, traced
 from jaxplan.transport import compact, connectors, heatmap, visibility
 from jaxplan.transport.connectors import Connectors
 from jaxplan.transport.fabric import (

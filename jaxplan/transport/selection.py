@@ -23,7 +23,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.core.compilation import grid_jit, traced
+from jaxplan.core import grid_jit, traced
 from jaxplan.transport import execute, rebuild, spillage
 from jaxplan.transport import fabric as _fabric
 from jaxplan.transport.fabric import Fabric, walk_table

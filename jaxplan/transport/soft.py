@@ -6,7 +6,7 @@
 ``theta_tol_deg``, ``tau_h``, ``anchor_lambda``, ``temperature`` and the grid counts ``scene.obj``.
 
 The temperature is dimensionless: every softened decision divides its score by its own scene scale
-(docs/conventions.md, "Soft kernels"):
+(docs/transport.md, "Soft kernels"):
 
 - masses (values, raw, psi, heat) by the scene's **mass scale** ``M`` (``mass_scale``: the mean
   count of the occupied cells), so a max over options becomes a softmax at ``T = t M`` objects;
@@ -35,8 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.core import lattice
-from jaxplan.core.compilation import grid_jit
+from jaxplan.core import grid_jit, lattice
 from jaxplan.transport import visibility
 from jaxplan.transport.params import FabricParams
 

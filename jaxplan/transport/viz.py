@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from jaxplan.core.animation import save_animation
+from jaxplan.core import save_animation
 
 __all__ = ["PALETTE", "animate_episode", "cell_edges", "plot_episode", "plot_fabric", "polygon_rings"]
 

@@ -8,6 +8,7 @@ soft kernels (``FabricParams(temperature=...)``) and check the result with the h
 eta of Eqs. 8-9) to the search's own records (``plan_pushes(..., record=True)``) by a listwise loss.
 """
 from jaxplan.tune import fabric
+from jaxplan.tune.fabric import gradient_probe
 from jaxplan.tune.ranking import (
     RankingData,
     RankingFit,
@@ -19,6 +20,6 @@ from jaxplan.tune.ranking import (
 )
 from jaxplan.tune.spill import SpillData, SpillFit, fit_spill, predict_spill, spill_loss, synthetic_spill_data
 
-__all__ = ["fabric", "RankingData", "RankingFit", "SpillData", "SpillFit", "fit_ranking", "fit_spill", "predict_spill",
-           "ranking_data", "ranking_logits", "ranking_loss", "spill_loss", "synthetic_ranking_data",
-           "synthetic_spill_data"]
+__all__ = ["fabric", "gradient_probe", "RankingData", "RankingFit", "SpillData", "SpillFit", "fit_ranking",
+           "fit_spill", "predict_spill", "ranking_data", "ranking_logits", "ranking_loss", "spill_loss",
+           "synthetic_ranking_data", "synthetic_spill_data"]

@@ -28,10 +28,7 @@ import numpy as np
 import optax
 
 from jaxplan.core import lattice
-from jaxplan.transport.fabric import build_fabric
-from jaxplan.transport.params import FabricParams
-from jaxplan.transport.scene import Scene, stack_scenes
-from jaxplan.transport.scenes import random_scene
+from jaxplan.transport import FabricParams, Scene, build_fabric, random_scene, stack_scenes
 from jaxplan.transport.spillage import SpillParams
 
 TUNED = ("theta_tol_deg", "tau_h", "anchor_lambda")
@@ -85,7 +82,7 @@ AGGREGATES = ("job", "source")
 class ObjectiveConfig(NamedTuple):
     """Static settings of the objective: spill_lam (fraction per radian, as ``SpillParams.lam``),
     rearrange_margin (as ``EpisodeParams``), temperature of the soft kernels (dimensionless,
-    docs/conventions.md "Soft kernels"; 0.5: the cone gate's logit is ``x / (t^2 CONE_SCALE)``, so
+    docs/transport.md "Soft kernels"; 0.5: the cone gate's logit is ``x / (t^2 CONE_SCALE)``, so
     theta's gradient comes from the steps within a few ``t^2 CONE_SCALE`` cosine of the cone's edge,
     0.0125 at t = 0.5 but 0.0005 at t = 0.1, where the objective is nearly flat in theta).
 
@@ -232,7 +229,7 @@ def evaluate_hard(scenes: list[Scene], params: FabricParams, *, max_pushes: int 
     """Run the hard episode loop on every scene; one dict per scene with delivered mass, distance
     driven, pushes and delivered per unit driven (objects per world unit). The world spills with
     ``spill_lam``; the planner selects routes (Eq. 6) with ``plan_lam`` (None: ``spill_lam``)."""
-    from jaxplan.transport.episode import EpisodeParams, run_episode
+    from jaxplan.transport import EpisodeParams, run_episode
 
     hard = params.replace(temperature=None)
     rows = []
@@ -247,3 +244,17 @@ def evaluate_hard(scenes: list[Scene], params: FabricParams, *, max_pushes: int 
                          initial_remaining=float(ep.initial_remaining), stop_reason=ep.stop_reason,
                          efficiency=delivered / driven if driven > 0 else 0.0))
     return rows
+
+
+def gradient_probe(scene, theta, tau, lam, obj, t):
+    """f32[]: one scalar that touches every output of the soft fabric (value, raw, psi, heat,
+    highways and the anchor weights), for ``scene`` with counts ``obj: f32[H, W]``,
+    ``theta_tol_deg=theta``, ``tau_h=tau``, ``anchor_lambda=lam`` and temperature ``t``.
+
+    Differentiate it in ``theta``, ``tau``, ``lam`` and ``obj`` to check every output's gradient at
+    once (the tests against finite differences; ``experiments/soft_convergence.py``'s table)."""
+    f = build_fabric(scene.with_obj(obj), FabricParams(theta_tol_deg=theta, tau_h=tau, anchor_lambda=lam,
+                                                       temperature=t))
+    pos = jnp.arange(f.anchor_weights.shape[-1], dtype=jnp.float32)
+    return (jnp.sum(f.value) + jnp.sum(f.raw) + jnp.sum(f.psi) + jnp.sum(f.heat)
+            + jnp.sum(f.highways * f.heat) + jnp.sum(f.anchor_weights * pos) * 0.1)

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxplan.pusharound.ranking import PresearchFeatures, RankingParams, gap_costs, validate_ranking_params
+from jaxplan.pusharound import PresearchFeatures, RankingParams, gap_costs, validate_ranking_params
 
 __all__ = ["WEIGHTS", "RankingData", "RankingFit", "fit_ranking", "ranking_data", "ranking_logits", "ranking_loss",
            "synthetic_ranking_data", "validate_ranking_data"]

@@ -19,8 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxplan.transport import spillage
-from jaxplan.transport.spillage import SpillParams
+from jaxplan.transport.spillage import SpillParams, evaluate_route, validate_spill_params
 
 _DIRS = np.array([(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1)], np.float32)
 
@@ -57,7 +56,7 @@ class SpillFit(NamedTuple):
 def predict_spill(params: SpillParams, data: SpillData):
     """``(delivered f32[B], spilled f32[B])`` objects predicted by the spill model for ``data``'s routes."""
     def one(points, n, pickup):
-        delivered, spill, _ = spillage.evaluate_route(points, n, pickup, params)
+        delivered, spill, _ = evaluate_route(points, n, pickup, params)
         return delivered, jnp.sum(spill)
 
     return jax.vmap(one)(data.waypoints, data.n_points, data.pickup)
@@ -72,7 +71,7 @@ def spill_loss(params: SpillParams, data: SpillData):
 
 
 def _validate(data: SpillData, init: SpillParams, steps, learning_rate):
-    spillage.validate_spill_params(init)
+    validate_spill_params(init)
     if not isinstance(data, SpillData):
         raise ValueError(f"data: expected a SpillData, got {type(data).__name__}. "
                          "Build one with jaxplan.tune.SpillData(waypoints, n_points, pickup, delivered, spilled).")

@@ -1,18 +1,18 @@
-"""Fuzzed CLI input files (experiments/fuzz_cli.py): valid scene files (.npz, .json), sweep specs (TOML) and
+"""Fuzzed CLI input files (tests/fuzz/fuzz_cli.py): valid scene files (.npz, .json), sweep specs (TOML) and
 PushAround scenes (JSON), mutated (wrong types, NaN/inf, huge numbers, missing and extra keys, ragged rows,
 truncation, bit flips, npz dtype/shape changes, zip corruption, ...), run through the CLI in-process.
 
 Every case must either succeed (exit 0, a complete output, no temp files) or fail as bad input: exit
 code 2, exactly one ``error:`` line naming the file, a flag or a field, and no ``--out`` path created.
 Hypothesis draws the mutations (derandomized, so the suite always runs the same cases; no shrinking: a
-case's description already says what was mutated). ``python experiments/fuzz_cli.py`` runs many more.
+case's description already says what was mutated). ``python -m tests.fuzz.fuzz_cli`` runs many more.
 """
 from __future__ import annotations
 
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from experiments import fuzz_cli
+from tests.fuzz import fuzz_cli
 
 
 def _fuzz(max_examples: int):

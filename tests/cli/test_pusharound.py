@@ -120,7 +120,7 @@ def test_failed_planning_still_writes_the_result(tmp_path):
 
 
 def test_scene_without_movables_is_already_clear(tmp_path, capsys):
-    """Nothing to push (found by experiments/fuzz_cli.py): no physics world is built, the empty plan is a
+    """Nothing to push (found by tests/fuzz/fuzz_cli.py): no physics world is built, the empty plan is a
     success and every output is written."""
     scene_file = tmp_path / "empty.json"
     scene_file.write_text(json.dumps({**TINY, "movables": []}))

@@ -9,7 +9,7 @@ import pytest
 
 from jaxplan.cli import main
 from jaxplan.cli import transport as cli_transport
-from jaxplan.core.outputs import MANIFEST, read_manifest
+from jaxplan.core.outputs import MANIFEST
 
 EPISODE = ["episode", "--scene", "default", "--max-pushes", "1"]
 
@@ -108,25 +108,32 @@ def test_failed_write_marks_the_run_failed(tmp_path, monkeypatch, capsys):
 
 
 def test_real_sigint_mid_episode(earlier_run, tmp_path):
-    """Ctrl-C delivered to a real process while the episode runs."""
+    """Ctrl-C delivered to a real process while the episode pushes: after its first push (read off the
+    progress bar), in an episode that cannot end first however warm the compilation cache (the 65 x 65
+    scene down to its last object)."""
     import os
+    import re
     import signal
     import subprocess
     import sys
+    import threading
     import time
 
     out = _copy(earlier_run, tmp_path / "out")
-    proc = subprocess.Popen([sys.executable, "-m", "jaxplan.cli", *EPISODE[:-1], "500", "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "JAX_PLATFORMS": "cpu"})
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None:
-        if (read_manifest(out) or {}).get("status") == "running":
-            break
+    long_episode = ["episode", "--scene", "sparse65", "--stop-fraction", "0", "--max-pushes", "100000"]
+    proc = subprocess.Popen([sys.executable, "-m", "jaxplan.cli", *long_episode, "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    chunks: list[bytes] = []
+    reader = threading.Thread(target=lambda: chunks.extend(iter(lambda: proc.stderr.read1(4096), b"")), daemon=True)
+    reader.start()
+    pushed = re.compile(rb"pushes:[^\r\n]*\| *[1-9][0-9]*/")
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None and not pushed.search(b"".join(chunks)):
         time.sleep(0.1)
-    time.sleep(1.0)   # into the episode
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
+    proc.wait(timeout=120)
+    reader.join(timeout=10)
+    err = b"".join(chunks).decode(errors="replace")
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1].startswith("interrupted: ")
     m = _manifest(out)

@@ -13,7 +13,7 @@ import pytest
 from jaxplan import FabricParams, build_fabric
 from jaxplan.core import compilation as _compile
 from jaxplan.transport import fabric
-from jaxplan.transport.scenes import builtin_scene
+from jaxplan.transport.generators import builtin_scene
 
 
 def _doubler():

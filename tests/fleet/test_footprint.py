@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 from jaxplan import FabricParams, SpillParams, build_fabric
 from jaxplan.fleet import footprint
 from jaxplan.transport import execute
-from jaxplan.transport.episode import EpisodeParams, default_walk_cap, plan_for_source
+from jaxplan.transport.episode import EpisodeParams, default_walk_cap
+from jaxplan.transport.plan import plan_for_source
 from tests.fleet._sites import LAYOUTS, site
 
 SHAPE = (16, 16)
@@ -37,7 +38,7 @@ _plan = jax.jit(plan_for_source, static_argnames=("max_steps", "evaluator"))
 
 @functools.partial(jax.jit, static_argnums=2)
 def _observe(scene, route, clearance):
-    _, push = execute.execute(scene, route, SPILL)
+    _, push = execute.execute_push(scene, route, SPILL)
     mask = footprint.footprint_mask(scene, route, footprint.route_samples(scene, route, SPILL), clearance)
     k = jnp.arange(footprint.path_slots(SLOTS, SHAPE))
     path = jax.vmap(lambda i: footprint.path_cell(route, i))(k)

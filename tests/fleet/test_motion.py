@@ -12,6 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxplan.fleet import assign, footprint, motion
+from jaxplan.fleet.conflicts import conflicts
 from jaxplan.reference import fleet as ref
 from jaxplan.reference.visibility import DIRS
 from jaxplan.transport import execute
@@ -152,7 +153,7 @@ def test_one_step_equals_the_serial_move_rule(seed):
     np.testing.assert_array_equal(np.asarray(got_moved), want_moved)
     after = np.asarray(got_pos)
     assert len({tuple(p) for p in after.tolist()}) == N                    # never two in one cell
-    assert not ref.conflicts(np.stack([pos, after]), [])                   # nor a swap or a jump
+    assert not conflicts(np.stack([pos, after]), [])                   # nor a swap or a jump
 
 
 def _tasks(rng, clearance):
@@ -216,10 +217,10 @@ def test_greedy_choice_equals_the_serial_greedy(seed, clearance):
 
 def test_the_checker_finds_every_kind_of_violation():
     pos = np.array([[[0, 0], [5, 5]], [[1, 1], [5, 5]], [[2, 2], [4, 4]], [[4, 4], [2, 2]], [[3, 3], [3, 3]]])
-    found = ref.conflicts(pos, [(1, 1, 2, [(2, 2), (3, 3)]), (0, 2, 3, [(3, 3)])])
+    found = conflicts(pos, [(1, 1, 2, [(2, 2), (3, 3)]), (0, 2, 3, [(3, 3)])])
     assert {(t, kind) for t, kind, _ in found} == {(2, "overlap"), (2, "footprint"), (3, "jump"), (3, "swap"),
                                                    (4, "same cell")}
-    assert ref.conflicts(pos[:2], [(1, 0, 1, [(5, 5)])]) == []        # a rover in its own footprint is fine
+    assert conflicts(pos[:2], [(1, 0, 1, [(5, 5)])]) == []        # a rover in its own footprint is fine
 
 
 _rate = jax.jit(assign.rate_sources, static_argnums=4)

@@ -11,7 +11,7 @@ import pytest
 
 from jaxplan.fleet import physics as fp
 from jaxplan.transport import execute, spillage
-from jaxplan.transport.rover import model as rover_mod
+from jaxplan.transport.physics import model as rover_mod
 from jaxplan.transport.scene import Scene, box
 
 SLOTS = 24

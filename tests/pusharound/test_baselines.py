@@ -1,6 +1,5 @@
-"""PushAround benchmark: seeded scene generators, the Table I baselines and the harness's smoke run."""
-import json
-
+"""PushAround benchmark: seeded scene generators and the Table I baselines (the harness itself:
+tests/experiments/test_table1.py)."""
 import numpy as np
 import pytest
 
@@ -12,9 +11,9 @@ from jaxplan.pusharound.baselines import (
     schedule_duration,
     sl_push_offline,
 )
+from jaxplan.pusharound.generators import corridor_scene, dense_scene, density_scene, nominal_scene
 from jaxplan.pusharound.physics import build_push_world
 from jaxplan.pusharound.push import make_push_simulator
-from jaxplan.pusharound.scenarios import corridor_scene, dense_scene, density_scene, nominal_scene
 from jaxplan.pusharound.scene import validate_scene
 from jaxplan.pusharound.search import ScheduledPush, SearchResult, SearchStats
 from jaxplan.pusharound.wccg import build_wccg, connectivity
@@ -135,34 +134,3 @@ def test_bad_baseline_config_names_the_field(corridor):
     with pytest.raises(ValueError, match="max_push_s"):
         sl_push_offline(scene, BaselineConfig(max_push_s=5.0), world=world, sim=sim)
 
-
-# ------------------------------------------------------------------------------------------ harness
-
-def test_table1_quick_run_writes_json_and_resumes(tmp_path):
-    from experiments.table1 import main
-
-    argv = ["--quick", "--planners", "SL-Push (offline),Rec-NAMO", "--out", str(tmp_path), "--no-progress",
-            "--no-execute"]
-    doc = main(argv)
-    data = json.loads((tmp_path / "table1.json").read_text())
-    assert data == json.loads(json.dumps(doc))
-    assert {r["planner"] for r in data["rows"]} == {"SL-Push (offline)", "Rec-NAMO"}
-    for r in data["rows"]:
-        assert r["trials"] == 1 and 0.0 <= r["success_pct"] <= 100.0
-    assert "Table I" in (tmp_path / "table1.md").read_text()
-    lines = (tmp_path / "table1_trials.jsonl").read_text().splitlines()
-    assert len(lines) == 2
-    main(argv)                                  # resume: nothing left to run
-    assert (tmp_path / "table1_trials.jsonl").read_text().splitlines() == lines
-
-
-def test_table1_replan_column_executes_ours_with_online_replanning(tmp_path):
-    from experiments.table1 import main
-
-    main(["--quick", "--planners", "ours", "--replan", "--out", str(tmp_path), "--no-progress"])
-    rec = json.loads((tmp_path / "table1_trials.jsonl").read_text().splitlines()[0])
-    assert rec["success"] and rec["exec_success"] is not None
-    assert isinstance(rec["replan_exec_success"], bool) and rec["replans"] >= 0
-    row = json.loads((tmp_path / "table1.json").read_text())["rows"][0]
-    assert row["replan_exec_success_pct"] in (0.0, 100.0)
-    assert "+replan" in (tmp_path / "table1.md").read_text()

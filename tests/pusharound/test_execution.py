@@ -305,7 +305,7 @@ def test_a_corridor_that_closes_during_the_retreat_does_not_end_the_execution():
     sliding after the early stop, closes it again while the robots back off. Execution must judge the
     corridor after the retreat and carry on (here with the schedule's second push), not end
     "connected" on a state that fails Eq. 7 (as it did before)."""
-    from jaxplan.pusharound.scenarios import nominal_scene
+    from jaxplan.pusharound.generators import nominal_scene
     from jaxplan.pusharound.search import SearchConfig, plan_pushes
 
     scene = nominal_scene(14)

@@ -3,9 +3,10 @@ import mujoco
 import numpy as np
 import pytest
 
+from jaxplan.pusharound.generators import nominal_scene
 from jaxplan.pusharound.physics import PushPhysicsConfig, build_push_world, contact_usage
-from jaxplan.pusharound.push import direction_tasks, make_push_simulator, quick_pass, simulate_pushes, stack_tasks
-from jaxplan.pusharound.scenarios import nominal_scene
+from jaxplan.pusharound.push import direction_tasks, make_push_simulator, simulate_pushes, stack_tasks
+from jaxplan.pusharound.quickpass import quick_pass
 
 
 def _candidates(world, n, speed=0.3, duration=2.0):

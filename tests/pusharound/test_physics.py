@@ -8,20 +8,18 @@ from hypothesis import strategies as st
 from shapely.geometry import Point, box
 
 from jaxplan.pusharound import shapes
+from jaxplan.pusharound.generators import random_shape
 from jaxplan.pusharound.physics import PushPhysicsConfig, build_push_world, initial_state, movable_poses
 from jaxplan.pusharound.push import (
     PushTask,
     direction_tasks,
     face_contacts,
-    free_components,
     make_push_simulator,
     push_cost,
-    quick_pass,
     simulate_pushes,
     stack_tasks,
-    swept_hulls,
 )
-from jaxplan.pusharound.scenarios import random_shape
+from jaxplan.pusharound.quickpass import free_components, quick_pass, swept_hulls
 from jaxplan.pusharound.scene import Fixed, Movable, PushScene
 from jaxplan.reference.pusharound import swept_polygon
 

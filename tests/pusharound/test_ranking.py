@@ -7,9 +7,21 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplan.pusharound import PushScene, RankingParams, build_wccg, gap_costs, nominal_scene, rank_gaps
-from jaxplan.pusharound.ranking import one_hop_terms
+from jaxplan.pusharound import PushScene, RankingParams, build_wccg, connectivity, gap_costs, nominal_scene, rank_gaps
+from jaxplan.pusharound.ranking import DEAD_END_PENALTY, candidate_gaps, one_hop_terms
+from jaxplan.reference.pusharound import DEAD_END_PENALTY as REFERENCE_DEAD_END_PENALTY
 from jaxplan.reference.pusharound import reference_gap_costs
+
+
+def _frontier_gaps(scene, g=None):
+    """The reference's WCCG input, from the kernels: ``removed -> (same_face, candidate gaps)``."""
+    g = build_wccg(scene) if g is None else g
+
+    def frontier_gaps(removed):
+        conn = connectivity(g, scene.start, scene.goal, removed=removed)
+        return conn.same_face, ([] if conn.same_face else candidate_gaps(g, conn.frontier, removed))
+
+    return frontier_gaps
 
 
 def _box(x0, y0, x1, y1):
@@ -78,7 +90,7 @@ def test_two_walls_presearch_adds_the_second_gap():
         c_t1, c_p1 = one_hop_terms(nxt, gap.insertion[None], 1.0, 10.0)  # the robots moved to o_g
         h1 = np.linalg.norm(nxt.insertion - np.array(scene.goal))
         assert cost == pytest.approx(c_t0 + c_p0 + c_t1 + c_p1 + 0.5 * h1, rel=1e-5)
-    ref = reference_gap_costs(scene, params)
+    ref = reference_gap_costs(scene, params, _frontier_gaps(scene))
     for gap, cost in zip(r.gaps, r.cost):
         assert cost == pytest.approx(ref[gap.bodies], rel=1e-5)
 
@@ -88,11 +100,15 @@ def test_beam_search_equals_exhaustive_reference_on_a_nominal_scene():
     g = build_wccg(scene)
     params = RankingParams(lambda_t=0.7, lambda_p=1.3, eta=0.4, beam=64, depth=1)
     r = rank_gaps(scene, params, g)
-    ref = reference_gap_costs(scene, params, g)
+    ref = reference_gap_costs(scene, params, _frontier_gaps(scene, g))
     assert len(r.gaps) >= 2 and set(ref) == {gap.bodies for gap in r.gaps}
     for gap, cost in zip(r.gaps, r.cost):
         assert cost == pytest.approx(ref[gap.bodies], rel=1e-5)
     assert list(np.argsort([ref[gap.bodies] for gap in r.gaps], kind="stable")) == list(r.order)
+
+
+def test_reference_restates_the_dead_end_penalty():
+    assert REFERENCE_DEAD_END_PENALTY == DEAD_END_PENALTY
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ import pytest
 from jaxplan.reference import reference_fabric
 from jaxplan.reference.heatmap import highway_mask
 
-# Direction order of docs/conventions.md, restated here so the brute force is independent.
+# Direction order of docs/transport.md, restated here so the brute force is independent.
 DIRS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
 

@@ -10,8 +10,9 @@ from jaxplan import FabricParams, Scene, box, build_fabric
 from jaxplan.reference import execute as ref_ex
 from jaxplan.transport import selection
 from jaxplan.transport import spillage as sp
-from jaxplan.transport.episode import EpisodeParams, rebuild_mode, run_episode
+from jaxplan.transport.episode import EpisodeParams, rebuild_mode
 from jaxplan.transport.fabric import table_hops
+from jaxplan.transport.run import run_episode
 
 
 @pytest.fixture(scope="module")

@@ -179,7 +179,7 @@ def test_evaluator_is_pluggable(corner_scene):
         spill = jnp.where(jnp.arange(pickup.shape[0]) == 0, pickup, 0.0)
         return jnp.sum(pickup) - jnp.sum(spill), spill
 
-    new_obj, push = ex.execute(corner_scene, route, sp.SpillParams(), spill_everything_at_first_sample)
+    new_obj, push = ex.execute_push(corner_scene, route, sp.SpillParams(), spill_everything_at_first_sample)
     assert float(push.spilled) == pytest.approx(3.0)
     assert float(jnp.sum(new_obj)) == pytest.approx(float(jnp.sum(corner_scene.obj)))
 
@@ -188,7 +188,7 @@ def test_jit_matches_eager_and_gradients_are_finite(corner_scene):
     fab = build_fabric(corner_scene)
     route = _route(corner_scene, fab, (1, 1))
     spill = sp.SpillParams(lam=0.1, threshold=0.0)
-    eager = ex.execute(corner_scene, route, spill)[1]
+    eager = ex.execute_push(corner_scene, route, spill)[1]
     jitted = ex.execute_jit(corner_scene, route, spill)[1]
     np.testing.assert_allclose(float(eager.delivered), float(jitted.delivered), rtol=1e-6)
     points, n = ex.waypoints(corner_scene, route)

@@ -16,15 +16,16 @@ from hypothesis import strategies as st
 from shapely.geometry import LineString, MultiPolygon, Point, Polygon
 
 from jaxplan.reference.geometry import reference_geometry
+from jaxplan.transport import generators as scenes
+from jaxplan.transport import geometry as G
 from jaxplan.transport import scene as S
-from jaxplan.transport import scenes
 
 # --------------------------------------------------------------------------------------------------
 # Kernel vs reference (property test)
 # --------------------------------------------------------------------------------------------------
 
 def _kernel(shape, cell_size, origin, target):
-    mask, dist, tvec = S._geometry(jnp.asarray(S._segments(target)), tuple(shape),
+    mask, dist, tvec = G.target_geometry(jnp.asarray(G.target_segments(target)), tuple(shape),
                                    jnp.float32(cell_size), jnp.asarray(origin, jnp.float32))
     return np.asarray(mask), np.asarray(dist, np.float64), np.asarray(tvec, np.float64)
 
@@ -144,10 +145,10 @@ def test_chunked_kernel_equals_single_block():
         Polygon(outer.exterior.coords, [S.circle((6.0, 5.0), 2.0, 12).exterior.coords]),
         S.box(13.0, 1.0, 16.0, 9.5),
     ])
-    segs = jnp.asarray(S._segments(target))
+    segs = jnp.asarray(G.target_segments(target))
     args = (segs, (13, 17), jnp.float32(1.0), jnp.zeros(2, jnp.float32))
-    whole = S._geometry(*args)
-    chunked = S._geometry(*args, pair_budget=64, seg_chunk=7)  # many row blocks, padded chunks
+    whole = G.target_geometry(*args)
+    chunked = G.target_geometry(*args, pair_budget=64, seg_chunk=7)  # many row blocks, padded chunks
     np.testing.assert_array_equal(whole[0], chunked[0])
     np.testing.assert_allclose(whole[1], chunked[1], rtol=0, atol=1e-6)
     np.testing.assert_allclose(whole[2], chunked[2], rtol=0, atol=1e-6)
@@ -157,7 +158,7 @@ def test_segments_order_and_shape():
     hole = S.box(1, 1, 2, 2)
     poly = Polygon(S.box(0, 0, 4, 4).exterior.coords, [hole.exterior.coords])
     second = S.box(10, 10, 11, 12)
-    segs = S._segments(MultiPolygon([poly, second]))
+    segs = G.target_segments(MultiPolygon([poly, second]))
     assert segs.shape == (12, 2, 2) and segs.dtype == np.float32
     np.testing.assert_array_equal(segs[0, 0], np.asarray(poly.exterior.coords[0], np.float32))
     np.testing.assert_array_equal(segs[4, 0], np.asarray(hole.exterior.coords[0], np.float32))

@@ -1,5 +1,5 @@
 """Scene.load on broken files: every problem is one ValueError "Scene file <path>: ..." naming what is
-wrong (docs/scene-format.md, "What is checked when a file is read"), never a decoder's traceback."""
+wrong (docs/scene-files.md, "What is checked when a file is read"), never a decoder's traceback."""
 from __future__ import annotations
 
 import io
@@ -142,7 +142,7 @@ def test_huge_shape_in_the_header_is_refused_before_reading(tmp_path):
 
 @pytest.mark.parametrize("garbage", [b"{'descr': '<f4', (((", b"\xff\xfe not python", b"{" * 200])
 def test_damaged_npy_header_is_named(tmp_path, garbage):
-    """A header that is not the dict literal numpy writes (found by experiments/fuzz_cli.py)."""
+    """A header that is not the dict literal numpy writes (found by tests/fuzz/fuzz_cli.py)."""
     path = tmp_path / "bad_header.npz"
     magic = np.lib.format.magic(1, 0)
     body = garbage.ljust(118) + b"\n"

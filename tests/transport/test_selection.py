@@ -14,7 +14,8 @@ from jaxplan.reference.heatmap import heat_map, psi_map, table_path
 from jaxplan.transport import fabric as fab_mod
 from jaxplan.transport import selection
 from jaxplan.transport import spillage as sp
-from jaxplan.transport.episode import EpisodeParams, run_episode
+from jaxplan.transport.episode import EpisodeParams
+from jaxplan.transport.run import run_episode
 from tests._scenes import scenes
 
 SETTINGS = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -8,11 +8,11 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from experiments.soft_convergence import probe_scalar
 from jaxplan import FabricParams, Scene, box, build_fabric, circle
 from jaxplan.core import lattice
 from jaxplan.transport import visibility
 from jaxplan.transport.soft import CONE_SCALE
+from jaxplan.tune import gradient_probe
 
 SIDE = 8   # one grid shape: one compile
 
@@ -73,8 +73,8 @@ def test_soft_fabric_is_faithful_at_t_0_05(case):
     assert max(errors.values()) <= max(warm.values()) + 1e-6, (errors, warm)
 
 
-_value = jax.jit(probe_scalar)
-_grad = jax.jit(jax.grad(probe_scalar, argnums=(1, 2, 3, 4)))
+_value = jax.jit(gradient_probe)
+_grad = jax.jit(jax.grad(gradient_probe, argnums=(1, 2, 3, 4)))
 
 
 @pytest.fixture(scope="module")

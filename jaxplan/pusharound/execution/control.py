@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.physics.rollout import Simulator, Trajectory
+from jaxplan.physics import Simulator, Trajectory
 from jaxplan.pusharound.execution.state import ExecutionState
 from jaxplan.pusharound.physics import movable_poses
 from jaxplan.pusharound.push import PushTask, check_tasks, rollout_outcome, stack_tasks

@@ -9,7 +9,7 @@ import numpy as np
 import shapely
 from shapely import affinity
 
-from jaxplan.physics.rollout import Simulator
+from jaxplan.physics import Simulator
 from jaxplan.pusharound.execution.config import ExecutionConfig
 from jaxplan.pusharound.execution.control import retreat, run_push, transit_policy
 from jaxplan.pusharound.execution.results import ExecutedPush, Execution, schedule_of

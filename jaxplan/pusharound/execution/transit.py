@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 from shapely.geometry import LineString, Point
 
-from jaxplan.physics.rollout import Simulator
+from jaxplan.physics import Simulator
 from jaxplan.pusharound.execution.control import drive_along
 from jaxplan.pusharound.execution.roadmap import Roadmap
 from jaxplan.pusharound.execution.state import ExecutionState

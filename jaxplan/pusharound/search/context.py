@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from jaxplan.physics.rollout import Simulator
+from jaxplan.physics import Simulator
 from jaxplan.pusharound.modetable import ModeTable
 from jaxplan.pusharound.physics import PushWorld, build_push_world
 from jaxplan.pusharound.push import make_push_simulator

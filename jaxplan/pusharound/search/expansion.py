@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from jaxplan.pusharound.push import PushTask, push_cost, quick_pass, simulate_pushes, stack_tasks
+from jaxplan.pusharound.push import PushTask, push_cost, simulate_pushes, stack_tasks
+from jaxplan.pusharound.quickpass import quick_pass
 from jaxplan.pusharound.search.candidates import candidate_task, candidates
 from jaxplan.pusharound.search.context import SearchContext, SearchRun
 from jaxplan.pusharound.search.evaluation import check_node

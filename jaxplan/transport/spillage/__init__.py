@@ -20,9 +20,11 @@ from jaxplan.transport.spillage.base import (
     threshold_spill,
     validate_spill_params,
 )
-from jaxplan.transport.spillage.capacity import CapacitySpillParams, capacity_spill
+from jaxplan.transport.spillage.capacity import ROVER_FIT, CapacitySpillParams, capacity_spill, validate_capacity_params
 from jaxplan.transport.spillage.curvature import curvature_spill
+from jaxplan.transport.spillage.fit import FIT_FIELDS, fit_capacity, predict_delivered, predict_missed
 
-__all__ = ["CENTRIPETAL", "EVALUATORS", "CapacitySpillParams", "Evaluator", "PathSamples", "SpillParams",
-           "capacity_spill", "curvature_spill", "evaluate_route", "evaluator_for", "pickups_per_sample", "register",
-           "sample_route", "sample_route_prefix", "threshold_spill", "validate_spill_params"]
+__all__ = ["CENTRIPETAL", "CapacitySpillParams", "EVALUATORS", "Evaluator", "FIT_FIELDS", "PathSamples", "ROVER_FIT",
+           "SpillParams", "capacity_spill", "curvature_spill", "evaluate_route", "evaluator_for", "fit_capacity",
+           "pickups_per_sample", "predict_delivered", "predict_missed", "register", "sample_route",
+           "sample_route_prefix", "threshold_spill", "validate_capacity_params", "validate_spill_params"]

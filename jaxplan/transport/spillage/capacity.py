@@ -3,7 +3,7 @@
 The curvature model of :mod:`jaxplan.transport.spillage` removes a fraction of the load per radian of
 turning, so its delivered mass scales with the collected mass. The shovel rover in physics does not
 behave like that: a one-cell blade carries a roughly fixed amount whatever it collects (see
-docs/physics.md, "Capacity-aware spill model"). This evaluator adds that limit, a loss per unit of
+docs/transport.md, "The capacity-aware model"). This evaluator adds that limit, a loss per unit of
 distance, the part of a cell the blade misses where it turns, and a turning loss that stops growing
 with the load. Sample by sample along the route's spline (as ``curvature_spill``):
 
@@ -25,7 +25,7 @@ the overflow is the hard ``max(load - capacity, 0)``. The overflow is only taken
 something in (``pickup_i - missed_i > 0``): elsewhere the load can only fall, and applying the soft
 overflow at every sample would bleed about ``T * softplus(0)`` objects per sample from a full blade.
 
-The two turning terms come from the physics (docs/physics.md, "The turning terms"): where the
+The two turning terms come from the physics (docs/transport.md, "The capacity-aware model"): where the
 path turns at a cell, the spline cuts the cell's corner and the blade leaves the outer part of it
 behind (``miss``, a fraction of the cell's objects per radian), and a turn spills the pile's edge
 over the side plates, an amount that grows with the load only while the pile is small
@@ -37,7 +37,7 @@ evaluator is the three-term model (capacity, turning, distance) exactly.
 
 It plugs into the pipeline as any evaluator: pass ``CapacitySpillParams`` where a ``SpillParams`` is
 expected (it is one: a subclass with five more traced fields) and ``capacity_spill`` as the
-``evaluator`` (``execute.execute``, ``selection.select_routes``, ``episode.run_episode``,
+``evaluator`` (``execute.execute_push``, ``selection.select_routes``, ``episode.run_episode``,
 ``spillage.evaluate_route``). Parameters are traced pytree leaves: ``jax.grad`` and ``jax.vmap`` go
 through them (fit them with optax, vmap over parameter sets).
 """

@@ -3,7 +3,7 @@
 
 Kinds of input (each case picks one, writes a fresh valid file and mutates it, or leaves it valid):
 
-- ``scene.npz`` / ``scene.json``: a 6x6 transport scene with a box target (docs/scene-format.md), run
+- ``scene.npz`` / ``scene.json``: a 6x6 transport scene with a box target (docs/scene-files.md), run
   through ``jaxplan fabric --scene F --out D/out/f.npz`` or, one case in six, ``jaxplan episode --scene F
   --out D/out --no-animation --max-pushes 2``;
 - ``sweep.toml``: a sweep spec (docs/sweeps.md) over a 6x6 scene file beside it and one 5x5 random scene,
@@ -41,44 +41,40 @@ the exception type and the innermost jaxplan function for a traceback, the norma
 error line), each with one example and the command that replays it. ``tests/cli/test_fuzz.py`` runs a
 bounded, deterministic set of cases through the same ``make_case`` / ``execute`` / ``check_case``.
 
-Examples::
+Examples (from the repository root)::
 
-    python experiments/fuzz_cli.py --cases 1000 --seed 0
-    python experiments/fuzz_cli.py --cases 50 --seed 1 --kinds scene.npz scene.json
-    python experiments/fuzz_cli.py --seed 0 --replay 17 --keep out/fuzz17   # rerun one case, keep its files
+    python -m tests.fuzz.fuzz_cli --cases 1000 --seed 0
+    python -m tests.fuzz.fuzz_cli --cases 50 --seed 1 --kinds scene.npz scene.json
+    python -m tests.fuzz.fuzz_cli --seed 0 --replay 17 --keep out/fuzz17   # rerun one case, keep its files
 """
 from __future__ import annotations
 
+import argparse
+import copy
+import datetime as _dt
+import functools
+import io
+import json
+import math
+import os
+import platform
+import re
+import shutil
+import statistics
 import sys
+import tempfile
+import time
+import traceback
+import warnings
+import zipfile
+from collections import Counter, defaultdict
+from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import dataclass, field
 from pathlib import Path
 
-if __package__ in (None, ""):   # run as a script: fuzz this checkout's jaxplan, import its experiments
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import argparse  # noqa: E402
-import copy  # noqa: E402
-import datetime as _dt  # noqa: E402
-import functools  # noqa: E402
-import io  # noqa: E402
-import json  # noqa: E402
-import math  # noqa: E402
-import os  # noqa: E402
-import platform  # noqa: E402
-import re  # noqa: E402
-import shutil  # noqa: E402
-import statistics  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-import traceback  # noqa: E402
-import warnings  # noqa: E402
-import zipfile  # noqa: E402
-from collections import Counter, defaultdict  # noqa: E402
-from contextlib import redirect_stderr, redirect_stdout  # noqa: E402
-from dataclasses import dataclass, field  # noqa: E402
-
-import numpy as np  # noqa: E402
-
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
+RESULTS_DIR = Path(__file__).resolve().parents[2] / "experiments" / "results"   # beside the benchmarks' results
 FAST_COMPILE_FLAGS = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
 
 KINDS = ("scene.npz", "scene.json", "sweep.toml", "pusharound.json")
@@ -119,7 +115,7 @@ PUSH_FIELDS = ("format", "version", "workspace", "vehicle_width", "start", "goal
 @functools.cache
 def _base_scene_files() -> tuple[bytes, str]:
     """The ``.npz`` bytes and ``.json`` text of a valid 6x6 scene (two rows of objects, a box target)."""
-    from jaxplan.transport.scene import Scene, box
+    from jaxplan.transport import Scene, box
 
     obj = np.zeros((6, 6), np.float32)
     obj[1:3, 0:3] = 2.0
@@ -759,7 +755,7 @@ def execute(argv: list[str]) -> dict:
     (the traceback's last line), ``where`` (innermost jaxplan frame), ``frame`` (innermost frame),
     ``stdout``, ``stderr``, ``warnings`` (categories), ``seconds``.
     """
-    from jaxplan.cli.main import main
+    from jaxplan.cli import main
 
     out, err = io.StringIO(), io.StringIO()
     result = {"code": None, "exception": None, "where": None, "frame": None}
@@ -891,7 +887,7 @@ def finding_key(case: Case, run: dict, outcome: str, problems: list[str]) -> str
 # --------------------------------------------------------------------------------------------------
 
 def _worker(conn) -> None:
-    from jaxplan.cli.main import main  # noqa: F401 -- import once, before the first case
+    from jaxplan.cli import main  # noqa: F401 -- import once, before the first case
 
     while True:
         argv = conn.recv()
@@ -957,7 +953,7 @@ def build_case(seed: int, index: int, folder: Path, kinds=None) -> Case:
 
 
 def replay_command(seed: int, index: int, kinds=None) -> str:
-    return (f"python experiments/fuzz_cli.py --seed {seed} --replay {index}"
+    return (f"python -m tests.fuzz.fuzz_cli --seed {seed} --replay {index}"
             + (f" --kinds {' '.join(kinds)}" if kinds else "") + f" --keep out/fuzz_case{index}")
 
 
@@ -1049,7 +1045,7 @@ def markdown(result: dict) -> str:
              f"{result['date']}, {result['host']}, jax {result['jax']} ({result['backend']}), seed {result['seed']}, "
              f"{result['cases']} cases in {result['seconds']:.0f} s (per-case timeout {result['case_timeout_s']:g} s). "
              "Each case mutates a valid input file and runs the CLI on it in-process "
-             "(`experiments/fuzz_cli.py`). Passing: `exit0`, `exit2_good` (one `error:` line naming the file, a "
+             "(`tests/fuzz/fuzz_cli.py`). Passing: `exit0`, `exit2_good` (one `error:` line naming the file, a "
              "flag or a field, no output left behind).", "",
              "## Cases per kind of input", "", head, rule, *rows(result["kinds"].items()),
              "| **all** | " + " | ".join(f"**{result['outcomes'][o]}**" for o in cols)
@@ -1076,11 +1072,12 @@ def markdown(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0].replace("\n", " "),
+    ap = argparse.ArgumentParser(prog="python -m tests.fuzz.fuzz_cli",
+                                 description=__doc__.split("\n\n")[0].replace("\n", " "),
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
-                                 epilog="examples:\n  python experiments/fuzz_cli.py --cases 1000 --seed 0\n"
-                                        "  python experiments/fuzz_cli.py --cases 50 --kinds scene.npz\n"
-                                        "  python experiments/fuzz_cli.py --seed 0 --replay 17 --keep out/fuzz17")
+                                 epilog="examples:\n  python -m tests.fuzz.fuzz_cli --cases 1000 --seed 0\n"
+                                        "  python -m tests.fuzz.fuzz_cli --cases 50 --kinds scene.npz\n"
+                                        "  python -m tests.fuzz.fuzz_cli --seed 0 --replay 17 --keep out/fuzz17")
     ap.add_argument("--cases", type=int, default=1000, help="number of cases (default 1000, about 2 minutes)")
     ap.add_argument("--seed", type=int, default=0, help="seed; case I of seed S is always the same input (default 0)")
     ap.add_argument("--kinds", nargs="+", choices=KINDS, default=None, metavar="KIND",
@@ -1121,15 +1118,22 @@ def main(argv=None) -> int:
                 "jax": jax.__version__, "backend": jax.default_backend(), "seed": args.seed,
                 "kinds_requested": args.kinds or list(KINDS), "case_timeout_s": args.case_timeout,
                 "xla_flags": os.environ.get("XLA_FLAGS", ""), "seconds": round(time.perf_counter() - start, 1),
-                "command": "python experiments/fuzz_cli.py " + " ".join(argv if argv is not None else sys.argv[1:])}
+                "command": "python -m tests.fuzz.fuzz_cli " + " ".join(argv if argv is not None else sys.argv[1:])}
         result = summarise(records, findings, meta)
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
-    from experiments._results import write_results
-
     write_results(args.results_dir, args.name, result, markdown(result))
     return 0
+
+
+def write_results(results_dir: Path, stem: str, result: dict, markdown_text: str) -> None:
+    """``<stem>.json`` and ``<stem>.md`` in ``results_dir``, as the benchmarks in ``experiments/`` write
+    theirs (``experiments.results_io``); the table is printed too."""
+    results_dir.mkdir(parents=True, exist_ok=True)
+    (results_dir / f"{stem}.json").write_text(json.dumps(result, indent=1, allow_nan=False) + "\n")
+    (results_dir / f"{stem}.md").write_text(markdown_text)
+    print(markdown_text)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from jaxplan.fleet import SITES, site
-from jaxplan.fleet.sites import MAX_COUNT, build_site
+from jaxplan.fleet.generators import MAX_COUNT, build_site
 
 EXPECTED = {"site128": (128, 2), "site256": (256, 3), "site512": (512, 4)}
 

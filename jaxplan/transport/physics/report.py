@@ -26,7 +26,7 @@ def plot_check(scene, check, route: int = 0):
     """
     import matplotlib.pyplot as plt
 
-    from jaxplan.transport.rover import bridge
+    from jaxplan.transport.physics import bridge
 
     world, traj = check.world, check.trajectory
     s = world.cell_size

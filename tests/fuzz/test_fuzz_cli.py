@@ -1,8 +1,8 @@
-"""The CLI fuzzer (experiments/fuzz_cli.py) on a tiny run: its worker process runs the cases, the results are
+"""The CLI fuzzer (tests/fuzz/fuzz_cli.py) on a tiny run: its worker process runs the cases, the results are
 written and every case is counted once."""
 import json
 
-from experiments import fuzz_cli
+from tests.fuzz import fuzz_cli
 
 
 def test_a_tiny_run_counts_every_case_and_writes_the_tables(tmp_path):
@@ -14,5 +14,5 @@ def test_a_tiny_run_counts_every_case_and_writes_the_tables(tmp_path):
     assert set(result["kinds"]) == {"scene.json"}
     for finding in result["findings"]:
         assert finding["outcome"] not in fuzz_cli.PASSING and finding["count"] == len(finding["cases"])
-        assert finding["example"]["replay"].startswith("python experiments/fuzz_cli.py --seed 1 --replay ")
+        assert finding["example"]["replay"].startswith("python -m tests.fuzz.fuzz_cli --seed 1 --replay ")
     assert "| scene.json |" in (tmp_path / "fuzz_cli.md").read_text()

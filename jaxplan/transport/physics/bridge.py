@@ -27,9 +27,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxplan.physics.rollout import Simulator, Trajectory
+from jaxplan.physics import Simulator, Trajectory
 from jaxplan.transport import execute, spillage
-from jaxplan.transport.rover import model as rover_mod
+from jaxplan.transport.physics import model as rover_mod
 
 __all__ = ["PursuitParams", "RouteOutcome", "Check", "pursuit_policy", "pursuit_params", "route_path", "pad_paths",
            "check_routes", "route_mask", "cells_of", "particle_fates", "friction_fields", "rasterise", "project",
@@ -202,7 +202,7 @@ class RouteOutcome(NamedTuple):
 
     collected: particle mass generated on the route's cells.  delivered / left_behind / spilled /
     lost: where it ended (module docstring).  predicted_delivered / predicted_spilled: the 2D model
-    (``execute.execute``) on the same route.  mean_lateral / max_lateral: blade-to-path distance.
+    (``execute.execute_push``) on the same route.  mean_lateral / max_lateral: blade-to-path distance.
     time: seconds until the rover stopped (the horizon if it never did).  reached: it stopped at
     the end.  finite: the physics stayed finite and in bounds.  max_contacts: largest number of
     penetrating contacts at a tick.

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from jaxplan import random_scene
-from jaxplan.transport.scenes import LAYOUTS
+from jaxplan.transport.generators import LAYOUTS
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)

@@ -21,7 +21,7 @@ import functools
 import numpy as np
 from shapely.geometry import MultiPolygon
 
-from jaxplan.transport.scene import Scene, box, circle
+from jaxplan.transport import Scene, box, circle
 
 __all__ = ["MAX_COUNT", "SITES", "build_site", "site"]
 

@@ -1,0 +1,175 @@
+"""The one-tick planner: query the fabric, choose Rearrange or Deliver, and the route (Section 3).
+
+One tick (``docs/transport.md``, "Episodes"):
+
+1. **Source**: the occupied cell whose selected route collects the most (``argmax J``; rule
+   ``"max_value"``), or the occupied cell nearest to the target (``"nearest"``). Ties: lowest
+   row-major index.
+2. **Deliver route**: among the source's slack-tau candidates, the one with the largest delivered mass
+   under the spill model, then the shortest (Eq. 6; entry 0 with spillage off).
+3. **Rearrange route**: if the source is a root with a highway anchor h* (Eq. 12), the connector to h*
+   followed by h*'s selected path (Section 3.4; ``Fabric.selected``).
+4. **Choice**: Rearrange when ``via_raw > (1 + rearrange_margin) * raw(Deliver route)``, i.e. when
+   going through the highway collects clearly more; otherwise Deliver. ``rearrange_margin`` is a
+   traced parameter (``inf`` never rearranges).
+
+With ``reselect`` (and spillage on) every tick first applies Eq. 6 to every source
+(``selection.reselect``), so that headings, psi, the heatmap, highways and anchors follow the routes
+selected by delivered mass, as the paper does; its cost is part of the tick's planning time.
+
+The episode (``episode.act``, ``run.run_episode``) and the fleet (``jaxplan.fleet``) push the plans
+made here; this module pushes nothing.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan.core import grid_jit, lattice
+from jaxplan.transport import connectors, execute, selection, spillage
+from jaxplan.transport.fabric import Fabric, Table, walk_table
+from jaxplan.transport.params import FabricParams
+
+if TYPE_CHECKING:   # the parameters live with the episode, which imports this module
+    from jaxplan.transport.episode import EpisodeParams
+
+
+class Plan(NamedTuple):
+    """One tick's decision. S = 2 * (max_steps + 1) route slots.
+
+    source: i32[2]; has_source: bool[]; mode: i32[] (0 deliver, 1 rearrange); route: execute.Route;
+    raw: f32[] objects the route collects (pre-spill); complete: bool[] every walk ended in time;
+    anchor: i32[2] (-1 none); entry: i32[] the Deliver route's table entry; connector: i32[S, 2]
+    cells of the connector part (-1 padded) for plots.
+    """
+
+    source: jax.Array
+    has_source: jax.Array
+    mode: jax.Array
+    route: execute.Route
+    raw: jax.Array
+    complete: jax.Array
+    anchor: jax.Array
+    entry: jax.Array
+    connector: jax.Array
+
+
+def _pad_rows(cells, rows: int):
+    return jnp.concatenate([cells, jnp.full((rows - cells.shape[0], 2), -1, jnp.int32)])
+
+
+def _concat_paths(first, first_n, second, second_n):
+    """Rows ``first[:first_n]`` then ``second[:second_n]`` in one padded ``[2S, 2]`` array."""
+    rows = first.shape[0] + second.shape[0]
+    i = jnp.arange(rows)
+    from_second = jnp.clip(i - first_n, 0, second.shape[0] - 1)
+    out = jnp.where((i < first_n)[:, None], first[jnp.minimum(i, first.shape[0] - 1)], second[from_second])
+    return jnp.where((i < first_n + second_n)[:, None], out, -1), first_n + second_n
+
+
+def choose_source(scene, fabric: Fabric, rule: str, allowed=None):
+    """``(source i32[2], has_source bool[])``: the occupied cell the rule picks (``argmax J`` for
+    "max_value", the one nearest to the target for "nearest"; ties to the lowest row-major index).
+
+    allowed: optional bool[H, W]; only occupied cells where it is True are candidates (a fleet skips
+    the cells other rovers have reserved). has_source is False when no candidate is left; the
+    source is then (0, 0).
+    """
+    h, w = scene.shape
+    score = fabric.value if rule == "max_value" else -scene.dist
+    candidates = fabric.occupied if allowed is None else fabric.occupied & allowed
+    flat = jnp.argmax(jnp.where(candidates, score, -jnp.inf).reshape(-1))
+    return jnp.stack([flat // w, flat % w]).astype(jnp.int32), jnp.any(candidates)
+
+
+def plan_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.SpillParams, fabric: Fabric,
+              max_steps: int, evaluator: spillage.Evaluator = spillage.curvature_spill) -> Plan:
+    """Choose the source, the mode and the route for one push (the module docstring's rule):
+    ``choose_source`` then ``plan_for_source``."""
+    source, has_source = choose_source(scene, fabric, ep.source_rule)
+    plan = plan_for_source(scene, params, ep, spill, fabric, source, max_steps, evaluator)
+    return plan._replace(has_source=has_source)
+
+
+def plan_for_source(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.SpillParams, fabric: Fabric,
+                    source, max_steps: int, evaluator: spillage.Evaluator = spillage.curvature_spill) -> Plan:
+    """The mode and the route of one push from a given ``source: i32[2]`` (steps 2-4 of the module
+    docstring). ``Plan.has_source`` says whether the source is an occupied cell. max_steps,
+    evaluator: static, as in ``plan_tick``. Pure and jittable; ``vmap`` it over sources."""
+    source = jnp.asarray(source, jnp.int32)
+    anchor = source_anchor(scene, params, fabric, source)
+    return plan_with_connector(scene, params, ep, spill, fabric, source, anchor,
+                               anchor_connector(scene, params, fabric, anchor), max_steps, evaluator)
+
+
+def source_anchor(scene, params: FabricParams, fabric: Fabric, source):
+    """i32[]: flat index of the highway anchor h* of ``source: i32[2]`` (Eq. 12; -1 none)."""
+    centers = lattice.cell_centers(scene.shape, scene.cell_size, scene.origin)
+    return connectors.anchor_for(fabric.heat, fabric.highways, fabric.occupied, centers, params.anchor_lambda,
+                                 jnp.asarray(source, jnp.int32))
+
+
+def anchor_connector(scene, params: FabricParams, fabric: Fabric, anchor) -> Table:
+    """The K=1 connector table toward ``anchor`` (flat index); a one-entry empty table when it is -1,
+    without running the DP (under ``vmap`` both run: batch by distinct anchor instead)."""
+    h, w = scene.shape
+
+    def no_connector(_):
+        shape = (h, w, 1)
+        return Table(jnp.full(shape, -jnp.inf), jnp.full(shape, jnp.inf), jnp.full(shape, -1, jnp.int32),
+                     jnp.full(shape, -1, jnp.int32))
+
+    return jax.lax.cond(anchor >= 0, lambda _: connectors.connector_table(scene, fabric, params,
+                                                                         jnp.maximum(anchor, 0)),
+                        no_connector, None)
+
+
+def plan_with_connector(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.SpillParams,
+                        fabric: Fabric, source, anchor, ctable: Table, max_steps: int,
+                        evaluator: spillage.Evaluator = spillage.curvature_spill) -> Plan:
+    """``plan_for_source`` with the source's anchor (``source_anchor``) and its connector table
+    (``anchor_connector``) given, so that sources sharing an anchor share one connector DP."""
+    h, w = scene.shape
+    source = jnp.asarray(source, jnp.int32)
+    has_source = fabric.occupied[source[0], source[1]]
+    sel = selection.select_routes(scene, fabric, source[None], params.slack_tau, spill,
+                                  max_steps=max_steps, evaluator=evaluator)
+    entry = sel.entry[0]
+    direct = walk_table(fabric.table, source, entry, max_steps)
+    safe_anchor = jnp.maximum(anchor, 0)
+    anchor_rc = jnp.stack([safe_anchor // w, safe_anchor % w]).astype(jnp.int32)
+    conn = walk_table(ctable, source, jnp.int32(0), max_steps)
+    anchor_entry = fabric.selected[anchor_rc[0], anchor_rc[1]]
+    tail = walk_table(fabric.table, anchor_rc, anchor_entry, max_steps)
+    # a connector that enters h* lists it last; the tail starts at h*, so drop the duplicate
+    conn_cells = jnp.where(conn.fallback, conn.n_cells, conn.n_cells - 1)
+    via_cells, via_n = _concat_paths(conn.cells, conn_cells, tail.cells, tail.n_cells)
+    via_raw = conn.raw + fabric.table.raw[anchor_rc[0], anchor_rc[1], anchor_entry]
+    can_rearrange = (anchor >= 0) & jnp.isfinite(conn.raw) & conn.complete & tail.complete
+    rearrange = can_rearrange & (via_raw > (1.0 + ep.rearrange_margin) * direct.raw)
+
+    rows = via_cells.shape[0]
+    cells = jnp.where(rearrange, via_cells, _pad_rows(direct.cells, rows))
+    n_cells = jnp.where(rearrange, via_n, direct.n_cells)
+    fallback = jnp.where(rearrange, tail.fallback, direct.fallback)
+    route = execute.route_from_path(scene, cells, n_cells, fallback)
+    connector = jnp.where(rearrange & (jnp.arange(rows) < conn.n_cells)[:, None], _pad_rows(conn.cells, rows), -1)
+    return Plan(source, has_source, rearrange.astype(jnp.int32), route,
+                jnp.where(rearrange, via_raw, direct.raw),
+                jnp.where(rearrange, conn.complete & tail.complete, direct.complete),
+                jnp.where(anchor >= 0, anchor_rc, -1), entry, connector)
+
+
+plan_tick_jit = grid_jit(plan_tick, static_argnames=("max_steps", "evaluator"))
+
+
+def plan_episode_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.SpillParams, fabric: Fabric,
+                      cap: int, evaluator: spillage.Evaluator):
+    """``(Plan, Fabric)``: one tick's plan as an episode makes it, and the fabric it was planned on
+    (Eq. 6 applied to every source first with ``ep.reselect`` and spillage on). cap: static walk
+    length. Host-level: ``plan_tick`` runs jitted inside."""
+    if ep.reselect and spill.enabled:
+        fabric = selection.reselect(scene, params, fabric, spill, max_steps=cap, evaluator=evaluator)
+    return plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap, evaluator=evaluator), fabric

@@ -1,0 +1,1 @@
+"""The CLI fuzzer (``python -m tests.fuzz.fuzz_cli``) and its tests."""
