@@ -465,7 +465,8 @@ def environment(single_cpu: bool) -> dict:
 # --------------------------------------------------------------------------------------------------
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(prog="python -m experiments.bench_fabric",
+    p = argparse.ArgumentParser(
+        prog="python -m experiments.bench_fabric",
         description=__doc__.split("\n\n")[0] + " JAX vs the serial reference on 25/45/65 grids, "
                     "then JAX alone on large grids.",
         formatter_class=argparse.RawDescriptionHelpFormatter,

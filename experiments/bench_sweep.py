@@ -96,7 +96,7 @@ def run(args) -> dict:
     tables = params[::per_table]
     build = jax.jit(fabric_of)
     after = jax.jit(lambda scene, fab, fp, sp: sweep.metrics_of(scene, fp, sp, top, max_steps,
-                                                              fab=sweep.with_highways(fab, scene, fp)))
+                                                                fab=sweep.with_highways(fab, scene, fp)))
     plain = jax.jit(jax.vmap(lambda scene, fp, sp: sweep.metrics_of(scene, fp, sp, top, max_steps)))
 
     def loop():

@@ -166,7 +166,7 @@ def rover_child(per_object: int, batch: int, ticks: int, opt: str, compile_only:
     t0 = time.perf_counter()
     try:
         chk = check_routes(scene, tile_routes(routes, batch), n_ticks=ticks, world=world,
-                                  simulator=CompileOnly(sim) if compile_only else sim)
+                           simulator=CompileOnly(sim) if compile_only else sim)
         row.update(run_s=time.perf_counter() - t0 - sim.compile_seconds, finite=float(np.mean(chk.outcome.finite)))
     except Compiled:
         pass

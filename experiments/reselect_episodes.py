@@ -60,7 +60,7 @@ def one_call(scene_name: str, lam: float, repeats: int) -> dict:
     compact = lambda: reselect(scene, params, fabric, spill, max_steps=walk)  # noqa: E731
     every = lambda: reselect_jit(scene, params, fabric, spill, max_steps=walk)  # noqa: E731
     same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(jax.tree.leaves(compact()),
-                                                                             jax.tree.leaves(every())))
+                                                                            jax.tree.leaves(every())))
     times = [(_call_ms(compact), _call_ms(every)) for _ in range(repeats)]
     compact_ms, every_ms = (statistics.median(t[i] for t in times) for i in (0, 1))
     return {"scene": scene_name, "walk": walk, "compact_ms": compact_ms, "every_entry_ms": every_ms,

@@ -197,7 +197,7 @@ def _ticks(scene, fabric, args, params, spill) -> list[dict]:
             full, t_full = _timed(lambda: build_fabric(scene, params), 1)
             rss1 = rss_bytes()
             (sel, affected), t_sel = _timed(lambda: selective_rebuild(scene, params, before,
-                                                                                push.changed), 1)
+                                                                      push.changed), 1)
             rss2 = rss_bytes()
             if r == 0:
                 mem = {"full_delta_mb": _mb(rss0, rss1), "selective_delta_mb": _mb(rss1, rss2)}

@@ -75,7 +75,7 @@ def _check_and_write(args, scene, params, spill, run) -> dict:
         bar.set_postfix_str(stages[1])
         start = time.perf_counter()
         check = check_routes(scene, routes, config=RoverConfig(solver=args.solver), spill=spill,
-                                    speed=args.speed, backend=args.backend, friction=args.friction)
+                             speed=args.speed, backend=args.backend, friction=args.friction)
         rollout_s = time.perf_counter() - start
         bar.update()
         bar.set_postfix_str(stages[2])

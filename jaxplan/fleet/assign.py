@@ -92,7 +92,7 @@ def plan_task(scene, params, ep, spill, fabric, source, has_source, cap: int, ev
     points, n_points = waypoints(scene, route)
     pickup, _ = waypoint_pickup(scene, route)
     predicted, _, samples = evaluate_route(points, n_points, pickup, spill, evaluator,
-                                                    chunk=SPLINE_CHUNK)
+                                           chunk=SPLINE_CHUNK)
     cells = footprint.core_cells(scene, route, samples, clearance)
     return Task(plan.source, route, plan.mode, plan_code(plan, cap, scene.shape), predicted,
                 footprint.push_steps(route), footprint.mask_from_core(scene.target_mask, *cells, clearance))

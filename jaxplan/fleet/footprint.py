@@ -99,7 +99,7 @@ def route_samples(scene, route, spill: SpillParams) -> PathSamples:
     """The spline samples ``execute`` evaluates the spill at for ``route`` (the same call)."""
     points, n_points = waypoints(scene, route)
     return sample_route_prefix(points, n_points, spill.samples_per_step, spill.spline_alpha,
-                                        chunk=SPLINE_CHUNK)
+                               chunk=SPLINE_CHUNK)
 
 
 def core_cells(scene, route, samples: PathSamples, clearance: int = 1):

@@ -274,7 +274,7 @@ def _geom_rover(world: World) -> np.ndarray:
     """``i32[ngeom]``: the rover each geom belongs to (its root body's), -1 for the floor and particles."""
     m = world.model
     roots = {int(m.body_rootid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY,
-                                                  rover_prefix(i, world.n_rovers) + "rover")]): i
+                                                 rover_prefix(i, world.n_rovers) + "rover")]): i
              for i in range(world.n_rovers)}
     return np.array([roots.get(int(m.body_rootid[b]), -1) for b in m.geom_bodyid], np.int32)
 
@@ -461,7 +461,7 @@ def routes_of(scene, pushes) -> Route:
         last = cells[len(p["cells"]) - 1]
         fallback = not bool(target[last[0], last[1]])
         routes.append(route_from_path(scene, jnp.asarray(cells), jnp.int32(len(p["cells"])),
-                                              jnp.bool_(fallback)))
+                                      jnp.bool_(fallback)))
     return jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *routes)
 
 

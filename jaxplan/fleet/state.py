@@ -304,7 +304,7 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
     pos = default_starts if starts is None else _i32(starts).reshape(n, 2)
     s = route_slots(cfg, shape)
     route = Route(jnp.full((n, s, 2), -1, jnp.int32), jnp.ones(n, jnp.int32), jnp.zeros(n, bool),
-                          jnp.zeros((n, 2), jnp.float32))
+                  jnp.zeros((n, 2), jnp.float32))
     outside = _f32(outside_mass(scene))
     stop_at = _f32(_f32(ep.stop_fraction) * outside)
     budget = _i32(ep.max_pushes if max_pushes is None else max_pushes)

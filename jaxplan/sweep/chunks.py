@@ -54,7 +54,7 @@ def with_highways(fab, scene, fp: FabricParams):
     """``fab`` with its highways (Eq. 11) recomputed for ``fp.tau_h``: the only part of the fabric that
     depends on a field in ``AFTER_TABLE``."""
     mask = highways(fab.heat, jnp.asarray(scene.target_mask, bool), fp.tau_h,
-                                 relative=fp.highway_relative, smoothing=fp.highway_smoothing, nms=fp.highway_nms)
+                    relative=fp.highway_relative, smoothing=fp.highway_smoothing, nms=fp.highway_nms)
     return fab._replace(highways=mask)
 
 

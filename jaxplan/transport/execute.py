@@ -157,7 +157,7 @@ def deposit_cell(scene, route: Route):
 
 
 def execute_push(scene, route: Route, spill: spillage.SpillParams,
-            evaluator: spillage.Evaluator = spillage.curvature_spill):
+                 evaluator: spillage.Evaluator = spillage.curvature_spill):
     """Push ``route`` on ``scene``: ``(obj f32[H, W] after the push, Push)``. Jit-compatible.
 
     spill: ``SpillParams`` (``lam = 0`` pushes without losses); evaluator: the ``Spill(P; Theta)``

@@ -170,7 +170,7 @@ def _geometry_cells(segments, shape, *args, **kwargs) -> int:
 # newer one's compiler (and its memory) out of the process
 @functools.partial(grid_jit, static_argnames=("shape", "pair_budget", "seg_chunk"), cells_of=_geometry_cells)
 def target_geometry(segments, shape, cell_size, origin, pair_budget: int = _PAIR_BUDGET,
-              seg_chunk: int = _SEG_CHUNK):
+                    seg_chunk: int = _SEG_CHUNK):
     """Target mask, distance and boundary direction of every cell (conventions, "Grid and geometry").
 
     segments: f32[M, 2, 2] from :func:`target_segments`, world units (M >= 1).

@@ -122,7 +122,7 @@ def anchor_connector(scene, params: FabricParams, fabric: Fabric, anchor) -> Tab
                      jnp.full(shape, -1, jnp.int32))
 
     return jax.lax.cond(anchor >= 0, lambda _: connectors.connector_table(scene, fabric, params,
-                                                                         jnp.maximum(anchor, 0)),
+                                                                          jnp.maximum(anchor, 0)),
                         no_connector, None)
 
 

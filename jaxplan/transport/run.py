@@ -179,7 +179,7 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
             state, rec = advance_jit(state, plan, push, new_obj, True, ep)
             if mode == "selective":
                 (fabric, affected), rebuild_ms = timed(lambda: rebuild.selective_rebuild(state.scene, params,
-                                                                                            state.fabric, push.changed))
+                                                                                         state.fabric, push.changed))
                 dirty, full = int(affected.n_dirty), bool(affected.full)
             else:
                 fabric, rebuild_ms = timed(lambda: _rebuild_full_jit(state.scene, params))

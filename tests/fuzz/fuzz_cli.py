@@ -1034,7 +1034,7 @@ def summarise(records: list[dict], findings: dict, meta: dict) -> dict:
 
 def markdown(result: dict) -> str:
     cols = [o for o in OUTCOMES if result["outcomes"][o] or o in ("exit0", "exit2_good", "exit2_bad_line",
-                                                                   "traceback", "half_written")]
+                                                                  "traceback", "half_written")]
     head = "| | " + " | ".join(cols) + " | total |"
     rule = "|---|" + "---:|" * (len(cols) + 1)
 

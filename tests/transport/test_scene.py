@@ -26,7 +26,7 @@ from jaxplan.transport import scene as S
 
 def _kernel(shape, cell_size, origin, target):
     mask, dist, tvec = G.target_geometry(jnp.asarray(G.target_segments(target)), tuple(shape),
-                                   jnp.float32(cell_size), jnp.asarray(origin, jnp.float32))
+                                         jnp.float32(cell_size), jnp.asarray(origin, jnp.float32))
     return np.asarray(mask), np.asarray(dist, np.float64), np.asarray(tvec, np.float64)
 
 

@@ -134,7 +134,7 @@ def eq7(scene: PushScene, poses) -> bool:
 
 
 def make_result(env: Env, success: bool, schedule: list, poses, reason: str, path=None,
-                 robots=None) -> SearchResult:
+                robots=None) -> SearchResult:
     """The search's result type, filled field by field (statistics this module does not keep are 0)."""
     if robots is None:
         robots = schedule[-1].robots_after if schedule else env.scene.robots
