@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import re
 from pathlib import Path
 
 import pytest
@@ -195,3 +196,20 @@ def test_scene_generators_have_one_name_in_every_system(system):
 @pytest.mark.parametrize("system", SYSTEMS_WITH_PHYSICS)
 def test_physics_checks_have_one_name_in_every_system(system):
     assert _is_module(f"jaxplan.{system}.physics"), f"jaxplan/{system}: its MuJoCo check is jaxplan.{system}.physics"
+
+
+DOCS = sorted((ROOT / "docs").glob("*.md"))
+_LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)\s]*)?\)")
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: p.name)
+def test_the_readme_lists_every_doc(doc):
+    assert f"](docs/{doc.name})" in (ROOT / "README.md").read_text(), f"README.md does not link docs/{doc.name}"
+
+
+@pytest.mark.parametrize("page", [ROOT / "README.md", ROOT / "experiments" / "README.md", *DOCS],
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_point_at_files(page):
+    broken = [target for target in _LINK.findall(page.read_text())
+              if "://" not in target and not target.startswith("mailto:") and not (page.parent / target).exists()]
+    assert not broken, f"{page.relative_to(ROOT)} links to missing files: {broken}"

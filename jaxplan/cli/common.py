@@ -16,7 +16,6 @@ from jaxplan.transport import BUILTIN_SCENES
 
 EXIT_BAD_INPUT = 2
 _WARN_BUILD_BYTES = 10**9   # a fabric build estimated above this gets a warning line
-EXIT_INTERRUPTED = 130   # 128 + SIGINT, as shells report a Ctrl-C
 
 
 class CLIError(Exception):
@@ -190,14 +189,12 @@ def params_dict(params) -> dict:
     return out
 
 
-def run_folder(args, outputs) -> RunFolder:
-    """The ``RunFolder`` of ``--out`` for this command (``with run_folder(args, NAMES) as run: ...``).
-
-    outputs: the file names the command may write; a previous run's files are removed on entry.
-    Open it after every input is validated, so that bad input leaves the folder as it was.
-    """
+def run_folder(args) -> RunFolder:
+    """The ``RunFolder`` of ``--out`` for this command (``with run_folder(args) as run: ...``): it
+    takes the folder's lock and removes the previous run's files on entry. Open it after every input
+    is validated, so that bad input leaves the folder as it was."""
     arguments = {k: v for k, v in vars(args).items() if not callable(v)}
-    return _OutFlagFolder(args.out, command=args.command, arguments=arguments, outputs=outputs)
+    return _OutFlagFolder(args.out, command=args.command, arguments=arguments)
 
 
 class _OutFlagFolder(RunFolder):

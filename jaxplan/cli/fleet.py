@@ -39,7 +39,7 @@ def _cmd_fleet(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from jaxplan.fleet import FLEET_OUTPUTS, FleetConfig, run_fleet, summary_of, write_fleet_outputs
+    from jaxplan.fleet import FleetConfig, run_fleet, summary_of, write_fleet_outputs
 
     params, spill, ep = fabric_params(args), spill_params(args), _episode_params(args)
     scene = _fleet_scene(args.scene)
@@ -47,8 +47,7 @@ def _cmd_fleet(args) -> int:
     if args.rovers > _cells_outside_targets(scene):
         raise CLIError(f"--rovers: {args.rovers} rovers do not fit on the {_cells_outside_targets(scene)} cells "
                        "outside the targets; use fewer rovers or a larger scene.")
-    outputs = (*FLEET_OUTPUTS, "physics.json") if args.physics else FLEET_OUTPUTS
-    with run_folder(args, outputs) as run:
+    with run_folder(args) as run:
         config = FleetConfig(args.rovers, args.strategy, clearance=args.clearance, candidates_by=args.candidates)
         fleet = run_fleet(scene, n_rovers=args.rovers, strategy=args.strategy, params=params, spill=spill,
                           episode=ep, max_steps=args.max_steps, record=not args.no_animation, progress=True,

@@ -13,8 +13,8 @@ import argparse
 import sys
 
 from jaxplan.cli import fleet, pusharound, rover, sweep, teams, transport
-from jaxplan.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CLIError, Parser, wrap
-from jaxplan.core import shown_path
+from jaxplan.cli.common import EXIT_BAD_INPUT, CLIError, Parser, wrap
+from jaxplan.core import shown_path, signal_number, stop_signals_interrupt
 from jaxplan.transport import BUILTIN_SCENES
 
 __all__ = ["main"]
@@ -52,12 +52,17 @@ def main(argv=None) -> int:
     """Run the CLI with ``argv`` (default ``sys.argv[1:]``); returns 0 on success.
 
     Bad input raises ``SystemExit(2)`` after printing one ``error: <message>`` line to stderr
-    (argparse's own usage errors too, through ``common.Parser``). Ctrl-C raises ``SystemExit(130)``
-    after printing ``interrupted: <where the partial output is>``; the output folder's run.json says
-    "interrupted".
+    (argparse's own usage errors too, through ``common.Parser``). Ctrl-C, SIGTERM and SIGHUP raise
+    ``SystemExit(128 + signal)`` (130 for Ctrl-C) after printing ``interrupted: <where the partial
+    output is>``; the output folder's run.json says "interrupted" and names the signal.
     """
     parser = build_parser()
     args = parser.parse_args(argv)
+    with stop_signals_interrupt():
+        return _run(args)
+
+
+def _run(args) -> int:
     try:
         if args.low_memory:
             from jaxplan.core import limit_malloc_arenas
@@ -82,4 +87,4 @@ def main(argv=None) -> int:
     except KeyboardInterrupt as exc:   # RunInterrupted says where the partial output is
         detail = " ".join(str(exc).split())
         print(f"interrupted: {detail}" if detail else "interrupted", file=sys.stderr)
-        raise SystemExit(EXIT_INTERRUPTED) from None
+        raise SystemExit(128 + signal_number(exc)) from None

@@ -167,7 +167,7 @@ def _cmd_pusharound(args) -> int:
     scene, source = _pusharound_scene(args)
     _check_feasible(args, scene)
     table = _mode_table(args.mode_table)
-    with run_folder(args, PUSHAROUND_OUTPUTS) as run:
+    with run_folder(args) as run:
         plan, execution, success, path = _plan_execute_write(args, scene, source, table, run)
 
     st = plan.stats
@@ -184,7 +184,6 @@ def _cmd_pusharound(args) -> int:
     return 0
 
 
-PUSHAROUND_OUTPUTS = ("result.json", "scene_final.json", "pusharound.png", "pusharound.gif")
 
 
 def _plan_execute_write(args, scene, source, table, run):

@@ -38,7 +38,7 @@ def _cmd_rover(args) -> int:
     params = fabric_params(args)
     scene = load_scene(args.scene)
     check_fabric_memory(args, scene, params)
-    with run_folder(args, ROVER_OUTPUTS) as run:
+    with run_folder(args) as run:
         summary = _check_and_write(args, scene, params, spill, run)
     print(summary["table"], end="")
     print(f"{len(summary['routes'])} routes x {summary['ticks']} ticks on the {summary['backend']} engine in "
@@ -48,7 +48,6 @@ def _cmd_rover(args) -> int:
     return 0
 
 
-ROVER_OUTPUTS = ("routes.md", "rover.png", "frames.png", "summary.json")
 
 
 def _check_and_write(args, scene, params, spill, run) -> dict:

@@ -6,7 +6,7 @@ from jaxplan.sweep import MAX_BUDGET_MB
 
 
 def _cmd_sweep(args) -> int:
-    from jaxplan.core import RunInterrupted
+    from jaxplan.core import RunInterrupted, signal_number
     from jaxplan.sweep import run_sweep
 
     if args.address is not None and args.backend != "ray":
@@ -15,9 +15,9 @@ def _cmd_sweep(args) -> int:
     try:
         out = run_sweep(args.spec, args.out, backend=args.backend, address=args.address,
                         memory_budget_mb=args.memory_budget_mb, progress=not args.no_progress)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         raise RunInterrupted(f"{args.out!r} keeps the {_rows(args.out)} complete row(s) written so far; "
-                             "run the same command again to resume.") from None
+                             "run the same command again to resume.", signal_number(exc)) from None
     print(f"wrote {out}")
     return 0
 

@@ -6,7 +6,6 @@ from jaxplan.teams import STRATEGIES
 
 MAX_V_AFTER = 50.0    # m/s (180 km/h): far above any dump truck; the spec speed is 4 m/s
 MAX_SECONDS = 86_400  # s: a day of 1 s steps; the trace is recorded every step
-TEAMS_OUTPUTS = ("fig6.png", "summary.json")
 
 
 def _cmd_teams(args) -> int:
@@ -17,7 +16,7 @@ def _cmd_teams(args) -> int:
 
     check_paper_options(args.strategy, args.v_after, args.deadline, args.seed, args.steps)
     check_out_dir(args.out)
-    with run_folder(args, TEAMS_OUTPUTS) as run:
+    with run_folder(args) as run:
         summary = run_paper(run.path, strategy=args.strategy, seed=args.seed, v_after=args.v_after,
                             deadline=args.deadline, steps=args.steps, write=run.write)
     for team in summary["teams"]:

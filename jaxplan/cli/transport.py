@@ -92,7 +92,7 @@ def _cmd_demo(args) -> int:
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
     scene = load_scene(args.scene)  # bad input fails here, before the progress bar starts
     check_fabric_memory(args, scene, params)
-    with run_folder(args, DEMO_OUTPUTS) as run:
+    with run_folder(args) as run:
         stages = ["build fabric (first call compiles)", "warm builds", "plan connectors", "plot"]
         with tqdm(total=len(stages), desc="jaxplan demo", unit="stage", file=sys.stderr,
                   leave=False) as bar:
@@ -233,10 +233,6 @@ def episode_params(args):
     return ep
 
 
-DEMO_OUTPUTS = ("fabric.png", "summary.json", "metrics.json", "metrics.csv", "episode.png", "episode.gif")
-EPISODE_OUTPUTS = DEMO_OUTPUTS[1:]
-
-
 @contextlib.contextmanager
 def _writing_into(run):
     """Turn a failed write into one ``--out`` error line."""
@@ -330,7 +326,7 @@ def _cmd_episode(args) -> int:
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
     scene = load_scene(args.scene)
     check_fabric_memory(args, scene, params)
-    with run_folder(args, EPISODE_OUTPUTS) as run:
+    with run_folder(args) as run:
         episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
         summary = _episode_summary(scene, args.scene, params, spill, ep, episode)
         with _writing_into(run):

@@ -8,15 +8,23 @@ import time
 import jax
 import numpy as np
 
-from jaxplan.core import grid_jit
+from jaxplan.core import available_memory_bytes, check_interrupt, grid_jit
 from jaxplan.fleet import footprint
 from jaxplan.fleet.conflicts import conflicts
 from jaxplan.fleet.motion import IDLE
-from jaxplan.fleet.state import STOP_REASONS, FleetConfig, reset, step
-from jaxplan.transport import EpisodeParams, FabricParams, Scene, require_hard, validate_episode_params, validate_params
+from jaxplan.fleet.state import STOP_REASONS, FleetConfig, estimate_fleet_bytes, reset, rover_bytes, step
+from jaxplan.transport import (
+    EpisodeParams,
+    FabricParams,
+    Scene,
+    estimate_build_bytes,
+    require_hard,
+    validate_episode_params,
+    validate_params,
+)
 from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill, validate_spill_params
 
-__all__ = ["MAX_STEPS_LIMIT", "FleetRun", "run_fleet", "validate_fleet_inputs"]
+__all__ = ["MAX_STEPS_LIMIT", "FleetRun", "check_fleet_memory", "run_fleet", "validate_fleet_inputs"]
 
 MAX_STEPS_LIMIT = 1 << 30
 MODES = ("deliver", "rearrange")
@@ -66,11 +74,15 @@ class FleetRun:
     dropped: int = 0
 
 
-def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts) -> None:
-    """Raise ``ValueError`` naming the argument for bad inputs of ``run_fleet`` (before any work)."""
-    if not isinstance(scene, Scene):
-        raise ValueError(f"scene: expected a Scene, got {type(scene).__name__}.")
+def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts,
+                          config: FleetConfig | None = None) -> None:
+    """Raise for bad inputs of ``run_fleet``, before any work: ``TypeError`` naming ``scene`` when it is
+    not a Scene; ``ValueError`` naming the argument or field otherwise: the scene's leaves (shapes,
+    NaN / infinite / negative counts, as ``run_episode``), the fleet's settings, the parameters, the
+    start cells, and the memory the run needs (``check_fleet_memory``)."""
+    Scene.check(scene, "scene")
     FleetConfig(n_rovers, strategy).validate()
+    config = _matching_config(config, n_rovers, strategy)
     validate_params(params)
     require_hard(params, "run_fleet")
     validate_spill_params(spill)
@@ -87,18 +99,79 @@ def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max
         raise ValueError(f"n_rovers: {n_rovers} rovers need as many cells outside the targets; the scene has "
                          f"{free}. Use at most {free} rovers.")
     if starts is not None:
-        cells = np.asarray(starts)
-        h, w = target.shape
-        if cells.shape != (n_rovers, 2) or not np.issubdtype(cells.dtype, np.integer):
-            raise ValueError(f"starts: expected {n_rovers} (row, col) integer pairs, shape ({n_rovers}, 2); "
-                             f"got shape {cells.shape} of {cells.dtype}.")
-        if np.any(cells < 0) or np.any(cells[:, 0] >= h) or np.any(cells[:, 1] >= w):
-            raise ValueError(f"starts: every cell must lie in the {h} x {w} grid (rows 0..{h - 1}, "
-                             f"cols 0..{w - 1}); got {cells.tolist()}.")
-        if len({tuple(c) for c in cells.tolist()}) != n_rovers:
-            raise ValueError(f"starts: two rovers start on one cell; give {n_rovers} distinct cells.")
-        if np.any(target[cells[:, 0], cells[:, 1]]):
-            raise ValueError("starts: a rover starts inside a target; start every rover outside the targets.")
+        _check_starts(starts, n_rovers, target)
+    check_fleet_memory(scene.shape, config, params)
+
+
+def _matching_config(config: FleetConfig | None, n_rovers: int, strategy: str) -> FleetConfig:
+    """``config`` (default ``FleetConfig(n_rovers, strategy)``), validated and matching the arguments."""
+    if config is None:
+        return FleetConfig(n_rovers, strategy)
+    if not isinstance(config, FleetConfig):
+        raise TypeError(f"config: expected a FleetConfig or None, got {type(config).__name__}.")
+    config.validate()
+    if (config.n_rovers, config.strategy) != (n_rovers, strategy):
+        raise ValueError(f"config: its n_rovers and strategy ({config.n_rovers}, {config.strategy!r}) differ from "
+                         f"the arguments ({n_rovers}, {strategy!r}); pass the same.")
+    return config
+
+
+def _check_starts(starts, n_rovers: int, target: np.ndarray) -> None:
+    """ValueError naming ``starts`` unless it holds ``n_rovers`` distinct (row, col) cells of the grid
+    outside the targets (``target: bool[H, W]``)."""
+    cells = np.asarray(starts)
+    h, w = target.shape
+    if cells.shape != (n_rovers, 2) or not np.issubdtype(cells.dtype, np.integer):
+        raise ValueError(f"starts: expected {n_rovers} (row, col) integer pairs, shape ({n_rovers}, 2); "
+                         f"got shape {cells.shape} of {cells.dtype}.")
+    if np.any(cells < 0) or np.any(cells[:, 0] >= h) or np.any(cells[:, 1] >= w):
+        raise ValueError(f"starts: every cell must lie in the {h} x {w} grid (rows 0..{h - 1}, "
+                         f"cols 0..{w - 1}); got {cells.tolist()}.")
+    if len({tuple(c) for c in cells.tolist()}) != n_rovers:
+        raise ValueError(f"starts: two rovers start on one cell; give {n_rovers} distinct cells.")
+    if np.any(target[cells[:, 0], cells[:, 1]]):
+        raise ValueError("starts: a rover starts inside a target; start every rover outside the targets.")
+
+
+def _gb(n: int) -> str:
+    return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{n / 1e6:.0f} MB"
+
+
+def check_fleet_memory(shape, config: FleetConfig, params: FabricParams | None = None,
+                       available: int | None = None) -> int:
+    """Refuse a fleet whose ``state.estimate_fleet_bytes(shape, config, params)`` exceeds ``available``
+    bytes (default ``jaxplan.core.available_memory_bytes()``; no check when that is unknown). The
+    ``ValueError`` names the bytes needed and available and the argument to change: ``n_rovers`` with
+    the most rovers that fit; else ``strategy`` when an independent fleet fits (the coordinated one
+    plans eight candidates at once); else ``scene`` (the grid is too large). Returns the estimate."""
+    need = estimate_fleet_bytes(shape, config, params)
+    room = available_memory_bytes() if available is None else int(available)
+    if room is None or need <= room:
+        return need
+    h, w = (int(v) for v in shape)
+    name, fix = _memory_fix(shape, config, params, room)
+    raise ValueError(f"{name}: a fleet of {config.n_rovers} rovers on a {h}x{w} grid needs about {_gb(need)} "
+                     f"(the shared fabric {_gb(estimate_build_bytes(shape, params))}, the rovers' distance fields, "
+                     f"footprint masks, planned candidates and routes {_gb(rover_bytes(shape, config, params))}; "
+                     f"jaxplan.fleet.state.estimate_fleet_bytes), more than the {_gb(room)} of memory available; "
+                     f"{fix}.")
+
+
+def _memory_fix(shape, config: FleetConfig, params, room: int) -> tuple[str, str]:
+    """``(argument, advice)`` for a fleet that does not fit in ``room`` bytes, in the fleet's own
+    settings (``--rovers``, ``--strategy``, the scene)."""
+    def need(**changes) -> int:
+        return estimate_fleet_bytes(shape, dataclasses.replace(config, **changes), params)
+
+    scene_fix = "a smaller scene, or a coarser one (a larger cell size: fewer cells)"
+    fits = max((n for n in range(1, config.n_rovers) if need(n_rovers=n) <= room), default=None)
+    if fits is not None:
+        return "n_rovers", (f"use at most {fits} rovers (--rovers {fits}, about {_gb(need(n_rovers=fits))}), "
+                            f"or {scene_fix}")
+    if config.strategy == "coordinated" and need(strategy="independent") <= room:
+        return "strategy", (f"the independent strategy (--strategy independent) needs about "
+                            f"{_gb(need(strategy='independent'))}; or use {scene_fix}")
+    return "scene", f"use {scene_fix}, or free memory; the fabric and every rover's grids grow with H x W"
 
 
 _reset_jit = grid_jit(reset, static_argnames=("config",))
@@ -151,33 +224,31 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     params = FabricParams() if params is None else params
     spill = SpillParams() if spill is None else spill
     episode = EpisodeParams() if episode is None else episode
-    validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts)
+    validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts, config)
     if params.temperature is not None:    # a concrete 0 is the hard fabric
         params = params.replace(temperature=None)
-    config = FleetConfig(n_rovers, strategy) if config is None else config
-    config.validate()
-    if (config.n_rovers, config.strategy) != (n_rovers, strategy):
-        raise ValueError(f"config: its n_rovers and strategy ({config.n_rovers}, {config.strategy!r}) differ from "
-                         f"the arguments ({n_rovers}, {strategy!r}); pass the same.")
-    config = config.resolved(scene.shape)
+    config = (FleetConfig(n_rovers, strategy) if config is None else config).resolved(scene.shape)
 
     # the compiled programs do not depend on the budget (a static field): reset copies it into the state
     planning = episode.replace(max_pushes=0)
     state = _reset_jit(scene, params, spill, planning, config=config, starts=starts, max_steps=int(max_steps),
                        max_pushes=int(episode.max_pushes))
-    initial = state
+    initial_scene = state.scene      # not the whole start state: its fabric and fields would stay alive
     first = jax.device_get(state)
     target = np.asarray(first.scene.target_mask)
     positions = [np.asarray(first.pos)]
     inside = [float(np.asarray(first.scene.obj)[target].sum())]
     outside = [float(first.outside)]
     frames = [_frame(first, np.zeros(n_rovers, bool))] if record else None
+    initial_mass, initial_outside = float(first.initial_mass), float(first.initial_outside)
+    done_at_start = bool(first.done)
+    del first                        # the host copy of the start state (fabric, distance fields)
     plan_ms, pushes, reservations = [], [], []
     open_tasks: dict[int, dict] = {}
     kernel_conflicts = dropped = 0
     kernel = config.kernel()
     run_step = lambda s: _step_jit(s, params, spill, planning, config=kernel, evaluator=evaluator)  # noqa: E731
-    if not bool(first.done):
+    if not done_at_start:
         jax.block_until_ready(run_step(state))        # compile outside the timed steps
     from tqdm.auto import tqdm
 
@@ -185,6 +256,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
                disable=not progress)
     try:
         while not bool(state.done):
+            check_interrupt()
             start = time.perf_counter()
             state, rec = run_step(state)
             rec = jax.device_get(rec)
@@ -203,7 +275,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
                 for r in np.flatnonzero(assigned):
                     one = jax.tree.map(lambda a, r=r: a[r], routes)
                     cells = np.asarray(one.cells)[: int(one.n_cells)]
-                    mask = np.asarray(_footprint_jit(initial.scene, one, spill, config.clearance))
+                    mask = np.asarray(_footprint_jit(initial_scene, one, spill, config.clearance))
                     open_tasks[int(r)] = dict(rover=int(r), first_step=t, cells=cells.tolist(),
                                               mode=MODES[int(modes[r])], footprint=np.argwhere(mask))
             for r in np.flatnonzero(gone):
@@ -229,9 +301,9 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     pos = np.asarray(positions, np.int32)
     reason = STOP_REASONS[int(final.stop)]
     return FleetRun(
-        scene=initial.scene, final_scene=state.scene, n_rovers=n_rovers, strategy=strategy, steps=len(positions) - 1,
+        scene=initial_scene, final_scene=state.scene, n_rovers=n_rovers, strategy=strategy, steps=len(positions) - 1,
         pos=pos, delivered=np.asarray(inside, np.float64), outside=np.asarray(outside, np.float64),
-        initial_mass=float(first.initial_mass), initial_outside=float(first.initial_outside), pushes=pushes,
+        initial_mass=initial_mass, initial_outside=initial_outside, pushes=pushes,
         rover_pushes=np.asarray(final.pushes, np.int32), idle_steps=np.asarray(final.idle_steps, np.int32),
         plan_ms=plan_ms, conflicts=len(conflicts(pos, reservations)), stop_reason=reason,
         message=_message(reason, final, episode, int(max_steps)), frames=frames,

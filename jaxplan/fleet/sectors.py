@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["sector_grid", "sector_starts", "sectors", "spread_starts"]
+__all__ = ["band_counts", "sector_grid", "sector_starts", "sectors", "spread_starts"]
 
 
 def sector_grid(n: int) -> tuple[int, int]:
@@ -20,14 +20,36 @@ def sector_grid(n: int) -> tuple[int, int]:
     return rows, n // rows
 
 
-def sectors(shape, n: int) -> np.ndarray:
-    """i32[H, W]: the sector of every cell for ``partitioned`` with n rovers: ``sector_grid(n)``
-    bands of equal height and width (up to one cell), numbered row-major."""
+def band_counts(shape, n: int) -> list[int]:
+    """Sectors in each horizontal band of the grid, top to bottom (they sum to n).
+
+    ``sector_grid(n)`` when its bands and columns fit the grid (``rows <= H``, ``cols <= W``): equal
+    bands of equal sectors. Otherwise (a prime n wider than the grid, say) the bands are as many as
+    keep the sectors near square, at least ``ceil(n / W)`` and at most H and n, and their sector counts
+    differ by at most one, so that every sector holds a cell. n must be in [1, H W]."""
     h, w = shape
+    if not 1 <= n <= h * w:
+        raise ValueError(f"n_rovers: {n} sectors cannot be cut from a {h} x {w} grid; use at most {h * w} rovers.")
     rows, cols = sector_grid(n)
-    band_r = (np.arange(h) * rows) // h
-    band_c = (np.arange(w) * cols) // w
-    return (band_r[:, None] * cols + band_c[None, :]).astype(np.int32)
+    if rows <= h and cols <= w:
+        return [cols] * rows
+    rows = int(min(h, n, max(-(-n // w), round(np.sqrt(n * h / w)))))
+    return [n // rows + (i < n % rows) for i in range(rows)]
+
+
+def sectors(shape, n: int) -> np.ndarray:
+    """i32[H, W]: the sector of every cell for ``partitioned`` with n rovers, numbered row-major:
+    ``band_counts`` bands of equal height (up to one cell), each cut into its count of sectors of equal
+    width (up to one cell). Every sector holds at least one cell."""
+    h, w = shape
+    counts = band_counts(shape, n)
+    band_of_row = (np.arange(h) * len(counts)) // h
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = np.empty((h, w), np.int32)
+    for r in range(h):
+        b = band_of_row[r]
+        out[r] = first[b] + (np.arange(w) * counts[b]) // w
+    return out
 
 
 def _border_order(shape) -> np.ndarray:

@@ -57,6 +57,7 @@ from jaxplan.transport import (
     Route,
     build_fabric,
     default_walk_cap,
+    estimate_build_bytes,
     execute_push,
     outside_mass,
     quantize,
@@ -66,7 +67,7 @@ from jaxplan.transport import (
 from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill
 
 __all__ = ["DEADLOCK", "MAX_STEPS", "NO_REACHABLE", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord",
-           "FleetState", "fleet_rebuild", "max_rovers", "reset", "rollout", "step"]
+           "FleetState", "estimate_fleet_bytes", "fleet_rebuild", "max_rovers", "reset", "rollout", "step"]
 
 STRATEGIES = ("coordinated", "independent", "partitioned")
 # Stop codes: the episode's (0-6: running, done, done (no source left), budget, no_material,
@@ -268,6 +269,54 @@ def _check_static(params: FabricParams, ep: EpisodeParams, config: FleetConfig, 
 def route_slots(config: FleetConfig, shape) -> int:
     """S: route slots of a fleet's tasks (``2 (walk_cap + 1)``, as ``episode.plan_tick``'s routes)."""
     return 2 * (config.resolved(shape).walk_cap + 1)
+
+
+# Working memory of one coordinated assignment, bytes per route slot for each candidate planned at
+# once (assign.PLAN_CHUNK of them, vmapped), and of the rovers' fields, bytes per cell and rover.
+# XLA's memory_analysis of the compiled step (CPU): temporaries of 3.46 MB (K = 4, 2 coordinated
+# rovers, 48x48, S = 770 slots), 3.51 MB (8 rovers), 8.20 MB (2 rovers, 96x96, S = 1538) and
+# 5.07 MB (K = 8, 2 rovers, 48x48), against 0.65 MB for 8 independent rovers (K = 4, 48x48). That is
+# the fabric rebuild's own temporaries per cell (~280 B at K = 4, which estimate_build_bytes counts),
+# per route slot 3,660 B (K = 4) and 4,570 B (K = 8) for the coordinated assignment, 340 + 29 K B per
+# slot and candidate, and ~4 B per cell and rover (the fields' update).
+PLANNED_SLOT_BYTES = (340, 29)
+FIELD_TEMP_BYTES_PER_CELL = 4
+
+
+def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) -> int:
+    """Bytes of the fleet's own arrays on an ``(H, W)`` grid, beyond the shared fabric: the state's
+    per-rover grids and routes, counted twice (a step's input state and its output state are alive
+    together), plus the step's temporaries. Per cell: every rover's distance field (``dist`` i32,
+    4 B) twice and its update's temporaries (``FIELD_TEMP_BYTES_PER_CELL``); for independent and
+    partitioned fleets the tried footprints (``Attempts.tried`` bool, 1 B) twice; for the coordinated
+    strategy the M cached candidates' footprint masks (bool) twice and, with ``candidates_by="rate"``,
+    each rover's distance and rate grids (8 B). Per route slot (S = ``route_slots``): N (+ M) routes
+    x 8 B twice, and for the coordinated strategy the ``PLAN_CHUNK`` candidates planned at once
+    (``PLANNED_SLOT_BYTES``: 340 + 29 K each, K = ``params.k``, default ``FabricParams()``)."""
+    k = int((FabricParams() if params is None else params).k)
+    cfg = config.resolved(shape)
+    h, w = (int(v) for v in shape)
+    n = cfg.n_rovers
+    m = min(cfg.candidates, h * w) if cfg.strategy == "coordinated" else 0
+    per_cell = n * (2 * 4 + FIELD_TEMP_BYTES_PER_CELL) + 2 * m
+    per_slot = 2 * (n + m) * 8
+    if cfg.strategy != "coordinated":
+        per_cell += 2 * n
+    else:
+        per_cell += 8 * n if cfg.candidates_by == "rate" else 0
+        per_slot += min(assign.PLAN_CHUNK, m) * (PLANNED_SLOT_BYTES[0] + PLANNED_SLOT_BYTES[1] * k)
+    return per_cell * h * w + per_slot * route_slots(cfg, shape)
+
+
+def estimate_fleet_bytes(shape, config: FleetConfig, params: FabricParams | None = None) -> int:
+    """Estimated peak memory, bytes, that a fleet run on an ``(H, W)`` grid adds to the process:
+    ``transport.estimate_build_bytes(shape, params)`` (compiling and building the shared fabric; its
+    run term already holds two copies of the fabric, the step's input and output) plus
+    ``rover_bytes(shape, config, params)`` (the rovers' distance fields, footprint masks, routes and
+    planned candidates; the fields grow as N x H x W). ``run_fleet`` refuses a fleet whose estimate
+    exceeds the memory available. Frames kept with ``record=True`` come on top: 9 B per cell per step
+    (obj, heat, highways)."""
+    return estimate_build_bytes(shape, params) + rover_bytes(shape, config, params)
 
 
 def reset(scene, params: FabricParams | None = None, spill: SpillParams | None = None,

@@ -16,6 +16,9 @@ Physics (Section III-C/D): ``build_push_world`` (the scene in MuJoCo), ``PushTas
 ``jaxplan.pusharound.generators``; the Table I baselines (``BASELINES``, ``BaselineConfig``) in the
 package ``jaxplan.pusharound.baselines``.
 
+Memory: ``check_memory`` / ``estimate_memory_bytes`` bound the pairwise geometry kernels before any work
+(``check_feasible``, ``build_wccg`` and ``plan_pushes`` call it; ``jaxplan.pusharound.budget``).
+
 See docs/pusharound.md for the definitions and docs/scene-files.md for the JSON scene format.
 """
 from jaxplan.pusharound.animation import animate_execution, plot_state, save_final_png
@@ -52,8 +55,10 @@ from jaxplan.pusharound.wccg import (
     Connectivity,
     build_wccg,
     check_feasible,
+    check_memory,
     clearance,
     connectivity,
+    estimate_memory_bytes,
     w_clear_path,
 )
 
@@ -61,7 +66,8 @@ __all__ = ["BASELINES", "BaselineConfig", "Connectivity", "Execution", "Executio
            "ModeTable", "Movable", "PresearchFeatures", "PushOutcome", "PushPhysicsConfig", "PushScene", "PushTask",
            "PushWorld", "QuickPass", "Ranking", "RankingParams", "ScheduledPush", "SearchConfig", "SearchResult",
            "SearchStats", "WCCG", "animate_execution", "build_push_world", "build_wccg", "check_feasible",
-           "clearance", "connectivity", "corridor_scene", "dense_scene", "density_scene", "direction_tasks",
-           "execute_schedule", "face_contacts", "gap_costs", "load_schedule", "make_push_simulator", "nominal_scene",
-           "plan_pushes", "plot_state", "plot_wccg", "push_cost", "quick_pass", "rank_gaps", "save_final_png",
-           "simulate_pushes", "stack_tasks", "validate_ranking_params", "w_clear_path"]
+           "check_memory", "clearance", "connectivity", "corridor_scene", "dense_scene", "density_scene",
+           "direction_tasks", "estimate_memory_bytes", "execute_schedule", "face_contacts", "gap_costs",
+           "load_schedule", "make_push_simulator", "nominal_scene", "plan_pushes", "plot_state", "plot_wccg",
+           "push_cost", "quick_pass", "rank_gaps", "save_final_png", "simulate_pushes", "stack_tasks",
+           "validate_ranking_params", "w_clear_path"]

@@ -33,6 +33,7 @@ import shapely
 from shapely.geometry import LineString
 
 from jaxplan.physics import FAST_COMPILE, Simulator
+from jaxplan.pusharound.budget import touch_chunk
 from jaxplan.pusharound.kernels import pair_distances, point_distances
 from jaxplan.pusharound.physics import PushWorld, initial_state, movable_poses
 
@@ -41,7 +42,6 @@ __all__ = ["MAX_BATCH", "PushTask", "PushOutcome", "check_tasks", "direction_tas
            "stack_tasks", "start_positions"]
 
 MAX_BATCH = 64      # candidates per physics call (the paper's 64 per expansion)
-_TOUCH_CHUNK = 4096  # polygon pairs per exact-distance call in the fixed-obstacle contact test
 
 
 class PushTask(NamedTuple):
@@ -333,14 +333,16 @@ def _touching(verts, fixed_verts, tol: float) -> np.ndarray:
         return np.concatenate([a, np.repeat(a[:, -1:], v - a.shape[1], 1)], 1)
 
     # Shapes are bucketed so that few programs compile, shared across scenes and batches: vertex
-    # counts to a power of two >= 16, pair counts to a power of two in [256, _TOUCH_CHUNK] (larger sets
-    # in chunks of _TOUCH_CHUNK).
+    # counts to a power of two >= 16, pair counts to a power of two in [256, chunk] (larger sets in
+    # chunks; chunk = budget.touch_chunk(v): 4096, smaller for large pieces so that one call stays
+    # within budget.TOUCH_BYTES).
     v = max(16, 1 << int(np.ceil(np.log2(v))))
+    chunk = touch_chunk(v)
     a, b = pad(verts[ki]), pad(fixed_verts[fi])
     d = np.empty(len(ki))
-    for s0 in range(0, len(ki), _TOUCH_CHUNK):
-        s1 = min(s0 + _TOUCH_CHUNK, len(ki))
-        n = max(256, 1 << int(np.ceil(np.log2(s1 - s0))))
+    for s0 in range(0, len(ki), chunk):
+        s1 = min(s0 + chunk, len(ki))
+        n = max(min(256, chunk), 1 << int(np.ceil(np.log2(s1 - s0))))
         aa = np.concatenate([a[s0:s1], np.repeat(a[s1 - 1:s1], n - (s1 - s0), 0)])
         bb = np.concatenate([b[s0:s1], np.repeat(b[s1 - 1:s1], n - (s1 - s0), 0)])
         with jax.enable_x64(True):

@@ -10,6 +10,7 @@ centroid at the origin); its pose ``(x, y, psi)`` places the centroid at ``(x, y
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import math
@@ -25,7 +26,7 @@ from shapely.geometry import box as _box
 from jaxplan.core import read_text
 from jaxplan.pusharound.shapes import convex_decomposition, is_convex, polygon_inertia
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "Fixed", "Movable", "PushScene"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "Fixed", "Movable", "PushScene", "check_fields", "validate_scene"]
 
 FORMAT = "jaxplan.pusharound.scene"
 FORMAT_VERSION = 1
@@ -45,6 +46,11 @@ class Fixed:
 
     name: str
     pieces: tuple
+
+    def __post_init__(self):
+        label = f"Fixed({self.name!r})" if isinstance(self.name, str) else "Fixed"
+        _set(self, "name", _check_name(self.name, label))
+        _set(self, "pieces", _check_pieces(self.pieces, f"{label}.pieces"))
 
     @property
     def polygon(self) -> Polygon:
@@ -71,6 +77,23 @@ class Movable:
     inertia: float
     friction: float = 0.5
     shape: dict | None = None
+
+    def __post_init__(self):
+        label = f"Movable({self.name!r})" if isinstance(self.name, str) else "Movable"
+        _set(self, "name", _check_name(self.name, label))
+        _set(self, "pieces", _check_pieces(self.pieces, f"{label}.pieces"))
+        _set(self, "pose", tuple(_numbers(self.pose, 3, f"{label}.pose", "[x, y, psi] (m, m, rad)")))
+        for field, lo, unit in (("mass", "> 0", "kg"), ("inertia", "> 0", "kg m^2"), ("friction", ">= 0", "")):
+            _set(self, field, _signed(getattr(self, field), f"{label}.{field}", lo, unit))
+        if self.shape is not None and not isinstance(self.shape, dict):
+            raise TypeError(f"{label}.shape: expected a dict such as {{'kind': 'cylinder', 'radius': 0.3}}, or None; "
+                            f"got {_kind(self.shape)}.")
+
+    def at(self, pose) -> Movable:
+        """A copy at ``pose`` (x, y, psi) without checks: a rollout's pose is whatever the physics produced."""
+        out = copy.copy(self)
+        object.__setattr__(out, "pose", pose)
+        return out
 
     def world_pieces(self, pose=None) -> tuple:
         x, y, psi = self.pose if pose is None else pose
@@ -101,6 +124,16 @@ class PushScene:
     robots: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
     robot_radius: float = 0.15
 
+    def __post_init__(self):
+        """Check every field's type, shape, finiteness, sign and range (``TypeError`` / ``ValueError``
+        naming the field and the fix), the same checks as a scene file's; :func:`validate_scene` adds
+        the consistency of the objects (inside the workspace, no overlaps)."""
+        for field, value in zip(_ARG_NAMES, check_fields(self.workspace, self.width, self.start, self.goal,
+                                                         self.robots, self.robot_radius, _ARG_NAMES)):
+            _set(self, field, value)
+        for field, kind in (("fixed", Fixed), ("movables", Movable)):
+            _set(self, field, _check_parts(getattr(self, field), kind, f"PushScene.{field}"))
+
     # ---------------------------------------------------------------- derived geometry
     @property
     def workspace_polygon(self) -> Polygon:
@@ -122,8 +155,7 @@ class PushScene:
     def with_poses(self, poses) -> PushScene:
         """A copy with movable poses ``poses: f[M, 3]`` (no validation: a rollout may touch walls)."""
         poses = np.asarray(poses, np.float64).reshape(len(self.movables), 3)
-        movables = tuple(dataclasses.replace(m, pose=tuple(float(v) for v in p))
-                         for m, p in zip(self.movables, poses))
+        movables = tuple(m.at(tuple(float(v) for v in p)) for m, p in zip(self.movables, poses))
         return dataclasses.replace(self, movables=movables)
 
     def replace(self, **changes) -> PushScene:
@@ -192,12 +224,12 @@ class PushScene:
         _check_keys(rob, ("positions", "radius"), "robots")
         positions = [_floats(p, 2, f"robots.positions[{k}]", "[x, y] in metres")
                      for k, p in enumerate(_list(rob.get("positions", []), "robots.positions"))]
-        scene = cls(workspace=tuple(ws), width=_scalar(data["vehicle_width"], "vehicle_width"),
-                    start=tuple(_floats(data["start"], 2, "start", "[x, y]")),
-                    goal=tuple(_floats(data["goal"], 2, "goal", "[x, y]")),
-                    fixed=fixed, movables=movables,
-                    robots=np.asarray(positions, np.float64).reshape(-1, 2),
-                    robot_radius=_scalar(rob.get("radius", 0.15), "robots.radius"))
+        ws, width, start, goal, robots, radius = check_fields(
+            ws, _scalar(data["vehicle_width"], "vehicle_width"), _floats(data["start"], 2, "start", "[x, y]"),
+            _floats(data["goal"], 2, "goal", "[x, y]"), np.asarray(positions, np.float64).reshape(-1, 2),
+            _scalar(rob.get("radius", 0.15), "robots.radius"), _FILE_NAMES)
+        scene = cls(workspace=ws, width=width, start=start, goal=goal, fixed=fixed, movables=movables,
+                    robots=robots, robot_radius=radius)
         validate_scene(scene)
         return scene
 
@@ -293,7 +325,11 @@ def _polygon(verts, field: str) -> Polygon:
         raise ValueError(f"{field}: expected at least 3 [x, y] vertices; got {len(verts)}.")
     xy = np.asarray([_floats(p, 2, f"{field}[{k}]", "a vertex [x, y]") for k, p in enumerate(verts)],
                     np.float64)
-    poly = Polygon(xy)
+    return shapely.orient_polygons(_valid_polygon(Polygon(xy), field), exterior_cw=False)
+
+
+def _valid_polygon(poly: Polygon, field: str) -> Polygon:
+    """``poly`` if it is a valid polygon of positive area; else ValueError naming ``field``."""
     if not poly.is_valid:
         reason = shapely.is_valid_reason(poly)
         kind = "self-intersecting" if "intersection" in reason.lower() else "invalid"
@@ -301,7 +337,22 @@ def _polygon(verts, field: str) -> Polygon:
                          "boundary, without crossings or repeated points.")
     if poly.area <= 0:
         raise ValueError(f"{field}: polygon has zero area; give at least 3 non-collinear vertices.")
-    return shapely.orient_polygons(poly, exterior_cw=False)
+    return poly
+
+
+def _check_convex(pieces: tuple, field: str) -> None:
+    """ValueError naming ``field[k]`` for the first piece that is not convex."""
+    for k, p in enumerate(pieces):
+        if not is_convex(p):
+            raise ValueError(f"{field}[{k}]: not convex; split it into convex pieces or "
+                             "give the outline as 'polygon' to have it decomposed.")
+
+
+def _check_connected(pieces: tuple, field: str) -> None:
+    """ValueError naming ``field`` when the pieces do not form one connected body."""
+    if not isinstance(shapely.union_all(pieces), Polygon):
+        raise ValueError(f"{field}: they do not form one connected body; pieces must touch "
+                         "along edges (or split the body into two obstacles).")
 
 
 def _pieces(entry: dict, field: str) -> tuple:
@@ -313,18 +364,12 @@ def _pieces(entry: dict, field: str) -> tuple:
         pieces = tuple(_polygon(p, f"{field}.pieces[{k}]") for k, p in enumerate(raw))
         if not pieces:
             raise ValueError(f"{field}.pieces: empty; give at least one convex piece.")
-        for k, p in enumerate(pieces):
-            if not is_convex(p):
-                raise ValueError(f"{field}.pieces[{k}]: not convex; split it into convex pieces or "
-                                 "give the outline as 'polygon' to have it decomposed.")
+        _check_convex(pieces, f"{field}.pieces")
     elif "polygon" in entry:
         pieces = tuple(convex_decomposition(_polygon(entry["polygon"], f"{field}.polygon")))
     else:
         raise ValueError(f"{field}: needs 'pieces' (convex vertex lists) or 'polygon' (an outline).")
-    union = shapely.union_all(pieces)
-    if not isinstance(union, Polygon):
-        raise ValueError(f"{field}.pieces: they do not form one connected body; pieces must touch "
-                         "along edges (or split the body into two obstacles).")
+    _check_connected(pieces, f"{field}.pieces")
     return pieces
 
 
@@ -379,6 +424,127 @@ def _parse_movable(entry, i: int) -> Movable:
 
 
 # ---------------------------------------------------------------------------------------------------
+# Checks of directly built scenes (the constructors): the file's checks, with TypeError for wrong types
+# ---------------------------------------------------------------------------------------------------
+
+# The scene fields check_fields returns, with their names in messages: the constructor's arguments,
+# or the keys of a scene file.
+_ARG_NAMES = {f: f"PushScene.{f}" for f in ("workspace", "width", "start", "goal", "robots", "robot_radius")}
+_FILE_NAMES = {"workspace": "workspace", "width": "vehicle_width", "start": "start", "goal": "goal",
+               "robots": "robots.positions", "robot_radius": "robots.radius"}
+
+
+def _set(obj, field: str, value) -> None:
+    """Store a checked (normalised) value on a frozen dataclass."""
+    object.__setattr__(obj, field, value)
+
+
+def _check_name(name, label: str) -> str:
+    if not isinstance(name, str):
+        raise TypeError(f"{label}.name: expected a string; got {_kind(name)}.")
+    return name
+
+
+def _signed(v, label: str, lo: str, unit: str) -> float:
+    """A finite number ``v`` that is ``> 0`` or ``>= 0`` (``lo``); TypeError / ValueError naming ``label``."""
+    if not _is_number(v):
+        raise TypeError(f"{label}: expected a number{' [' + unit + ']' if unit else ''}; got {_kind(v)}. "
+                        f"Pass a float, e.g. {label.rsplit('.', 1)[-1]}=1.0.")
+    out = _scalar(v, label)
+    if not (out > 0 if lo == "> 0" else out >= 0):
+        raise ValueError(f"{label}: must be {lo}{' ' + unit if unit else ''}; got {v!r}.")
+    return out
+
+
+def _numbers(v, n: int, label: str, what: str) -> list:
+    """``n`` finite numbers within +-MAX_COORDINATE: TypeError for non-numbers, ValueError otherwise."""
+    if isinstance(v, np.ndarray):
+        if v.dtype.kind not in "iuf":
+            raise TypeError(f"{label}: expected {what}; got an array of dtype {v.dtype}.")
+        if v.ndim != 1:
+            raise ValueError(f"{label}: expected {what} ({n} numbers); got an array of shape {v.shape}.")
+        v = v.tolist()
+    if not isinstance(v, (list, tuple)) or not all(_is_number(x) for x in v):
+        raise TypeError(f"{label}: expected {what} ({n} numbers); got {_kind(v)}.")
+    return _floats(v, n, label, what)
+
+
+def _robot_array(v, label: str) -> np.ndarray:
+    """Robot positions as f64[N, 2] (N >= 0); TypeError for non-numbers, ValueError for shape and values."""
+    try:
+        arr = np.asarray(v)
+    except (ValueError, TypeError):
+        raise ValueError(f"{label}: expected an f[N, 2] array of robot positions (x, y) [m]; got ragged rows "
+                         f"{v!r:.60}.") from None
+    if arr.size == 0:
+        return np.zeros((0, 2))
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{label}: expected numbers, an f[N, 2] array of robot positions (x, y) [m]; got "
+                        f"dtype {arr.dtype} ({v!r:.60}).")
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{label}: expected shape (N, 2), one (x, y) row [m] a robot; got shape {arr.shape}. "
+                         "Pass np.array([[x0, y0], [x1, y1], ...]).")
+    arr = arr.astype(np.float64)
+    bad = ~np.isfinite(arr).all(axis=1) | (np.abs(arr) > MAX_COORDINATE).any(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise ValueError(f"{label}[{k}]: expected finite (x, y) within +-{MAX_COORDINATE:g} m; got "
+                         f"{tuple(arr[k].tolist())}.")
+    return arr
+
+
+def check_fields(workspace, width, start, goal, robots, robot_radius, names: dict = _ARG_NAMES) -> tuple:
+    """Check a scene's own fields (types, shapes, finiteness, signs, ranges) and return them normalised:
+    (workspace tuple[4], width float, start tuple[2], goal tuple[2], robots f64[N, 2], robot_radius float).
+
+    names: how messages name each field (the constructor's arguments, or a scene file's keys). Raises
+    ``TypeError`` for a value of the wrong type, ``ValueError`` for a wrong shape or value.
+    """
+    ws = tuple(_numbers(workspace, 4, names["workspace"], "[x0, y0, x1, y1] in metres"))
+    x0, y0, x1, y1 = ws
+    if not (x0 < x1 and y0 < y1):
+        raise ValueError(f"{names['workspace']}: need x0 < x1 and y0 < y1; got {ws!r}.")
+    if max(x1 - x0, y1 - y0) > MAX_WORKSPACE_SIDE:
+        raise ValueError(f"{names['workspace']}: sides of at most {MAX_WORKSPACE_SIDE:g} m; got {x1 - x0:g} x "
+                         f"{y1 - y0:g} m. Split the site into workspaces around each corridor.")
+    return (ws, _signed(width, names["width"], "> 0", "m"),
+            tuple(_numbers(start, 2, names["start"], "[x, y] in metres")),
+            tuple(_numbers(goal, 2, names["goal"], "[x, y] in metres")),
+            _robot_array(robots, names["robots"]), _signed(robot_radius, names["robot_radius"], "> 0", "m"))
+
+
+def _check_pieces(pieces, label: str) -> tuple:
+    """Convex, valid shapely Polygons with finite coordinates forming one body, as a tuple."""
+    if not isinstance(pieces, (list, tuple)):
+        raise TypeError(f"{label}: expected a tuple of convex shapely Polygons; got {_kind(pieces)}.")
+    if not pieces:
+        raise ValueError(f"{label}: empty; give at least one convex piece.")
+    for k, p in enumerate(pieces):
+        if not isinstance(p, Polygon):
+            raise TypeError(f"{label}[{k}]: expected a shapely Polygon (shapely.geometry.Polygon, or the pieces "
+                            f"of jaxplan.pusharound.shapes); got {_kind(p)}.")
+        xy = shapely.get_coordinates(p)
+        if not np.isfinite(xy).all() or np.abs(xy).max() > MAX_COORDINATE:
+            raise ValueError(f"{label}[{k}]: coordinates must be finite and within +-{MAX_COORDINATE:g} m; got "
+                             f"{p.wkt:.80}.")
+        _valid_polygon(p, f"{label}[{k}]")
+    pieces = tuple(pieces)
+    _check_convex(pieces, label)
+    _check_connected(pieces, label)
+    return pieces
+
+
+def _check_parts(parts, kind: type, label: str) -> tuple:
+    """``parts`` as a tuple of ``kind`` (Fixed or Movable); TypeError naming ``label[k]`` otherwise."""
+    if not isinstance(parts, (list, tuple)):
+        raise TypeError(f"{label}: expected a tuple of {kind.__name__}; got {_kind(parts)}.")
+    for k, part in enumerate(parts):
+        if not isinstance(part, kind):
+            raise TypeError(f"{label}[{k}]: expected a {kind.__name__}(...); got {_kind(part)}.")
+    return tuple(parts)
+
+
+# ---------------------------------------------------------------------------------------------------
 # Validation
 # ---------------------------------------------------------------------------------------------------
 
@@ -388,20 +554,9 @@ def _labels(scene: PushScene) -> list:
 
 
 def validate_scene(scene: PushScene) -> None:
-    """Raise ``ValueError`` naming the object for an inconsistent scene (see the module docstring)."""
-    x0, y0, x1, y1 = scene.workspace
-    if not (x0 < x1 and y0 < y1):
-        raise ValueError(f"workspace: need x0 < x1 and y0 < y1; got {scene.workspace!r}.")
-    if max(abs(v) for v in scene.workspace) > MAX_COORDINATE:
-        raise ValueError(f"workspace: coordinates must lie within +-{MAX_COORDINATE:g} m; got {scene.workspace!r}. "
-                         "Shift the scene's origin near the workspace.")
-    if max(x1 - x0, y1 - y0) > MAX_WORKSPACE_SIDE:
-        raise ValueError(f"workspace: sides of at most {MAX_WORKSPACE_SIDE:g} m; got {x1 - x0:g} x {y1 - y0:g} m. "
-                         "Split the site into workspaces around each corridor.")
-    if not scene.width > 0:
-        raise ValueError(f"vehicle_width: must be > 0 m; got {scene.width!r}.")
-    if not scene.robot_radius > 0:
-        raise ValueError(f"robots.radius: must be > 0 m; got {scene.robot_radius!r}.")
+    """Raise ``ValueError`` naming the object for an inconsistent scene: an obstacle outside the
+    workspace, two obstacles overlapping, a start, goal or robot inside an obstacle (the fields
+    themselves are checked when the scene is built, :func:`check_fields`)."""
     ws = scene.workspace_polygon
     polys = scene.obstacle_polygons()
     labels = _labels(scene)

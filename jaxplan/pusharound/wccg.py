@@ -40,6 +40,7 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry import box as _box
 
+from jaxplan.pusharound.budget import MemoryEstimate, check_pieces_memory, estimate_pieces_bytes, pair_bucket
 from jaxplan.pusharound.faces import (
     BRIDGE_EPS,
     QUAD_SEGS,
@@ -53,7 +54,7 @@ from jaxplan.pusharound.kernels import aabb_gaps, pack_polygons, pair_distances,
 from jaxplan.pusharound.scene import PushScene
 
 __all__ = ["MOVABLE", "FIXED", "WALL", "WCCG", "Connectivity", "Frontier", "build_wccg", "check_feasible",
-           "clearance", "connectivity", "frontier_bridges", "w_clear_path"]
+           "check_memory", "clearance", "connectivity", "estimate_memory_bytes", "frontier_bridges", "w_clear_path"]
 
 MOVABLE, FIXED, WALL = 0, 1, 2
 
@@ -104,24 +105,9 @@ def _wall_pieces(workspace, thickness: float) -> list:
             _box(x0, y0 - t, x1, y0), _box(x0, y1, x1, y1 + t)]
 
 
-def _bucket(n: int) -> int:
-    # Pad batch sizes to powers of two so that jit compiles a handful of shapes, not one per scene.
-    return max(8, 1 << (max(n, 1) - 1).bit_length())
-
-
-def build_wccg(scene: PushScene, poses=None, bridge_range: float = 1.0) -> WCCG:
-    """Build the WCCG of ``scene`` (with movable ``poses: f[M, 3]`` if given).
-
-    bridge_range: bridges are kept for pairs closer than ``bridge_range * W`` (>= 1; 1 = the paper's
-    graph, where every bridge is a bottleneck).
-    Cost: one quick pass (bounding boxes) over all pairs, then one batched exact distance call over
-    the surviving pairs, both in float64.
-    """
-    if poses is not None:
-        scene = scene.with_poses(poses)
-    w = float(scene.width)
-    if not bridge_range >= 1.0:
-        raise ValueError(f"bridge_range: must be >= 1 (a multiple of W); got {bridge_range!r}.")
+def _components(scene: PushScene) -> tuple:
+    """The WCCG's components: (pieces: list of N world Polygons, comp_body i32[N], body kinds, body
+    indices, body masses [kg]); movables first, then fixed obstacles, then the four wall boxes."""
     pieces, comp_body, kinds, index, mass = [], [], [], [], []
     for i, m in enumerate(scene.movables):
         pieces += m.world_pieces()
@@ -131,22 +117,69 @@ def build_wccg(scene: PushScene, poses=None, bridge_range: float = 1.0) -> WCCG:
         pieces += f.pieces
         comp_body += [len(kinds)] * len(f.pieces)
         kinds.append(FIXED), index.append(i), mass.append(0.0)
-    walls = _wall_pieces(scene.workspace, max(w, 1.0))
+    walls = _wall_pieces(scene.workspace, max(float(scene.width), 1.0))
     pieces += walls
     comp_body += [len(kinds)] * len(walls)
     kinds.append(WALL), index.append(-1), mass.append(0.0)
-    comp_body = np.asarray(comp_body, np.int32)
-    verts, nverts = pack_polygons(pieces)
+    return pieces, np.asarray(comp_body, np.int32), kinds, index, mass
+
+
+def estimate_memory_bytes(scene: PushScene, search: bool = False, bridge_range: float = 1.0) -> MemoryEstimate:
+    """Estimated peak memory of the pairwise geometry kernels on ``scene`` (``jaxplan.pusharound.budget``):
+    of :func:`build_wccg` at ``bridge_range``, or with ``search`` of :func:`plan_pushes` (its contact test
+    against fixed obstacles too). Returns a ``MemoryEstimate`` (``.bytes``, ``.total_vertices``, ...)."""
+    pieces = _components(scene)[0]
+    return estimate_pieces_bytes(pieces, bridge_range * float(scene.width), touch=_touches(scene, search))
+
+
+def _touches(scene: PushScene, search: bool) -> bool:
+    """Whether the search runs the fixed-obstacle contact test: pushes (movables, robots) and fixed obstacles."""
+    return search and bool(scene.fixed) and bool(scene.movables) and np.asarray(scene.robots).size > 0
+
+
+def check_memory(scene: PushScene, search: bool = False, available: int | None = None) -> MemoryEstimate:
+    """Raise ``ValueError`` before any work when :func:`estimate_memory_bytes` exceeds the memory
+    available (``jaxplan.core.available_memory_bytes``, or ``available`` bytes), naming the total vertex
+    count, the bytes needed, the memory available and the largest vertex count per piece that fits.
+    ``check_feasible`` (so ``plan_pushes`` and the CLI) and ``build_wccg`` call it."""
+    what = "planning pushes (plan_pushes)" if search else "building the W-clearance graph"
+    return check_pieces_memory(_components(scene)[0], float(scene.width), touch=_touches(scene, search),
+                               what=what, available=available)
+
+
+def _bridges(verts: np.ndarray, reach: float) -> tuple:
+    """Every component pair closer than ``reach`` [m]: (iu i[P], iv i[P], d f64[P], pa f64[P, 2], pb f64[P, 2])."""
     lo, hi = verts.min(axis=1), verts.max(axis=1)
-    reach = bridge_range * w
     with jax.enable_x64(True):
         gaps = np.asarray(aabb_gaps(lo, hi))
         iu, iv = np.nonzero(np.triu(gaps < reach, k=1))
         n_pairs = len(iu)
-        pad = _bucket(n_pairs) - n_pairs
+        pad = pair_bucket(n_pairs) - n_pairs
         a = np.concatenate([verts[iu], np.repeat(verts[:1], pad, 0)])
         b = np.concatenate([verts[iv], np.repeat(verts[:1], pad, 0)])
         d, pa, pb = (np.asarray(x)[:n_pairs] for x in pair_distances(a, b))
+    return iu, iv, d, pa, pb
+
+
+def build_wccg(scene: PushScene, poses=None, bridge_range: float = 1.0) -> WCCG:
+    """Build the WCCG of ``scene`` (with movable ``poses: f[M, 3]`` if given).
+
+    bridge_range: bridges are kept for pairs closer than ``bridge_range * W`` (>= 1; 1 = the paper's
+    graph, where every bridge is a bottleneck).
+    Cost: one quick pass (bounding boxes) over all pairs, then one batched exact distance call over
+    the surviving pairs, both in float64. Memory: refused with a ``ValueError`` before any work when the
+    pairwise kernels would not fit (:func:`check_memory`; ``jaxplan.pusharound.budget``).
+    """
+    if poses is not None:
+        scene = scene.with_poses(poses)
+    w = float(scene.width)
+    if not bridge_range >= 1.0:
+        raise ValueError(f"bridge_range: must be >= 1 (a multiple of W); got {bridge_range!r}.")
+    pieces, comp_body, kinds, index, mass = _components(scene)
+    reach = bridge_range * w
+    check_pieces_memory(pieces, reach)
+    verts, nverts = pack_polygons(pieces)
+    iu, iv, d, pa, pb = _bridges(verts, reach)
     keep = d < reach
     uv = np.stack([iu[keep], iv[keep]], axis=1).astype(np.int32).reshape(-1, 2)
     pts = np.stack([pa[keep], pb[keep]], axis=1).reshape(-1, 2, 2)
@@ -442,8 +475,11 @@ def check_feasible(scene: PushScene) -> None:
       fixed obstacles and walls alone; ``connectivity``);
     - ``robots``: a scene without robots must already hold a W-clear corridor (nothing can push).
 
+    Before all of these, ``check_memory(scene, search=True)``: the pairwise kernels of the graph and of the
+    search's contact test must fit in memory.
     Milliseconds on scenes of a few fixed obstacles (one WCCG of the fixed pieces and the walls).
     """
+    check_memory(scene, search=True)
     x0, y0, x1, y1 = (float(v) for v in scene.workspace)
     w, r = float(scene.width), 0.5 * float(scene.width)
     narrow = min(x1 - x0, y1 - y0)

@@ -46,6 +46,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
+from jaxplan.core import check_interrupt
 from jaxplan.sweep.chunks import Chunk, chunk_size_for, evaluate_chunk
 from jaxplan.sweep.spec import METRICS, SweepSpec, columns_of, load_spec, settings_of, tables_of
 from jaxplan.transport import FabricParams, check_build_memory
@@ -215,6 +216,7 @@ def run_sweep(spec, out, *, backend: str = "local", address: str | None = None, 
     try:
         with open(out, "a") as fh:
             for plan, result in zip(todo, results):
+                check_interrupt()
                 missing = [n for n in plan.rows if n not in done]
                 if not missing:
                     continue

@@ -26,7 +26,7 @@ import numpy as np
 
 from jaxplan.core import grid_jit
 from jaxplan.transport import execute, spillage
-from jaxplan.transport.fabric import Fabric, build_fabric
+from jaxplan.transport.fabric import Fabric, build_fabric, check_fabric_inputs
 from jaxplan.transport.params import FabricParams
 from jaxplan.transport.plan import Plan, plan_episode_tick
 
@@ -246,8 +246,10 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
     """The state before the first push: counts rounded to ``execute.QUANTUM``, the fabric built, the
     rover on the target's centroid, the start's stop checks applied (no material, budget 0). Pure and
     jittable (``vmap`` it over scenes of one shape). spill is not read; it keeps the signature of
-    ``step``. Concrete parameters are not validated here (``run_episode`` does)."""
+    ``step``. Concrete parameters and counts are not validated here (``run_episode`` does); the
+    arguments' types and the scene's shapes are (``fabric.check_fabric_inputs``, also under ``jit``)."""
     params = FabricParams() if params is None else params
+    check_fabric_inputs(scene, params)
     require_hard(params, "reset")
     ep = EpisodeParams() if episode is None else episode
     del spill

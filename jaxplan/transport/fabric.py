@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from jaxplan.core import SMALL_GRID_CELLS, available_memory_bytes, grid_jit, lattice, traced
 from jaxplan.transport import heatmap, kbest, visibility
 from jaxplan.transport.params import FabricParams, validate_params
+from jaxplan.transport.scene import Scene
 
 
 class Table(NamedTuple):
@@ -271,11 +272,26 @@ def _is_concrete(scene) -> bool:
     return not traced(scene)
 
 
+def check_fabric_inputs(scene, params: FabricParams, *, counts: bool = False) -> None:
+    """The host-level checks of ``build_fabric``'s arguments, before any JAX call: ``TypeError``
+    naming ``scene`` or ``params`` for a wrong type; ``ValueError`` naming the Scene field whose
+    shape disagrees with ``obj: [H, W]``. Shapes are static, so this works on traced scenes and
+    parameters too (inside ``jit``/``vmap``). counts: also refuse concrete NaN, infinite or negative
+    counts (``Scene.check``; a host read of ``obj``, which the drivers ``run_episode`` and
+    ``run_fleet`` do once, and ``build_fabric`` leaves to ``Scene.from_arrays`` and ``with_obj``)."""
+    Scene.check(scene, "scene", counts=counts)
+    if not isinstance(params, FabricParams):
+        raise TypeError(f"params: expected a FabricParams, got {type(params).__name__}. Build one with "
+                        "jaxplan.FabricParams(theta_tol_deg=...), or pass None for the defaults.")
+
+
 def build_fabric(scene, params: FabricParams | None = None, spill=None) -> Fabric:
     """Build the whole fabric (visibility, DP, first hops, psi, heatmap, highways) for ``scene``.
 
     Jitted; ``vmap`` it over ``FabricParams`` (traced fields) or over stacked scenes of one shape.
-    Concrete inputs are validated first and raise ``ValueError`` naming the bad field. With
+    Inputs are checked first (``check_fabric_inputs``: ``TypeError`` for a ``scene`` that is not a
+    Scene or ``params`` not a FabricParams, ``ValueError`` naming a Scene field whose shape disagrees
+    with ``obj``); concrete parameters are validated and raise ``ValueError`` naming the bad field. With
     ``params.temperature`` set (> 0, or traced) it runs the soft kernels and returns a
     ``jaxplan.transport.soft.SoftFabric`` instead (``temperature=None`` or a concrete 0: the hard ``Fabric``).
     spill: soft kernels only, a ``SpillParams``: Eq. 6's choice among each source's candidates
@@ -283,6 +299,7 @@ def build_fabric(scene, params: FabricParams | None = None, spill=None) -> Fabri
     Eq. 6 with ``selection.reselect``.
     """
     params = FabricParams() if params is None else params
+    check_fabric_inputs(scene, params)
     if _is_concrete(params):
         validate_params(params)
     if params.temperature is not None:

@@ -13,7 +13,7 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from jaxplan.core import grid_jit, timed
+from jaxplan.core import check_interrupt, grid_jit, timed
 from jaxplan.transport import execute, rebuild, spillage
 from jaxplan.transport.episode import (
     CLEARED,
@@ -33,7 +33,7 @@ from jaxplan.transport.episode import (
     reset,
     validate_episode_params,
 )
-from jaxplan.transport.fabric import Fabric, build_fabric
+from jaxplan.transport.fabric import Fabric, build_fabric, check_fabric_inputs
 from jaxplan.transport.params import FabricParams, validate_params
 from jaxplan.transport.plan import Plan, plan_episode_tick
 
@@ -133,6 +133,9 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     one the planner selects routes with (Eq. 6); None (default) means ``spill``. Tuning the planner's
     spill lambda against a fixed world (``experiments/tune_fabric.py --tune-spill``) sets both.
 
+    All inputs are checked before any work: a ``scene`` that is not a Scene or ``params`` not a
+    FabricParams is a ``TypeError``; leaves of disagreeing shapes, NaN, infinite or negative counts
+    (a raw ``Scene(...)``) and out-of-range parameters are a ``ValueError`` naming the field.
     Counts are rounded to ``execute.QUANTUM`` first (exact sums; see ``execute``). record: keep a
     per-tick snapshot (heat, headings, highways, route, connector) for ``viz.animate_episode``.
     progress: a progress bar on stderr. on_tick(t, metrics): called after every push (e.g. to log).
@@ -144,6 +147,7 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     params = FabricParams() if params is None else params
     spill = spillage.SpillParams() if spill is None else spill
     ep = EpisodeParams() if episode is None else episode
+    check_fabric_inputs(scene, params, counts=True)
     validate_params(params)
     require_hard(params)
     if params.temperature is not None:   # a concrete 0 is the hard fabric; None keeps it so under jit
@@ -163,6 +167,7 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     bar = _progress(ep.max_pushes, progress)
     try:
         for t in range(ep.max_pushes + 1):
+            check_interrupt()
             code, plan = int(state.stop), None
             if code == RUNNING:
                 (plan, planned), plan_ms = timed(lambda: plan_episode_tick(state.scene, params, ep, plan_spill,

@@ -146,6 +146,22 @@ def _is_tracer(x) -> bool:
     return isinstance(x, jax.core.Tracer)
 
 
+def _check_leaf_shapes(scene) -> None:
+    """ValueError naming the first leaf whose shape disagrees with ``obj: [H, W]``. Shapes are static,
+    so this also holds for traced leaves (inside ``jit``/``vmap``)."""
+    shape = tuple(np.shape(scene.obj))
+    if len(shape) != 2 or 0 in shape:
+        raise ValueError(f"Scene.obj: must be a non-empty 2-D grid [H, W] (rows = y, columns = x); got shape "
+                         f"{shape}. Build scenes with Scene.from_arrays(obj, target).")
+    wanted = dict(target_mask=shape, dist=shape, tvec=shape + (2,), cell_size=(), origin=(2,))
+    for field, want in wanted.items():
+        got = tuple(np.shape(getattr(scene, field)))
+        if got != want:
+            raise ValueError(f"Scene.{field}: shape {got} disagrees with Scene.obj's {shape}; it must be {want}. "
+                             "Build the scene with Scene.from_arrays(obj, target) (or scene.with_obj(obj) for "
+                             "new counts), which computes target_mask, dist and tvec for obj's grid.")
+
+
 # --------------------------------------------------------------------------------------------------
 # Scene
 # --------------------------------------------------------------------------------------------------
@@ -250,6 +266,27 @@ class Scene:
             new = jnp.asarray(new)
         return Scene(new, self.target_mask, self.dist, self.tvec, self.cell_size, self.origin,
                      target=self.target, name=self.name)
+
+    @classmethod
+    def check(cls, scene, argument: str = "scene", *, counts: bool = True) -> None:
+        """Check an entry point's ``scene`` argument before any JAX call (the raw constructor, the
+        pytree's unflatten, checks nothing).
+
+        Raises ``TypeError`` naming ``argument`` when ``scene`` is not a Scene (a name such as
+        ``"default"`` is loaded with ``builtin_scene``); ``ValueError`` naming the field when the
+        leaves' shapes disagree with ``obj: [H, W]`` (``target_mask [H, W]``, ``dist [H, W]``,
+        ``tvec [H, W, 2]``, ``cell_size []``, ``origin [2]``), and, with ``counts`` and concrete
+        counts, when ``obj`` holds NaN, infinite, negative or non-numeric values (as
+        :meth:`from_arrays`). Traced counts (inside ``jit``) are not inspected.
+        """
+        if not isinstance(scene, cls):
+            hint = (f" Load a named scene with jaxplan.builtin_scene({scene!r}) or a file with Scene.load."
+                    if isinstance(scene, str) else "")
+            raise TypeError(f"{argument}: expected a Scene, got {type(scene).__name__}.{hint} Build one with "
+                            "Scene.from_arrays(obj, target).")
+        _check_leaf_shapes(scene)
+        if counts and not _is_tracer(scene.obj):
+            _validate_obj(scene.obj)
 
     # -- derived quantities ------------------------------------------------------------------
 

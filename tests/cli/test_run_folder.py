@@ -1,9 +1,11 @@
 """Output folders of the CLI: each run's run.json lists its files, a rerun never leaves an earlier
-run's files beside its own, Ctrl-C exits 130 with the folder marked interrupted, and bad input leaves
-the folder as it was."""
+run's files beside its own and deletes nothing outside the folder, one run at a time per folder,
+Ctrl-C or SIGTERM exits 128 + the signal with the folder marked interrupted, and bad input leaves the
+folder as it was."""
 from __future__ import annotations
 
 import json
+import signal
 
 import pytest
 
@@ -107,38 +109,82 @@ def test_failed_write_marks_the_run_failed(tmp_path, monkeypatch, capsys):
     assert m["status"] == "failed" and "No space left" in m["error"]
 
 
-def test_real_sigint_mid_episode(earlier_run, tmp_path):
-    """Ctrl-C delivered to a real process while the episode pushes: after its first push (read off the
-    progress bar), in an episode that cannot end first however warm the compilation cache (the 65 x 65
-    scene down to its last object)."""
+def _start_long_episode(out):
+    """A real ``jaxplan episode`` process that cannot end on its own within the tests' waits, however
+    warm the compilation cache (the 65 x 65 scene down to its last object), and the list its stderr
+    is read into."""
     import os
-    import re
-    import signal
     import subprocess
     import sys
     import threading
-    import time
 
-    out = _copy(earlier_run, tmp_path / "out")
     long_episode = ["episode", "--scene", "sparse65", "--stop-fraction", "0", "--max-pushes", "100000"]
     proc = subprocess.Popen([sys.executable, "-m", "jaxplan.cli", *long_episode, "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "JAX_PLATFORMS": "cpu"})
     chunks: list[bytes] = []
-    reader = threading.Thread(target=lambda: chunks.extend(iter(lambda: proc.stderr.read1(4096), b"")), daemon=True)
-    reader.start()
+    threading.Thread(target=lambda: chunks.extend(iter(lambda: proc.stderr.read1(4096), b"")), daemon=True).start()
+    return proc, chunks
+
+
+def _wait_for_the_first_push(proc, chunks) -> None:
+    import re
+    import time
+
     pushed = re.compile(rb"pushes:[^\r\n]*\| *[1-9][0-9]*/")
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline and proc.poll() is None and not pushed.search(b"".join(chunks)):
         time.sleep(0.1)
-    proc.send_signal(signal.SIGINT)
+
+
+def _interrupted_by(proc, chunks, signum, out) -> None:
+    """Send ``signum`` to the running episode: it exits 128 + signum, the folder marked interrupted."""
+    proc.send_signal(signum)
     proc.wait(timeout=120)
-    reader.join(timeout=10)
     err = b"".join(chunks).decode(errors="replace")
-    assert proc.returncode == 130, err
+    assert proc.returncode == 128 + signum, err
     assert err.strip().splitlines()[-1].startswith("interrupted: ")
     m = _manifest(out)
-    assert m["status"] == "interrupted"
+    assert m["status"] == "interrupted" and signal.Signals(signum).name in m["error"]
     assert _files(out) == sorted([MANIFEST, *m["files"]])
+
+
+def test_ctrl_c_mid_episode(earlier_run, tmp_path):
+    """Ctrl-C delivered to a real process after its first push (read off the progress bar)."""
+    out = _copy(earlier_run, tmp_path / "out")
+    proc, chunks = _start_long_episode(out)
+    _wait_for_the_first_push(proc, chunks)
+    _interrupted_by(proc, chunks, signal.SIGINT, out)
+
+
+def test_a_busy_folder_refuses_a_second_run_and_sigterm_stops_the_first(tmp_path, capsys):
+    """While an episode runs, a second run into its folder exits 2 naming the first's pid; then the
+    SIGTERM of ``timeout`` / systemd / Slurm / docker stops the first like Ctrl-C (exit 143)."""
+    out = tmp_path / "out"
+    proc, chunks = _start_long_episode(out)
+    try:
+        _wait_for_the_first_push(proc, chunks)
+        with pytest.raises(SystemExit) as info:
+            main([*EPISODE, "--no-animation", "--out", str(out)])
+        assert info.value.code == 2
+        err = capsys.readouterr().err
+        assert "--out" in err and f"pid {proc.pid}" in err and "in use" in err
+        assert _manifest(out)["command"] == "episode" and _manifest(out)["status"] == "running"
+    finally:
+        _interrupted_by(proc, chunks, signal.SIGTERM, out)
+
+
+def test_a_rerun_deletes_nothing_outside_the_folder(tmp_path, capsys):
+    """The defect as reported: a planted run.json lists a file behind a symlinked folder."""
+    out, victim = tmp_path / "out", tmp_path / "victim"
+    out.mkdir()
+    victim.mkdir()
+    (victim / "precious.txt").write_text("keep")
+    (out / "ext").symlink_to(victim)
+    (out / MANIFEST).write_text(json.dumps({
+        "format": "jaxplan.run", "version": 1, "command": "episode", "arguments": {}, "status": "complete",
+        "started": None, "finished": None, "files": ["ext/precious.txt"], "error": None}))
+    assert main([*EPISODE, "--no-animation", "--out", str(out)]) == 0
+    assert (victim / "precious.txt").read_text() == "keep"
 
 
 def test_interrupted_sweep_says_how_many_rows_are_kept(tmp_path, monkeypatch, capsys):

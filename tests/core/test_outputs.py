@@ -1,12 +1,18 @@
-"""RunFolder: a manifest that says which files belong to the run, a rerun that removes the previous
-run's files, and the status a run ends with (complete, interrupted, failed)."""
+"""RunFolder: a manifest that says which files belong to the run, a rerun that removes exactly the
+previous run's files and nothing outside the folder, one run per folder, and the status a run ends
+with (complete, interrupted by a signal, failed)."""
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
 
 import pytest
 
-from jaxplan.core.outputs import MANIFEST, RunFolder, RunInterrupted, atomic_write, read_manifest
+from jaxplan.core.outputs import LOCK, MANIFEST, RunFolder, RunInterrupted, atomic_write, read_manifest
+from jaxplan.core.signals import StopSignal
 
 
 def _manifest(folder) -> dict:
@@ -15,7 +21,7 @@ def _manifest(folder) -> dict:
 
 def test_complete_run_lists_its_files(tmp_path):
     out = tmp_path / "a" / "b"
-    with RunFolder(out, "demo", {"scene": "default", "fps": 4}, outputs=("x.json", "y.bin")) as run:
+    with RunFolder(out, "demo", {"scene": "default", "fps": 4}) as run:
         assert _manifest(out)["status"] == "running"
         run.write_json("x.json", {"v": 1})
         assert _manifest(out)["files"] == ["x.json"]   # current after every file
@@ -30,26 +36,36 @@ def test_complete_run_lists_its_files(tmp_path):
 
 
 def test_rerun_removes_the_previous_runs_files_but_not_the_users(tmp_path):
-    with RunFolder(tmp_path, "demo", outputs=("summary.json", "episode.gif")) as run:
+    with RunFolder(tmp_path, "demo") as run:
         run.write_json("summary.json", {})
         run.write("episode.gif", lambda fh: fh.write(b"GIF"))
         run.write("extra/notes.txt", lambda fh: fh.write(b"from the run"))
     (tmp_path / "mine.txt").write_text("the user's")
-    with RunFolder(tmp_path, "demo", outputs=("summary.json", "episode.gif")) as run:
-        assert not (tmp_path / "episode.gif").exists()        # listed by the old manifest and named
+    with RunFolder(tmp_path, "demo") as run:
+        assert not (tmp_path / "episode.gif").exists()        # listed by the old manifest
         assert not (tmp_path / "extra" / "notes.txt").exists()  # listed by the old manifest
         run.write_json("summary.json", {"new": True})
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([MANIFEST, "mine.txt", "summary.json"])
     assert _manifest(tmp_path)["files"] == ["summary.json"]
 
 
-def test_folder_without_manifest_loses_only_the_commands_names(tmp_path):
+def test_folder_without_manifest_loses_nothing(tmp_path):
     (tmp_path / "episode.gif").write_bytes(b"old")
-    (tmp_path / ".episode.gif.123.tmp.gif").write_bytes(b"killed writer")
-    (tmp_path / "keep.gif").write_bytes(b"not ours")
-    with RunFolder(tmp_path, "episode", outputs=("episode.gif",)):
+    (tmp_path / ".episode.gif.123.tmp.gif").write_bytes(b"the user's hidden file")
+    with RunFolder(tmp_path, "episode"):
         pass
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([MANIFEST, "keep.gif"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([MANIFEST, "episode.gif", ".episode.gif.123.tmp.gif"])
+
+
+def test_a_killed_writers_temp_files_of_listed_outputs_are_removed(tmp_path):
+    with RunFolder(tmp_path, "episode") as run:
+        run.write("episode.gif", lambda fh: fh.write(b"GIF"))
+    (tmp_path / ".episode.gif.123.tmp.gif").write_bytes(b"killed writer (staged)")
+    (tmp_path / ".episode.gif.ab_cd123.tmp").write_bytes(b"killed writer (atomic)")
+    (tmp_path / ".episode.gif.notes").write_bytes(b"the user's")
+    with RunFolder(tmp_path, "episode"):
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([MANIFEST, ".episode.gif.notes"])
 
 
 def test_tampered_manifest_cannot_remove_files_outside_the_folder(tmp_path):
@@ -62,6 +78,90 @@ def test_tampered_manifest_cannot_remove_files_outside_the_folder(tmp_path):
     with RunFolder(out, "demo"):
         pass
     assert victim.read_text() == "safe"
+
+
+def _planted(out, files) -> None:
+    (out / MANIFEST).write_text(json.dumps({"format": "jaxplan.run", "version": 1, "command": "episode",
+                                            "arguments": {}, "status": "complete", "started": None,
+                                            "finished": None, "files": files, "error": None}))
+
+
+def test_a_symlinked_folder_in_the_manifest_is_not_followed(tmp_path):
+    """The defect: a planted run.json listing ext/precious.txt, ext a link to a folder outside."""
+    out, victim = tmp_path / "out", tmp_path / "victim"
+    out.mkdir()
+    victim.mkdir()
+    (victim / "precious.txt").write_text("keep")
+    (out / "ext").symlink_to(victim)
+    _planted(out, ["ext/precious.txt"])
+    with RunFolder(out, "episode"):
+        pass
+    assert (victim / "precious.txt").read_text() == "keep"
+
+
+def test_a_symlinked_file_in_the_manifest_is_neither_followed_nor_removed(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    victim = tmp_path / "precious.txt"
+    victim.write_text("keep")
+    (out / "summary.json").symlink_to(victim)
+    _planted(out, ["summary.json"])
+    with RunFolder(out, "episode"):
+        pass
+    assert victim.read_text() == "keep" and (out / "summary.json").is_symlink()
+
+
+def test_the_folder_reached_through_a_symlink_still_cleans_its_own_files(tmp_path):
+    real = tmp_path / "real"
+    with RunFolder(real, "episode") as run:
+        run.write_json("metrics.json", {})
+    (tmp_path / "alias").symlink_to(real)
+    with RunFolder(tmp_path / "alias", "episode"):
+        assert not (real / "metrics.json").exists()
+
+
+def test_a_run_json_that_is_not_jaxplans_is_refused_and_kept(tmp_path):
+    (tmp_path / MANIFEST).write_text('{"their": "data"}')
+    (tmp_path / "theirs.txt").write_text("x")
+    with pytest.raises(ValueError, match="did not write"), RunFolder(tmp_path, "episode"):
+        pass
+    assert (tmp_path / MANIFEST).read_text() == '{"their": "data"}' and (tmp_path / "theirs.txt").exists()
+    assert not (tmp_path / LOCK).exists()
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused(tmp_path):
+    with RunFolder(tmp_path, "episode") as run:
+        run.write_json("metrics.json", {"first": True})
+        holder = json.loads((tmp_path / LOCK).read_text())
+        assert holder == {"pid": os.getpid(), "command": "episode"}
+        # another process, so that the kernel's lock is really contended
+        code = ("import sys; from jaxplan.core.outputs import RunFolder\n"
+                "try:\n    RunFolder(sys.argv[1], 'demo').__enter__()\n"
+                "except ValueError as e:\n    print(e); sys.exit(2)")
+        other = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True)
+        assert other.returncode == 2 and f"pid {os.getpid()}" in other.stdout and "episode" in other.stdout
+        assert _manifest(tmp_path)["files"] == ["metrics.json"]   # the second run touched nothing
+    assert not (tmp_path / LOCK).exists()
+
+
+def test_the_lock_of_a_killed_run_is_taken_over_with_a_warning(tmp_path, capsys):
+    (tmp_path / LOCK).write_text(json.dumps({"pid": 999_999_999, "command": "fleet"}))
+    with RunFolder(tmp_path, "episode") as run:
+        run.write_json("metrics.json", {})
+    err = capsys.readouterr().err
+    assert "taking over the lock" in err and "pid 999999999" in err
+    assert not (tmp_path / LOCK).exists()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_a_stop_signal_is_an_interrupted_run_that_names_it(tmp_path, signum):
+    with pytest.raises(RunInterrupted) as info:
+        with RunFolder(tmp_path, "episode") as run:
+            run.write_json("metrics.json", {})
+            raise StopSignal(signum)
+    assert info.value.signum == signum
+    m = _manifest(tmp_path)
+    assert m["status"] == "interrupted" and signal.Signals(signum).name in m["error"]
 
 
 def test_interrupted_run_says_so_and_keeps_its_partial_files(tmp_path):

@@ -105,7 +105,7 @@ def test_write_fleet_outputs(tmp_path):
     from PIL import Image
 
     run = _fake_run()
-    with RunFolder(tmp_path / "out", "fleet", outputs=R.FLEET_OUTPUTS) as folder:
+    with RunFolder(tmp_path / "out", "fleet") as folder:
         paths = R.write_fleet_outputs(run, folder, animate=True, fps=5, max_frames=4, extra_summary={"seed": 0})
     out = tmp_path / "out"
     assert sorted(paths) == sorted(R.FLEET_OUTPUTS)
@@ -124,7 +124,7 @@ def test_write_fleet_outputs(tmp_path):
 
 def test_no_animation_without_frames_or_when_not_asked(tmp_path):
     for name, run, animate in (("a", _fake_run(frames=False), True), ("b", _fake_run(), False)):
-        with RunFolder(tmp_path / name, "fleet", outputs=R.FLEET_OUTPUTS) as folder:
+        with RunFolder(tmp_path / name, "fleet") as folder:
             paths = R.write_fleet_outputs(run, folder, animate=animate, fps=5)
         assert "fleet.gif" not in paths and not (tmp_path / name / "fleet.gif").exists()
         assert (tmp_path / name / "fleet.png").is_file()

@@ -280,4 +280,4 @@ def displacements(poly, route: LineString, clear: float) -> list:
 def moved_polygon(scene: PushScene, poses, m: int, angle: float, dist: float):
     pose = np.array(poses[m], np.float64)
     pose[:2] += dist * np.array([math.cos(angle), math.sin(angle)])
-    return dataclasses.replace(scene.movables[m], pose=tuple(float(v) for v in pose)).polygon, pose
+    return scene.movables[m].at(tuple(float(v) for v in pose)).polygon, pose

@@ -122,9 +122,11 @@ class SearchConfig:
 def check_inputs(scene, config, ranking, mode_table, world, sim) -> None:
     """Raise ValueError naming the first argument of :func:`plan_pushes` that is malformed."""
     if not isinstance(scene, PushScene):
-        raise ValueError(f"scene: expected a PushScene; got {type(scene).__name__}.")
+        raise TypeError(f"scene: expected a PushScene; got {type(scene).__name__}. Build one with PushScene(...) or "
+                        "PushScene.load(path).")
     if not isinstance(config, SearchConfig):
-        raise ValueError(f"config: expected a SearchConfig; got {type(config).__name__}.")
+        raise TypeError(f"config: expected a SearchConfig; got {type(config).__name__}. Pass SearchConfig(...) "
+                        "or None.")
     validate_ranking_params(ranking)
     if np.asarray(scene.robots).reshape(-1, 2).shape[0] == 0:
         raise ValueError("scene.robots: the search needs at least one robot.")
@@ -138,4 +140,4 @@ def check_inputs(scene, config, ranking, mode_table, world, sim) -> None:
                              "use build_push_world(scene).")
     if sim is not None and world is not None and sim.model is not world.model:
         raise ValueError("sim: built for another world; use make_push_simulator(world).")
-    check_feasible(scene)   # geometry no push can change (W vs workspace, endpoints, fixed obstacles)
+    check_feasible(scene)   # memory of the pairwise kernels, then geometry no push can change
