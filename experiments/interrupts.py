@@ -90,6 +90,22 @@ def _files(folder: Path) -> list[str]:
     return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file() or p.is_symlink())
 
 
+def _phase(pid: int) -> str | None:
+    """Where the process stood when the signal went out, from its SIGTERM disposition in
+    /proc/PID/status: "startup" (Python's default: still importing, the CLI has not installed its
+    handlers), "running" (the CLI's handler), "leaving" (ignored: the exit code is decided), or None
+    where /proc cannot say."""
+    try:
+        fields = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+                      if ":" in line)
+        bit = 1 << (signal.SIGTERM - 1)
+        if int(fields["SigCgt"], 16) & bit:
+            return "running"
+        return "leaving" if int(fields["SigIgn"], 16) & bit else "startup"
+    except (OSError, KeyError, ValueError):
+        return None
+
+
 def run_trial(command: str, signame: str, delay: float, *, wait_s: float = WAIT_AFTER_SIGNAL_S) -> dict:
     """One trial: start ``command`` (a key of COMMANDS) in a fresh temp folder, send ``signame`` after
     ``delay`` seconds, wait for the process and check how it ended. Returns the record, with
@@ -107,10 +123,11 @@ def run_trial(command: str, signame: str, delay: float, *, wait_s: float = WAIT_
         reader = threading.Thread(target=lambda: chunks.extend(iter(lambda: proc.stderr.read1(65536), b"")),
                                   daemon=True)
         reader.start()
-        sent = False
+        sent, phase = False, None
         try:
             proc.wait(timeout=delay)
         except subprocess.TimeoutExpired:
+            phase = _phase(proc.pid)
             proc.send_signal(signum)
             sent = True
         sent_at = time.monotonic() - started
@@ -168,9 +185,10 @@ def run_trial(command: str, signame: str, delay: float, *, wait_s: float = WAIT_
         failures.append(f"files in DIR that run.json does not list: {unlisted[:5]}")
     # Killed by the signal's default action with no output folder yet: the signal came while Python was
     # still importing jaxplan and JAX, before the CLI installed its handlers.
-    startup = rc == -signum and not out_existed and "jaxplan/cli/" not in err
+    # (phase "startup", read from /proc where there is one, else guessed from the exit).
+    startup = phase == "startup" if phase is not None else (rc == -signum and not out_existed)
     return {"command": command, "signal": signame, "delay_s": round(delay, 3), "signal_sent": sent,
-            "sent_at_s": round(sent_at, 3), "elapsed_s": round(elapsed, 3), "exit_code": rc,
+            "sent_at_s": round(sent_at, 3), "phase": phase, "elapsed_s": round(elapsed, 3), "exit_code": rc,
             "outcome": "finished" if rc == 0 else ("interrupted" if interrupted else "other"),
             "last_line": last[:300], "manifest_status": status, "files_outside": outside,
             "unlisted_in_dir": unlisted, "startup": startup, "ok": not failures, "failures": failures,
@@ -216,10 +234,10 @@ def markdown(result: dict) -> str:
              "Each trial runs `python -m jaxplan.cli COMMAND ... --out DIR` in a fresh temp folder, sends the "
              "signal after a delay uniform in [0, max delay] and waits for the process. interrupted = exit "
              "128 + signal; finished = exit 0 before the signal; other = any other exit (a failure); startup = "
-             "killed by the signal's default action before the CLI installed its handlers (while Python imported "
-             "jaxplan and JAX; no output folder yet; a failure); crashes = any other negative exit code or "
-             "134 / 139; running_left = run.json says `running` "
-             "after exit; files_outside = files written outside DIR.", "",
+             "the signal came before the CLI installed its handlers, while Python still imported jaxplan and JAX "
+             "(from /proc/PID/status where recorded, else: killed by the signal with no output folder); "
+             "crashes = any other negative exit code or 134 / 139 (startup excluded); running_left = run.json "
+             "says `running` after exit; files_outside = files written outside DIR.", "",
              "| command | arguments | max delay s | " + " | ".join(cols) + " |",
              "|---|---|---:|" + "---:|" * len(cols)]
     for name, c in s["per_command"].items():
@@ -228,7 +246,12 @@ def markdown(result: dict) -> str:
     t = s["total"]
     lines.append("| **all** | | | " + " | ".join(f"**{t.get(k, 0)}**" for k in cols) + " |")
     failed = [x for x in result["trials"] if not x["ok"]]
-    lines += ["", f"## Failures ({len(failed)})", ""]
+    late = [x for x in result["trials"] if x["signal_sent"] and x["sent_at_s"] > 3.0]
+    lines += ["", f"Signal sent more than 3 s after the start (past Python's start-up): {len(late)} trials, "
+              f"{sum(not x['ok'] for x in late)} failed. Failures' signals were sent "
+              + (f"{min(x['sent_at_s'] for x in failed):.2f} to {max(x['sent_at_s'] for x in failed):.2f} s "
+                 "after the start." if failed else "never."),
+              "", f"## Failures ({len(failed)})", ""]
     if not failed:
         lines.append("None.")
     for i, x in enumerate(failed):

@@ -1,5 +1,4 @@
-import sys
+"""``python -m jaxplan.cli``: the command line as a process (``jaxplan.cli.entry``)."""
+from jaxplan.cli.main import entry
 
-from jaxplan.cli.main import main
-
-sys.exit(main())
+entry()

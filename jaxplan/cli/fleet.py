@@ -5,7 +5,6 @@ from jaxplan.cli.common import (
     FPS,
     CLIError,
     add_theta_option,
-    check_fabric_memory,
     fabric_params,
     load_scene,
     ranged,
@@ -35,6 +34,26 @@ def _episode_params(args):
     return ep
 
 
+# the fleet's memory refusal names run_fleet's arguments; on the command line they are these flags
+_FLAGS = {"n_rovers": "--rovers", "strategy": "--strategy", "scene": "--scene"}
+
+
+def _check_memory(scene, config, params) -> None:
+    """The fleet's memory check (fabric and rovers) before the output folder is touched, its advice in
+    the command's flags."""
+    from jaxplan.fleet import check_fleet_memory
+
+    try:
+        check_fleet_memory(scene.shape, config, params)
+    except ValueError as exc:
+        message = str(exc)
+        for name, flag in _FLAGS.items():
+            if message.startswith(f"{name}:"):
+                message = flag + message[len(name):]
+                break
+        raise CLIError(message) from None
+
+
 def _cmd_fleet(args) -> int:
     import matplotlib
 
@@ -43,12 +62,12 @@ def _cmd_fleet(args) -> int:
 
     params, spill, ep = fabric_params(args), spill_params(args), _episode_params(args)
     scene = _fleet_scene(args.scene)
-    check_fabric_memory(args, scene, params)
     if args.rovers > _cells_outside_targets(scene):
         raise CLIError(f"--rovers: {args.rovers} rovers do not fit on the {_cells_outside_targets(scene)} cells "
                        "outside the targets; use fewer rovers or a larger scene.")
+    config = FleetConfig(args.rovers, args.strategy, clearance=args.clearance, candidates_by=args.candidates)
+    _check_memory(scene, config, params)
     with run_folder(args) as run:
-        config = FleetConfig(args.rovers, args.strategy, clearance=args.clearance, candidates_by=args.candidates)
         fleet = run_fleet(scene, n_rovers=args.rovers, strategy=args.strategy, params=params, spill=spill,
                           episode=ep, max_steps=args.max_steps, record=not args.no_animation, progress=True,
                           config=config)

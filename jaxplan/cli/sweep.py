@@ -18,6 +18,11 @@ def _cmd_sweep(args) -> int:
     except KeyboardInterrupt as exc:
         raise RunInterrupted(f"{args.out!r} keeps the {_rows(args.out)} complete row(s) written so far; "
                              "run the same command again to resume.", signal_number(exc)) from None
+    except OSError as exc:   # a full disk or a file-size limit while appending rows
+        where = exc.filename or args.out
+        raise CLIError(f"--out: could not write {str(where)!r} ({exc.strerror or exc}); it keeps the "
+                       f"{_rows(args.out)} complete row(s) written so far. Free space, then run the same "
+                       "command again to resume.") from None
     print(f"wrote {out}")
     return 0
 

@@ -48,7 +48,7 @@ import numpy as np
 
 from jaxplan.core import check_interrupt
 from jaxplan.sweep.chunks import Chunk, chunk_size_for, evaluate_chunk
-from jaxplan.sweep.spec import METRICS, SweepSpec, columns_of, load_spec, settings_of, tables_of
+from jaxplan.sweep.spec import METRICS, Settings, SweepSpec, columns_of, load_spec, settings_of, tables_of
 from jaxplan.transport import FabricParams, check_build_memory
 
 
@@ -73,7 +73,7 @@ def _setting_fields(spec: SweepSpec, setting) -> list[str]:
     return [spec.scenes[i][0]] + [_fmt(float(v)) for v in (*fvals, *svals)]
 
 
-def _read_done(out: Path, header: list[str], spec: SweepSpec, settings: list) -> set[int]:
+def _read_done(out: Path, header: list[str], spec: SweepSpec, settings: Settings) -> set[int]:
     """Setting indices already written to ``out``; drops a torn last line; checks the rows belong to
     this sweep (same header, same scene and values at each setting index)."""
     data = out.read_bytes()
@@ -111,7 +111,7 @@ class _Plan(NamedTuple):
     chunk: Chunk
 
 
-def plan_chunks(spec: SweepSpec, settings: list, memory_budget_mb: float) -> list[_Plan]:
+def plan_chunks(spec: SweepSpec, settings: Settings, memory_budget_mb: float) -> list[_Plan]:
     """Chunks of U tables (x M settings each) from a run of consecutive scenes of one grid shape; U is
     fixed per shape and the last chunk of a run is padded by repeating its last table, so every call of
     one shape has the same array shapes (one compile per grid shape)."""
@@ -161,7 +161,7 @@ def plan_chunks(spec: SweepSpec, settings: list, memory_budget_mb: float) -> lis
     return plans
 
 
-def _rows_text(spec: SweepSpec, settings: list, plan: _Plan, result: dict) -> str:
+def _rows_text(spec: SweepSpec, settings: Settings, plan: _Plan, result: dict) -> str:
     lines = []
     for j, n in enumerate(plan.rows):
         fields = [str(n)] + _setting_fields(spec, settings[n]) + [_fmt(result[m][j][()]) for m in METRICS]

@@ -1,11 +1,15 @@
-"""Sweep specs: the TOML/dict a user writes, validated into a ``SweepSpec``, and its settings in order."""
+"""Sweep specs: the TOML/dict a user writes, validated into a ``SweepSpec``, and its settings in order.
+
+A spec's settings are the product of its lists, bounded by ``MAX_SETTINGS`` before anything is built
+and never held as a list: ``settings_of`` computes setting i from i.
+"""
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
 import os
 import tomllib
+from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -23,7 +27,12 @@ from jaxplan.transport import (
 )
 from jaxplan.transport.spillage import SpillParams, validate_spill_params
 
-__all__ = ["METRICS", "REFUSED", "SweepSpec", "columns_of", "load_spec", "settings_of", "tables_of"]
+__all__ = ["MAX_SETTINGS", "METRICS", "REFUSED", "Settings", "SweepSpec", "columns_of", "load_spec", "settings_of",
+           "tables_of"]
+
+# A sweep writes one CSV row per setting; ten million rows are a gigabyte of CSV and days of work on a
+# CPU. A larger product is refused before any scene is built.
+MAX_SETTINGS = 10_000_000
 
 # Every field a spec accepts changes some metric; the others are refused with the reason (REFUSED), so
 # that no swept column is silently ignored. FabricParams fields are listed explicitly: a field added
@@ -194,6 +203,9 @@ def _read_toml(path: Path) -> dict:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"sweep spec: {path}: not valid TOML ({exc}).") from None
+    except RecursionError:   # tomllib parses nested arrays and inline tables recursively
+        raise ValueError(f"sweep spec: {path}: nested too deeply to read (arrays or inline tables inside "
+                         "one another hundreds of levels deep); a spec needs two levels.") from None
 
 
 def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
@@ -213,6 +225,7 @@ def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
     # the fields that change the DP table first: settings sharing a table are then contiguous
     fabric_grid = tuple(sorted(fabric_grid, key=lambda kv: kv[0] in AFTER_TABLE))
     spill_grid = _grid(spec, "spill", SPILL_TRACED, SPILL_STATIC)
+    _check_size(_scene_count(spec), fabric_grid + spill_grid)
     static = spec.get("static", {})
     if not isinstance(static, dict):
         _fail("static", "expected a table of static fields, e.g. k = 4.")
@@ -247,6 +260,24 @@ def load_spec(spec: dict | str | os.PathLike) -> SweepSpec:
     return SweepSpec(_scenes(spec, base), fabric_grid, spill_grid, fabric_static, spill_static, top, max_steps)
 
 
+def _scene_count(spec: dict) -> int:
+    """How many scenes the spec names (its lists' lengths; the scenes are checked when built)."""
+    names = spec.get("scenes", [])
+    rnd = spec.get("random_scenes")
+    seeds = rnd.get("seeds") if isinstance(rnd, dict) else None
+    return max(1, (1 if isinstance(names, str) else len(names) if isinstance(names, list) else 0)
+               + (len(seeds) if isinstance(seeds, list) else 0))
+
+
+def _check_size(n_scenes: int, grid: tuple) -> None:
+    """Refuse a product of more than ``MAX_SETTINGS`` settings, from the lists' lengths alone."""
+    total = n_scenes * math.prod(len(vals) for _, vals in grid)
+    if total > MAX_SETTINGS:
+        sizes = " x ".join([f"{n_scenes} scene(s)"] + [f"{len(vals)} {key}" for key, vals in grid])
+        _fail("spec", f"{total:,} settings ({sizes}); a sweep holds at most {MAX_SETTINGS:,} (one CSV row "
+              "each). Shorten the lists or split the sweep into several specs.")
+
+
 def _check_routes_read(fabric_grid, spill_grid, spill_static: dict, top: int) -> None:
     """Refuse route-selection fields that the route metrics would not read: every spill field and
     slack_tau with ``metrics.top_sources = 0`` (no route metric), and the spill model's fields and
@@ -264,14 +295,41 @@ def _check_routes_read(fabric_grid, spill_grid, spill_static: dict, top: int) ->
                   "spill model, so every row would be equal; drop the field or enabled = false.")
 
 
-def settings_of(spec: SweepSpec) -> list[tuple]:
+class Settings(Sequence):
+    """The settings of a spec in sweep order, computed from their index (nothing is held but the
+    lists): setting i is ``(scene_index, fabric_values, spill_values)``. Scene-major, then the lists in
+    order, the last one fastest, as ``itertools.product`` would list them."""
+
+    def __init__(self, n_scenes: int, fabric_lists: list, spill_lists: list):
+        self._lists = [tuple(v) for v in (*fabric_lists, *spill_lists)]
+        self._n_fabric = len(fabric_lists)
+        self._per_scene = math.prod(len(v) for v in self._lists)
+        self._n = n_scenes * self._per_scene
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(self._n))]
+        if i < 0:
+            i += self._n
+        if not 0 <= i < self._n:
+            raise IndexError(f"setting {i} of {self._n}")
+        scene, rest = divmod(i, self._per_scene)
+        combo = []
+        for values in reversed(self._lists):
+            rest, k = divmod(rest, len(values))
+            combo.append(values[k])
+        combo.reverse()
+        return scene, tuple(combo[:self._n_fabric]), tuple(combo[self._n_fabric:])
+
+
+def settings_of(spec: SweepSpec) -> Settings:
     """Every setting as ``(scene_index, fabric_values, spill_values)`` in sweep order (scene-major, then
-    ``spec.fabric_grid`` -- the fields that change the DP table first -- then ``spec.spill_grid``)."""
-    fabric_lists = [vals for _, vals in spec.fabric_grid]
-    spill_lists = [vals for _, vals in spec.spill_grid]
-    return [(i, combo[:len(fabric_lists)], combo[len(fabric_lists):])
-            for i in range(len(spec.scenes))
-            for combo in itertools.product(*fabric_lists, *spill_lists)]
+    ``spec.fabric_grid`` -- the fields that change the DP table first -- then ``spec.spill_grid``), as a
+    lazy sequence."""
+    return Settings(len(spec.scenes), [vals for _, vals in spec.fabric_grid], [vals for _, vals in spec.spill_grid])
 
 
 def columns_of(spec: SweepSpec) -> list[str]:

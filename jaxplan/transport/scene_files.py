@@ -8,6 +8,7 @@ a file (unreadable, damaged, wrong keys or types) raises one ``ValueError("Scene
 from __future__ import annotations
 
 import json
+import math
 import struct
 import tokenize
 import zipfile
@@ -18,13 +19,20 @@ import numpy as np
 import shapely
 from shapely.geometry import MultiPolygon
 
-__all__ = ["FORMAT_VERSION", "MAX_FILE_SIDE", "read_scene_file", "scene_file_format", "write_scene_file"]
+__all__ = ["FORMAT_VERSION", "MAX_FILE_SIDE", "MAX_MEMBER_BYTES", "read_scene_file", "scene_file_format",
+           "write_scene_file"]
 
 FORMAT_VERSION = 1
 
 # A scene file's grid has at most this many rows and columns (64 MiB of float32 counts): a bound on
 # what a file can make ``Scene.load`` allocate, checked before the counts are read.
 MAX_FILE_SIDE = 4096
+# Every other member of a scene archive is small (a WKT target of 100,000 vertices is about 4 million
+# characters, 16 MB as a NumPy string); the counts may be float64 on disk. Each member's size is
+# checked, from the archive's directory and from its .npy header, before the member is read, so an
+# archive cannot make ``Scene.load`` read more.
+MAX_MEMBER_BYTES = 64 * 2**20
+MAX_OBJ_BYTES = MAX_FILE_SIDE * MAX_FILE_SIDE * 8
 
 
 def _ring_wkt(ring) -> str:
@@ -147,8 +155,23 @@ def _npy_header(zf: zipfile.ZipFile, key: str):
     return shape, dtype
 
 
+def _member_limit(key: str) -> int:
+    return MAX_OBJ_BYTES if key == "obj" else MAX_MEMBER_BYTES
+
+
+def _check_member_sizes(zf: zipfile.ZipFile) -> None:
+    """Every member's uncompressed size, as the archive's directory states it (a member never yields
+    more), within its bound."""
+    for info in zf.infolist():
+        key = info.filename[:-len(".npy")] if info.filename.endswith(".npy") else info.filename
+        limit = MAX_OBJ_BYTES + 2**16 if key == "obj" else MAX_MEMBER_BYTES   # + the .npy header
+        if info.file_size > limit:
+            raise _FileProblem(f"{key}: the archive member decompresses to {info.file_size:,} bytes; a scene "
+                               f"file's {key} holds at most {limit:,}")
+
+
 def _npz_array(zf: zipfile.ZipFile, key: str) -> np.ndarray:
-    """The member ``<key>.npy``, its dtype and shape checked (from the header) before reading it."""
+    """The member ``<key>.npy``, its dtype, shape and size checked (from the header) before reading it."""
     shape, dtype = _npy_header(zf, key)
     kinds, shapes, what = _NPZ_FIELDS[key]
     if dtype.hasobject:
@@ -159,13 +182,21 @@ def _npz_array(zf: zipfile.ZipFile, key: str) -> np.ndarray:
     empty_name = key == "name" and shape == (0,)
     if (dtype.kind not in kinds and not empty_name) or (shapes is not None and shape not in shapes):
         raise _FileProblem(f"{key}: holds dtype {dtype} with shape {shape}; it must hold {what}")
+    nbytes = math.prod(shape) * dtype.itemsize
+    if nbytes > _member_limit(key):
+        raise _FileProblem(f"{key}: its header declares {nbytes:,} bytes ({dtype} {tuple(shape)}); a scene "
+                           f"file's {key} holds at most {_member_limit(key):,}; store {what}")
     with zf.open(f"{key}.npy") as fp:
         return np.lib.format.read_array(fp, allow_pickle=False)
 
 
 def _read_npz(path: Path) -> dict:
     with zipfile.ZipFile(path) as zf:
+        _check_member_sizes(zf)
         members = zf.namelist()
+        twice = sorted({m for m in members if members.count(m) > 1})
+        if twice:   # a zip may hold one name twice; which copy a reader takes is not defined
+            raise _FileProblem(f"holds the member {twice[0]!r} twice; write scene files with Scene.save")
         odd = [m for m in members if not m.endswith(".npy")]
         if odd:
             raise _FileProblem(f"holds {odd[0]!r}, which is not a .npy array; a scene archive holds "

@@ -66,3 +66,18 @@ def test_bad_input_is_one_line(argv, starts, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(starts), err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("room, flag", [(10 ** 6, "--scene"), (335 * 10 ** 6, "--rovers")])
+def test_a_fleet_too_large_for_the_memory_is_refused_before_the_folder_is_touched(room, flag, tmp_path,
+                                                                                   monkeypatch, capsys):
+    from jaxplan.fleet import run as fleet_run
+
+    monkeypatch.setattr(fleet_run, "available_memory_bytes", lambda: room)
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as info:
+        main(["fleet", "--scene", "site128", "--rovers", "64", "--out", str(out)])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {flag}:"), err
+    assert not out.exists()

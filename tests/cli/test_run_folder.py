@@ -205,6 +205,27 @@ def test_interrupted_sweep_says_how_many_rows_are_kept(tmp_path, monkeypatch, ca
                    "command again to resume."]
 
 
+def test_a_sweep_that_fills_the_disk_names_the_file_and_the_flag(tmp_path, monkeypatch, capsys):
+    """The defect: it said only ``error: File too large``."""
+    import errno
+
+    import jaxplan.sweep
+
+    out = tmp_path / "s.csv"
+
+    def disk_full_after_one_row(spec, path, **kwargs):
+        out.write_text("setting,scene\n0,default\n")
+        raise OSError(errno.EFBIG, "File too large")
+
+    monkeypatch.setattr(jaxplan.sweep, "run_sweep", disk_full_after_one_row)
+    with pytest.raises(SystemExit) as info:
+        main(["sweep", str(tmp_path / "spec.toml"), "--out", str(out), "--no-progress"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: --out: could not write {str(out)!r} (File too large)")
+    assert "1 complete row(s)" in err[0]
+
+
 @pytest.mark.parametrize("argv", [
     ["fabric", "--scene", "x" * 300 + ".npz", "--out", "f.npz"],
     ["episode", "--scene", "default", "--out", "x" * 300],

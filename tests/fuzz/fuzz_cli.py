@@ -21,15 +21,37 @@ special and huge values, missing, extra and renamed arrays, and zip corruption (
 flipped bits in a local header, the central directory or a member's data, a bad ``.npy`` header
 inside the zip, a plain ``.npy`` or a pickle instead of a zip, a duplicated member).
 
+Classes of case (``--classes``; the default draws all: ``inputs`` 82%, the others 6% each). ``inputs``:
+the mutations above. ``archive`` (``scene.npz``): a member whose ``.npy`` header declares a huge array
+over a few bytes (``target_wkt`` as ``<U100000000``, ``obj`` of 100000 x 100000, shapes whose byte count
+overflows), a deflated member that inflates past its bound (65 MiB of zeros: ``target_wkt``, trailing
+data after ``cell_size``, an ``extra.npy``, ``obj`` over its own bound, or a member whose zip entry
+states a false small size; built once and cached), a member twice (the same, or another array first or
+second), an extra member of 1 or 8 MiB. ``nesting`` (JSON scenes, PushAround scenes, sweep specs): one
+value, or the whole JSON document, inside 2,000-5,000 lists or objects (written as text: neither
+``json.dumps`` nor ``to_toml`` recurses that deep). ``fs`` (``episode`` and ``pusharound``, which write
+an output folder; the input is unmutated in 60% of these cases): ``--out`` prepared before the run
+(``prepare_out``) as one of ``FS_MODES``: a planted jaxplan ``run.json`` listing paths through a
+symlinked folder that points outside ``--out`` at a victim file (and ``..`` and absolute paths to it);
+a planted ``run.json`` listing symlinked files that point at the victim; a ``run.json`` that is not
+jaxplan's (text, other JSON, empty, a folder, a link to the victim); a folder held busy (this process
+holds ``flock(LOCK_EX)`` on ``DIR/.jaxplan.lock`` while the case runs, ``Case.running``); a stale lock
+file of a dead pid.
+
 Checks per case (``check_case``): the CLI exits 0 or 2 and never raises; on exit 2 stderr is exactly
 one line (as a terminal shows it: progress bars erased by ``\\r`` do not count), it starts with
 ``error:`` and names the file, a flag or a field; on exit 2 the ``--out`` path was not created (every
 case starts with a fresh one); on exit 0 the output exists and, where the command wrote a manifest
 ``DIR/run.json``, its status is ``complete`` and every file it lists exists; no temp file (a name
-starting with ``.`` and containing ``.tmp``) is left anywhere in the case's folder.
+starting with ``.`` and containing ``.tmp``) is left anywhere in the case's folder. For ``fs`` cases:
+every victim file outside ``--out`` still exists with its content (else ``touched_outside``, whatever
+the exit code); the "--out path was created" check is skipped (the folder existed before); a busy
+folder or a foreign ``run.json`` must not give exit 0, and their planted files must be left as they
+were; an error line may name the ``--out`` path instead of the input.
 
 Outcomes: ``exit0``, ``exit2_good`` (a good error line), ``exit2_bad_line``, ``traceback`` (any other
-exception), ``half_written`` (an output check failed), ``other_exit`` (another exit code), and in the
+exception), ``half_written`` (an output check failed), ``other_exit`` (another exit code),
+``touched_outside`` (a file outside ``--out`` changed or removed), and in the
 standalone run ``timeout`` and ``crash`` (the worker process died). Each case runs in one long-lived
 worker process, so a case that hangs or kills the interpreter is recorded and the next case starts a
 new worker. Like the test suite, the run asks XLA for cheap code generation (``FAST_COMPILE_FLAGS``)
@@ -45,13 +67,16 @@ Examples (from the repository root)::
 
     python -m tests.fuzz.fuzz_cli --cases 1000 --seed 0
     python -m tests.fuzz.fuzz_cli --cases 50 --seed 1 --kinds scene.npz scene.json
+    python -m tests.fuzz.fuzz_cli --cases 300 --seed 0 --classes archive nesting fs --name fuzz_cli_round2
     python -m tests.fuzz.fuzz_cli --seed 0 --replay 17 --keep out/fuzz17   # rerun one case, keep its files
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import datetime as _dt
+import fcntl
 import functools
 import io
 import json
@@ -81,9 +106,20 @@ KINDS = ("scene.npz", "scene.json", "sweep.toml", "pusharound.json")
 # how often each kind is drawn: the transport scenes are cheap, a PushAround scene that loads is planned
 KIND_WEIGHTS = (0.33, 0.27, 0.22, 0.18)
 EPISODE_SHARE = 1 / 6   # of the transport scene cases, run through `episode` instead of `fabric`
-OUTCOMES = ("exit0", "exit2_good", "exit2_bad_line", "traceback", "half_written", "other_exit", "timeout", "crash")
+OUTCOMES = ("exit0", "exit2_good", "exit2_bad_line", "traceback", "half_written", "other_exit", "touched_outside",
+            "timeout", "crash")
 PASSING = ("exit0", "exit2_good")
 PUSH_TIME_LIMIT_S = 0.3
+# Classes of cases: "inputs" (the mutations above: types, values, keys, bytes, arrays, zip damage),
+# "archive" (.npz members: huge declared sizes, members that inflate past their bound, duplicated and
+# extra large members), "nesting" (a value inside thousands of lists or objects), "fs" (--out prepared:
+# links out of it, a foreign manifest, a held or stale lock). The class is drawn from its own
+# random stream, so case I of seed S in class "inputs" is the same input as before the classes.
+CLASSES = ("inputs", "archive", "nesting", "fs")
+CLASS_WEIGHTS = (0.82, 0.06, 0.06, 0.06)
+CLASS_KINDS = {"inputs": KINDS, "archive": ("scene.npz",), "nesting": ("scene.json", "sweep.toml", "pusharound.json"),
+               "fs": ("scene.npz", "scene.json", "pusharound.json")}
+FS_VALID_SHARE = 0.6   # of the fs cases, an unmutated input (the run gets as far as --out)
 # who reads each kind: tracebacks and bad error lines are grouped by reader (fabric and episode share one)
 READERS = {"scene.npz": "scene file (fabric/episode)", "scene.json": "scene file (fabric/episode)",
            "sweep.toml": "sweep spec", "pusharound.json": "pusharound scene"}
@@ -142,28 +178,32 @@ def npz_bytes(arrays: dict) -> bytes:
     return buf.getvalue()
 
 
+def _toml_key(k) -> str:
+    k = str(k)
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k, ensure_ascii=False)
+
+
+def toml_value(v) -> str:
+    """``v`` as a TOML value (arrays and inline tables for lists and dicts)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, list):
+        return "[" + ", ".join(toml_value(x) for x in v if x is not None) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_toml_key(k)} = {toml_value(x)}" for k, x in v.items() if x is not None) + "}"
+    return json.dumps(str(v))
+
+
 def to_toml(doc: dict) -> str:
     """A TOML text of ``doc``: top-level values first, then one ``[table]`` per top-level dict; deeper
     dicts as inline tables. ``None`` (no TOML value) is left out."""
-    def key(k) -> str:
-        k = str(k)
-        return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k, ensure_ascii=False)
-
-    def value(v) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, int):
-            return str(v)
-        if isinstance(v, float):
-            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
-        if isinstance(v, str):
-            return json.dumps(v, ensure_ascii=False)
-        if isinstance(v, list):
-            return "[" + ", ".join(value(x) for x in v if x is not None) + "]"
-        if isinstance(v, dict):
-            return "{" + ", ".join(f"{key(k)} = {value(x)}" for k, x in v.items() if x is not None) + "}"
-        return json.dumps(str(v))
-
+    key, value = _toml_key, toml_value
     lines = [f"{key(k)} = {value(v)}" for k, v in doc.items() if v is not None and not isinstance(v, dict)]
     for k, table in doc.items():
         if isinstance(table, dict):
@@ -627,6 +667,227 @@ def mutate_zip(data: bytes, rng) -> tuple[bytes, str]:
 
 
 # --------------------------------------------------------------------------------------------------
+# Class "archive": .npz members that declare, or inflate to, more than a reader may take
+# --------------------------------------------------------------------------------------------------
+
+BOMB_BYTES = 65 * 2**20   # over MAX_MEMBER_BYTES (64 MiB): deflates to about 64 KiB
+# (key, descr, shape) of .npy headers that declare far more data than the few bytes that follow them
+HUGE_DECLARATIONS = (("target_wkt", "<U100000000", ()), ("name", "<U2000000000", ()), ("obj", "<f8", (100000, 100000)),
+                     ("obj", "<c16", (4096, 4096)), ("obj", "<f4", (4096, 4096)), ("cell_size", "<f8", (2**40,)),
+                     ("origin", "<f8", (2**62,)), ("origin", "<f8", (2**31, 2**31, 2**31)),
+                     ("target", "<f8", (10**9, 4)), ("format_version", "<i8", (2**40,)), ("obj", "|O", (6, 6)))
+BOMBS = ("target_wkt", "cell_size trailing zeros", "obj", "extra.npy", "target_wkt lying size")
+
+
+def npy_header(descr: str, shape: tuple, fortran: bool = False) -> bytes:
+    """A version 1.0 ``.npy`` header declaring ``descr`` and ``shape`` (no check that they are sane)."""
+    text = f"{{'descr': {descr!r}, 'fortran_order': {fortran}, 'shape': {tuple(shape)!r}, }}"
+    text += " " * ((-(10 + len(text) + 1)) % 64) + "\n"
+    return b"\x93NUMPY\x01\x00" + len(text).to_bytes(2, "little") + text.encode("latin-1")
+
+
+def _zip_members(members, compression=zipfile.ZIP_STORED) -> bytes:
+    """A zip of ``(name, payload)`` pairs, duplicates kept (zipfile warns about them)."""
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with zipfile.ZipFile(buf, "w") as zf:
+            for name, payload, *how in members:
+                zf.writestr(name, payload, compress_type=how[0] if how else compression)
+    return buf.getvalue()
+
+
+def _base_members() -> list[tuple[str, bytes]]:
+    return [(info.filename, payload) for info, payload in _members(_base_scene_files()[0])]
+
+
+def _set_stated_size(data: bytes, name: str, size: int) -> bytes:
+    """``data`` with the uncompressed size of member ``name`` set to ``size`` in its local header and
+    in the central directory (a zip that lies about how much the member inflates to)."""
+    out = bytearray(data)
+    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        info = zf.getinfo(name)
+    out[info.header_offset + 22:info.header_offset + 26] = size.to_bytes(4, "little")
+    at = data.find(b"PK\x01\x02")
+    while at >= 0:
+        n = int.from_bytes(data[at + 28:at + 30], "little")
+        if data[at + 46:at + 46 + n] == name.encode():
+            out[at + 24:at + 28] = size.to_bytes(4, "little")
+        at = data.find(b"PK\x01\x02", at + 4)
+    return bytes(out)
+
+
+@functools.cache
+def bomb_archive(which: str) -> bytes:
+    """A scene ``.npz`` with one highly compressible member over its bound (built once, then cached)."""
+    base = _base_members()
+    zeros = bytes(BOMB_BYTES)
+    deflate = zipfile.ZIP_DEFLATED
+    if which.startswith("target_wkt"):
+        member = ("target_wkt.npy", npy_header(f"<U{BOMB_BYTES // 4}", ()) + zeros, deflate)
+    elif which == "cell_size trailing zeros":   # an honest 8-byte header, then 65 MiB nobody declared
+        member = ("cell_size.npy", npy_header("<f8", ()) + np.float64(1.0).tobytes() + zeros, deflate)
+    elif which == "obj":   # over obj's own bound (4096 * 4096 * 8 bytes + 64 KiB), within its side limit
+        member = ("obj.npy", npy_header("<c16", (3000, 3000)) + bytes(3000 * 3000 * 16), deflate)
+    else:
+        member = ("extra.npy", npy_header("|u1", (BOMB_BYTES,)) + zeros, deflate)
+    members = [m for m in base if m[0] != member[0]] + [member]
+    data = _zip_members(members)
+    if which.endswith("lying size"):
+        data = _set_stated_size(data, member[0], 1000)
+    return data
+
+
+def mutate_archive(rng) -> tuple[bytes, str]:
+    """One archive-member attack on the valid ``.npz`` scene: a header that declares a huge array over a
+    few bytes, a member that inflates past its bound, a duplicated member, an extra large member."""
+    base = _base_members()
+    op = rng.choice(("huge header", "huge header", "bomb", "bomb", "duplicate", "large member"))
+    if op == "huge header":
+        key, descr, shape = HUGE_DECLARATIONS[rng.randrange(len(HUGE_DECLARATIONS))]
+        tail = bytes(rng.choice((0, 8, 64)))
+        members = [m for m in base if m[0] != f"{key}.npy"] + [(f"{key}.npy", npy_header(descr, shape) + tail)]
+        if rng.random() < 0.5:
+            members.sort()
+        return _zip_members(members, rng.choice((zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED))), (
+            f"archive: {key}.npy declares {descr} {shape} over {len(tail)} bytes")
+    if op == "bomb":
+        which = BOMBS[rng.randrange(len(BOMBS))]
+        return bomb_archive(which), f"archive: a deflated member over its bound ({which})"
+    if op == "duplicate":
+        name, payload = base[rng.randrange(len(base))]
+        how = rng.choice(("same", "other array", "first differs"))
+        if how == "same":
+            second = payload
+        else:
+            buf = io.BytesIO()
+            np.save(buf, np.full((3, 3), 7.0, np.float32) if name == "obj.npy" else np.str_("POLYGON EMPTY"))
+            second = buf.getvalue()
+        members = base + [(name, second)]
+        if how == "first differs":
+            members = [(name, second)] + base
+        return _zip_members(members), f"archive: {name} twice ({how})"
+    size = rng.choice((2**20, 8 * 2**20))
+    name = rng.choice(("extra.npy", "obj2.npy", "notes.txt", "obj.npy.npy"))
+    payload = npy_header("|u1", (size,)) + bytes(size)
+    return (_zip_members(base + [(name, payload)], rng.choice((zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED))),
+            f"archive: an extra member {name} of {size // 2**20} MiB")
+
+
+# --------------------------------------------------------------------------------------------------
+# Class "nesting": one value wrapped in thousands of lists or objects
+# --------------------------------------------------------------------------------------------------
+
+NEST_DEPTHS = (2000, 3000, 5000)
+NEST_MARK = "JAXPLAN_FUZZ_NEST_MARK"
+
+
+def nest_deeply(doc: dict, rng, dump) -> tuple[bytes, str]:
+    """The text of ``doc`` (JSON, or TOML when ``dump`` is ``to_toml``) with one value (or, in JSON,
+    the whole document) wrapped in 2,000-5,000 lists or objects; the text is written directly, as
+    neither ``json.dumps`` nor ``to_toml`` recurses that deep."""
+    toml = dump is to_toml
+    depth = NEST_DEPTHS[rng.randrange(len(NEST_DEPTHS))]
+    how = rng.choice(("lists", "objects"))
+    path = None if not toml and rng.random() < 0.15 else _pick(rng, doc)
+    old = doc if path is None else _get(doc, path)
+    inner = toml_value(old) if toml else json.dumps(old)
+    if how == "lists":
+        opening, closing = "[" * depth, "]" * depth
+    else:
+        opening, closing = ("{a = " if toml else '{"a": ') * depth, "}" * depth
+    nested = opening + inner + closing
+    if path is None:
+        return nested.encode(), f"nesting: the document wrapped in {depth} {how}"
+    _set(doc, path, NEST_MARK)
+    text = dump(doc)
+    mark = toml_value(NEST_MARK) if toml else json.dumps(NEST_MARK)
+    return text.replace(mark, nested, 1).encode(), f"nesting: {label(path)} wrapped in {depth} {how}"
+
+
+# --------------------------------------------------------------------------------------------------
+# Class "fs": the --out folder prepared before the run (symbolic links out of it, a manifest that is
+# not jaxplan's, a lock held by another run, a stale lock)
+# --------------------------------------------------------------------------------------------------
+
+FS_MODES = ("symlinked folder", "symlinked file", "foreign run.json", "busy", "stale lock")
+DEAD_PID = 4_194_305   # above Linux's largest pid_max (2**22): no process has it
+
+
+def _plant_manifest(out: Path, command: str, files: list[str]) -> None:
+    doc = {"format": "jaxplan.run", "version": 1, "command": command, "arguments": {}, "status": "complete",
+           "started": "2026-01-01T00:00:00+00:00", "finished": "2026-01-01T00:00:01+00:00", "files": files,
+           "error": None}
+    (out / "run.json").write_text(json.dumps(doc))
+
+
+def prepare_out(case, rng) -> None:
+    """Create ``case.out`` (a folder) in one of ``FS_MODES``, with victim files outside it whose content
+    the run must leave alone (``case.victims``) and files in it that a refused run must not change
+    (``case.planted``)."""
+    out, outside = case.out, case.folder / "outside"
+    out.mkdir(parents=True)
+    outside.mkdir()
+    mode = FS_MODES[rng.randrange(len(FS_MODES))]
+    victim = outside / "victim.txt"
+    victim.write_bytes(b"a file outside --out: no run may touch it\n")
+    case.victims[victim] = victim.read_bytes()
+    detail = ""
+    if mode == "symlinked folder":
+        (out / "sub").symlink_to(outside, target_is_directory=True)
+        files = ["sub/victim.txt", "sub", "../outside/victim.txt", str(victim), "sub/../sub/victim.txt"]
+        files = [f for f in files if rng.random() < 0.7] or ["sub/victim.txt"]
+        _plant_manifest(out, case.command, files)
+        detail = f"listing {files}"
+    elif mode == "symlinked file":
+        name = rng.choice(("summary.json", "fabric.png", "victim.txt", "plan.json", "scene.npz"))
+        (out / name).symlink_to(victim)
+        nested = out / "deep"
+        nested.mkdir()
+        (nested / "link.txt").symlink_to(os.path.relpath(victim, nested))
+        _plant_manifest(out, case.command, [name, "deep/link.txt"])
+        detail = f"{name} and deep/link.txt link to the victim"
+    elif mode == "foreign run.json":
+        how = rng.choice(("text", "other json", "list", "empty", "symlink to a victim", "folder"))
+        manifest = out / "run.json"
+        if how == "text":
+            manifest.write_text("my own notes\n")
+        elif how == "other json":
+            manifest.write_text(json.dumps({"format": "someone.else", "files": ["victim.txt"]}))
+        elif how == "list":
+            manifest.write_text('["sub/victim.txt"]')
+        elif how == "empty":
+            manifest.write_bytes(b"")
+        elif how == "symlink to a victim":
+            manifest.symlink_to(victim)
+        else:
+            manifest.mkdir()
+            (manifest / "keep.txt").write_text("keep")
+        detail = how
+        if how != "symlink to a victim":
+            case.planted.update(_snapshot(out))
+    elif mode == "busy":
+        case.holder = {"pid": rng.choice((os.getpid(), 1, DEAD_PID)), "command": "x"}
+        (out / ".jaxplan.lock").write_text(json.dumps(case.holder))
+        case.planted.update(_snapshot(out))
+        detail = f"held by pid {case.holder['pid']}"
+    else:
+        (out / ".jaxplan.lock").write_text(json.dumps({"pid": DEAD_PID, "command": "episode"})
+                                           if rng.random() < 0.8 else "garbage")
+        detail = f"pid {DEAD_PID}"
+    case.fs = mode
+    case.mutations.append(f"fs: {mode}" + (f" ({detail})" if detail else ""))
+
+
+def _snapshot(folder: Path) -> dict:
+    """Every file under ``folder`` (links not followed) and its bytes (None for a link or a folder)."""
+    out = {}
+    for p in sorted(folder.rglob("*")):
+        out[p] = p.read_bytes() if p.is_file() and not p.is_symlink() else None
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
 # Cases
 # --------------------------------------------------------------------------------------------------
 
@@ -641,9 +902,28 @@ class Case:
     input: Path
     out: Path
     argv: list[str] = field(default_factory=list)
+    cls: str = "inputs"   # one of CLASSES
+    fs: str | None = None   # class "fs": one of FS_MODES, how --out was prepared
+    victims: dict = field(default_factory=dict)   # files outside --out -> their bytes: never to change
+    planted: dict = field(default_factory=dict)   # files in --out -> bytes: a refused run leaves them
+    holder: dict | None = None   # mode "busy": what the held lock file says
 
     def describe(self) -> str:
         return f"{self.kind} via {self.command}: " + ("; ".join(self.mutations) or "unmutated (valid)")
+
+    @contextlib.contextmanager
+    def running(self):
+        """The context a case runs in: for mode ``busy``, an exclusive ``flock`` on ``--out``'s lock file,
+        held by this process (two separate opens conflict, even within one process) until the run ends."""
+        if self.fs != "busy":
+            yield
+            return
+        fd = os.open(self.out / ".jaxplan.lock", os.O_RDWR)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            yield
+        finally:
+            os.close(fd)
 
 
 def _mutated_doc(doc: dict, rng, dump) -> tuple[bytes, list[str]]:
@@ -681,33 +961,53 @@ def _mutated_npz(rng) -> tuple[bytes, list[str]]:
     return data, notes
 
 
-def make_case(rng, folder: Path, kind: str | None = None) -> Case:
+def _base_doc(kind: str) -> dict:
+    return {"scene.json": base_scene_doc, "sweep.toml": lambda: copy.deepcopy(SWEEP_SPEC),
+            "pusharound.json": lambda: copy.deepcopy(PUSH_SCENE)}[kind]()
+
+
+def _mutated_input(kind: str, rng) -> tuple[bytes, list[str]]:
+    if kind == "scene.npz":
+        return _mutated_npz(rng)
+    return _mutated_doc(_base_doc(kind), rng, to_toml if kind == "sweep.toml" else json.dumps)
+
+
+def make_case(rng, folder: Path, kind: str | None = None, cls: str = "inputs") -> Case:
     """Write one mutated input file into the (new, empty) ``folder`` and return the case.
 
-    rng: ``random.Random`` (or hypothesis's ``st.randoms()``); kind: one of ``KINDS`` or None (drawn).
+    rng: ``random.Random`` (or hypothesis's ``st.randoms()``); kind: one of ``KINDS`` or None (drawn:
+    with ``KIND_WEIGHTS`` for class ``inputs``, evenly among ``CLASS_KINDS[cls]`` otherwise); cls: one
+    of ``CLASSES``.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    if cls not in CLASSES:
+        raise ValueError(f"cls: {cls!r} is not one of {CLASSES}.")
     if kind is None:
-        kind = KINDS[_weighted(rng, KIND_WEIGHTS)]
+        kinds = CLASS_KINDS[cls]
+        kind = KINDS[_weighted(rng, KIND_WEIGHTS)] if cls == "inputs" else kinds[rng.randrange(len(kinds))]
+    if kind not in CLASS_KINDS[cls]:
+        raise ValueError(f"kind: {kind!r} is not one of class {cls!r}'s kinds {CLASS_KINDS[cls]}.")
     out_dir = folder / "out"
-    if kind == "scene.npz":
-        data, notes = _mutated_npz(rng)
-    elif kind == "scene.json":
-        data, notes = _mutated_doc(base_scene_doc(), rng, json.dumps)
-    elif kind == "sweep.toml":
+    if kind == "sweep.toml":
         (folder / "site.json").write_text(_base_scene_files()[1])
-        data, notes = _mutated_doc(copy.deepcopy(SWEEP_SPEC), rng, to_toml)
-    elif kind == "pusharound.json":
-        data, notes = _mutated_doc(copy.deepcopy(PUSH_SCENE), rng, json.dumps)
+    if cls == "archive":
+        data, note = mutate_archive(rng)
+        notes = [note]
+    elif cls == "nesting":
+        data, note = nest_deeply(_base_doc(kind), rng, to_toml if kind == "sweep.toml" else json.dumps)
+        notes = [note]
+    elif cls == "fs" and rng.random() < FS_VALID_SHARE:   # mostly valid input: the run reaches --out
+        data, notes = (_base_scene_files()[0] if kind == "scene.npz" else
+                       json.dumps(_base_doc(kind)).encode()), []
     else:
-        raise ValueError(f"kind: {kind!r} is not one of {KINDS}.")
+        data, notes = _mutated_input(kind, rng)
     name = {"scene.npz": "scene.npz", "scene.json": "scene.json", "sweep.toml": "spec.toml",
             "pusharound.json": "scene.json"}[kind]
     path = folder / name
     path.write_bytes(data)
     if kind.startswith("scene."):
-        if rng.random() < EPISODE_SHARE:
+        if cls == "fs" or rng.random() < EPISODE_SHARE:   # fs: a command that writes an output folder
             command, out = "episode", out_dir
             argv = ["episode", "--scene", str(path), "--out", str(out), "--no-animation", "--max-pushes", "2"]
         else:
@@ -720,7 +1020,10 @@ def make_case(rng, folder: Path, kind: str | None = None) -> Case:
         command, out = "pusharound", out_dir
         argv = ["pusharound", "--scene", str(path), "--out", str(out), "--no-execute", "--time-limit",
                 str(PUSH_TIME_LIMIT_S), "--backend", "c", "--max-frames", "2"]
-    return Case(kind, command, notes, folder, path, out, argv)
+    case = Case(kind, command, notes, folder, path, out, argv, cls=cls)
+    if cls == "fs":
+        prepare_out(case, rng)
+    return case
 
 
 def _weighted(rng, weights) -> int:
@@ -803,7 +1106,7 @@ def line_problems(case: Case, stderr: str) -> list[str]:
     line = lines[0]
     if not line.startswith("error: "):
         return ["the line does not start with 'error: '"]
-    names_file = str(case.input) in line or case.input.name in line
+    names_file = str(case.input) in line or case.input.name in line or (case.fs is not None and str(case.out) in line)
     names_flag = re.search(r"(?<![\w-])--[a-z][a-z-]+", line) is not None
     names_field = any(re.search(rf"(?<![A-Za-z_]){re.escape(w)}(?![A-Za-z_])", line) for w in field_words(case.kind))
     if not (names_file or names_flag or names_field):
@@ -816,7 +1119,7 @@ def output_problems(case: Case, code) -> list[str]:
     problems = []
     out = case.out
     top = case.folder / "out"   # every case's --out is this folder or a file in it
-    if code == 2 and top.exists():
+    if code == 2 and top.exists() and case.fs is None:   # an fs case's --out existed before the run
         problems.append("exit 2 but the --out path was created")
     if code == 0:
         if not out.exists():
@@ -839,13 +1142,42 @@ def output_problems(case: Case, code) -> list[str]:
     return problems
 
 
+def outside_problems(case: Case) -> list[str]:
+    """Victim files outside ``--out`` that are gone, replaced or changed."""
+    problems = []
+    for path, content in case.victims.items():
+        if path.is_symlink() or not path.is_file():
+            problems.append(f"touched outside --out: {path.relative_to(case.folder)} removed or replaced")
+        elif path.read_bytes() != content:
+            problems.append(f"touched outside --out: {path.relative_to(case.folder)} changed")
+    return problems
+
+
+def fs_problems(case: Case, code) -> list[str]:
+    """For a folder held by another run or holding a foreign manifest: the run was refused and left the
+    folder's files as they were."""
+    if case.fs not in ("busy", "foreign run.json") or not case.planted:
+        return []
+    problems = []
+    if code == 0:
+        problems.append(f"exit 0 into a folder with {'a held lock' if case.fs == 'busy' else 'a foreign run.json'}")
+    now = _snapshot(case.out) if case.out.is_dir() else {}
+    changed = [str(p.relative_to(case.folder)) for p, b in case.planted.items() if p not in now or now[p] != b]
+    if changed:
+        problems.append(f"planted file(s) changed or removed: {changed}")
+    return problems
+
+
 def check_case(case: Case, run: dict) -> tuple[str, list[str]]:
     """The outcome of a run (one of ``OUTCOMES``) and its problems (empty for a passing outcome)."""
+    outside = outside_problems(case)
+    if outside:   # before all else: a file outside --out changed, whatever the run did
+        return "touched_outside", outside + ([f"timeout ({run['timeout']} s)"] if run.get("timeout") else [])
     if run.get("timeout"):
         return "timeout", [f"no result within {run['timeout']} s"]
     if run.get("crash"):
         return "crash", [run["crash"]]
-    outputs = output_problems(case, run["code"])
+    outputs = output_problems(case, run["code"]) + fs_problems(case, run["code"])
     if run["exception"] is not None:
         return "traceback", [run["exception"]] + outputs
     if run["code"] not in (0, 2):
@@ -879,6 +1211,8 @@ def finding_key(case: Case, run: dict, outcome: str, problems: list[str]) -> str
         return f"{reader}: {problems[0]}: {_normalise(line, case)}"
     if outcome == "half_written":
         return f"{case.command}: {problems[0].split(':')[0]}"
+    if outcome == "touched_outside":
+        return f"{case.command}: touched outside --out ({case.fs})"
     return f"{case.command}: {outcome} ({_normalise(problems[0], case) if problems else ''})"
 
 
@@ -943,18 +1277,39 @@ class Worker:
         self._stop()
 
 
-def build_case(seed: int, index: int, folder: Path, kinds=None) -> Case:
-    """Case ``index`` of ``seed``: always the same input (and command) for the same seed, index and kinds."""
+def case_class(seed: int, index: int, kinds=None, classes=None) -> str:
+    """The class of case ``index`` of ``seed``: drawn with ``CLASS_WEIGHTS`` among ``classes`` (default
+    all) that have a kind in ``kinds``, from a random stream of its own."""
     import random
 
+    pool = [c for c in (classes or CLASSES) if not kinds or set(CLASS_KINDS[c]) & set(kinds)]
+    if not pool:
+        raise ValueError(f"no class of {classes or CLASSES} has a kind of {kinds}.")
+    if len(pool) == 1:
+        return pool[0]
+    rng = random.Random(f"class:{seed}:{index}")
+    return pool[_weighted(rng, [CLASS_WEIGHTS[CLASSES.index(c)] for c in pool])]
+
+
+def build_case(seed: int, index: int, folder: Path, kinds=None, classes=None) -> Case:
+    """Case ``index`` of ``seed``: always the same input (and command) for the same seed, index, kinds
+    and classes."""
+    import random
+
+    cls = case_class(seed, index, kinds, classes)
     rng = random.Random(seed * 1_000_003 + index)
-    kind = kinds[rng.randrange(len(kinds))] if kinds else None
-    return make_case(rng, folder, kind)
+    if cls == "inputs":
+        kind = kinds[rng.randrange(len(kinds))] if kinds else None
+    else:
+        allowed = [k for k in CLASS_KINDS[cls] if not kinds or k in kinds]
+        kind = allowed[rng.randrange(len(allowed))]
+    return make_case(rng, folder, kind, cls)
 
 
-def replay_command(seed: int, index: int, kinds=None) -> str:
+def replay_command(seed: int, index: int, kinds=None, classes=None) -> str:
     return (f"python -m tests.fuzz.fuzz_cli --seed {seed} --replay {index}"
-            + (f" --kinds {' '.join(kinds)}" if kinds else "") + f" --keep out/fuzz_case{index}")
+            + (f" --kinds {' '.join(kinds)}" if kinds else "")
+            + (f" --classes {' '.join(classes)}" if classes else "") + f" --keep out/fuzz_case{index}")
 
 
 def _example(case: Case, run: dict, outcome: str, problems: list[str], replay: str, index: int) -> dict:
@@ -962,7 +1317,8 @@ def _example(case: Case, run: dict, outcome: str, problems: list[str], replay: s
     if case.input.exists():
         raw = case.input.read_bytes()
         text = raw[:400].decode("utf-8", "backslashreplace") if case.kind != "scene.npz" else None
-    return {"case": index, "kind": case.kind, "command": case.command, "mutations": case.mutations,
+    return {"case": index, "class": case.cls, "kind": case.kind, "command": case.command, "fs": case.fs,
+            "mutations": case.mutations,
             "argv": [a.replace(str(case.folder), "D") for a in case.argv], "outcome": outcome,
             "problems": [p.replace(str(case.folder), "D") for p in problems],
             "traceback_last_line": (run.get("exception") or "").replace(str(case.folder), "D")[:500] or None,
@@ -973,7 +1329,7 @@ def _example(case: Case, run: dict, outcome: str, problems: list[str], replay: s
 
 
 def run_cases(indices, seed: int, root: Path, timeout_s: float, kinds=None, keep: bool = False,
-              progress: bool = True) -> tuple[list[dict], dict]:
+              progress: bool = True, classes=None) -> tuple[list[dict], dict]:
     """Make, run and check the cases ``indices`` of ``seed``; returns per-case records and findings."""
     from tqdm import tqdm
 
@@ -983,20 +1339,26 @@ def run_cases(indices, seed: int, root: Path, timeout_s: float, kinds=None, keep
     bar = tqdm(list(indices), desc="fuzz", unit="case", disable=not progress, file=sys.stderr)
     try:
         for index in bar:
-            case = build_case(seed, index, root / f"case{index:05d}", kinds)
-            run = worker.run(case.argv)
+            case = build_case(seed, index, root / f"case{index:05d}", kinds, classes)
+            with case.running():
+                run = worker.run(case.argv)
             outcome, problems = check_case(case, run)
             counts[outcome] += 1
             bar.set_postfix({k: v for k, v in counts.items()}, refresh=False)
-            record = {"case": index, "kind": case.kind, "command": case.command, "outcome": outcome,
-                      "seconds": round(run["seconds"], 3)}
+            record = {"case": index, "class": case.cls, "kind": case.kind, "command": case.command,
+                      "outcome": outcome, "seconds": round(run["seconds"], 3)}
+            if case.fs:
+                record["fs"] = case.fs
+            if case.victims:
+                record["victims"] = len(case.victims)
             if outcome not in PASSING:
                 key = finding_key(case, run, outcome, problems)
                 record["finding"] = key
                 entry = findings.setdefault(key, {"key": key, "outcome": outcome, "count": 0, "kinds": Counter(),
                                                   "commands": Counter(), "cases": [],
                                                   "example": _example(case, run, outcome, problems,
-                                                                      replay_command(seed, index, kinds), index)})
+                                                                      replay_command(seed, index, kinds, classes),
+                                                                      index)})
                 entry["count"] += 1
                 entry["kinds"][case.kind] += 1
                 entry["commands"][case.command] += 1
@@ -1012,10 +1374,15 @@ def run_cases(indices, seed: int, root: Path, timeout_s: float, kinds=None, keep
 
 def summarise(records: list[dict], findings: dict, meta: dict) -> dict:
     by_kind = {k: Counter() for k in KINDS}
+    by_class = {c: Counter() for c in CLASSES}
+    by_fs = {m: Counter() for m in FS_MODES}
     by_command = defaultdict(Counter)
     seconds = defaultdict(list)
     for r in records:
         by_kind[r["kind"]][r["outcome"]] += 1
+        by_class[r.get("class", "inputs")][r["outcome"]] += 1
+        if r.get("fs"):
+            by_fs[r["fs"]][r["outcome"]] += 1
         by_command[r["command"]][r["outcome"]] += 1
         seconds[r["kind"]].append(r["seconds"])
 
@@ -1026,6 +1393,9 @@ def summarise(records: list[dict], findings: dict, meta: dict) -> dict:
     return {**meta, "cases": len(records),
             "outcomes": table(Counter(r["outcome"] for r in records)),
             "kinds": {k: table(c) for k, c in by_kind.items() if c},
+            "classes": {k: table(c) for k, c in by_class.items() if c},
+            "fs_modes": {k: table(c) for k, c in by_fs.items() if c},
+            "victims_checked": sum(r.get("victims", 0) for r in records),
             "commands": {k: table(c) for k, c in sorted(by_command.items())},
             "case_seconds": {k: {"total": round(sum(v), 1), "median": round(statistics.median(v), 3),
                                  "max": round(max(v), 2)} for k, v in seconds.items()},
@@ -1034,7 +1404,8 @@ def summarise(records: list[dict], findings: dict, meta: dict) -> dict:
 
 def markdown(result: dict) -> str:
     cols = [o for o in OUTCOMES if result["outcomes"][o] or o in ("exit0", "exit2_good", "exit2_bad_line",
-                                                                  "traceback", "half_written")]
+                                                                  "traceback", "half_written", "touched_outside",
+                                                                  "crash")]
     head = "| | " + " | ".join(cols) + " | total |"
     rule = "|---|" + "---:|" * (len(cols) + 1)
 
@@ -1047,10 +1418,15 @@ def markdown(result: dict) -> str:
              "Each case mutates a valid input file and runs the CLI on it in-process "
              "(`tests/fuzz/fuzz_cli.py`). Passing: `exit0`, `exit2_good` (one `error:` line naming the file, a "
              "flag or a field, no output left behind).", "",
+             "## Cases per class", "", head, rule, *rows(result.get("classes", {}).items()), "",
              "## Cases per kind of input", "", head, rule, *rows(result["kinds"].items()),
              "| **all** | " + " | ".join(f"**{result['outcomes'][o]}**" for o in cols)
              + f" | **{result['outcomes']['total']}** |", "",
              "## Cases per command", "", head, rule, *rows(result["commands"].items()), "",
+             *(["## Class fs: cases per way --out was prepared", "",
+                f"{result.get('victims_checked', 0)} victim file(s) outside --out checked after the runs "
+                "(`touched_outside`: one gone or changed).", "", head, rule,
+                *rows(result["fs_modes"].items()), ""] if result.get("fs_modes") else []),
              f"## Distinct findings ({len(result['findings'])})", ""]
     if not result["findings"]:
         lines.append("None.")
@@ -1083,6 +1459,9 @@ def main(argv=None) -> int:
     ap.add_argument("--kinds", nargs="+", choices=KINDS, default=None, metavar="KIND",
                     help=f"only these kinds of input, of {', '.join(KINDS)} (default: all, drawn with weights "
                          f"{', '.join(map(str, KIND_WEIGHTS))})")
+    ap.add_argument("--classes", nargs="+", choices=CLASSES, default=None, metavar="CLASS",
+                    help=f"only these classes of case, of {', '.join(CLASSES)} (default: all, drawn with weights "
+                         f"{', '.join(map(str, CLASS_WEIGHTS))})")
     ap.add_argument("--case-timeout", type=float, default=120.0, metavar="S",
                     help="seconds one case may run before its worker is killed (default 120)")
     ap.add_argument("--replay", type=int, default=None, metavar="I",
@@ -1103,7 +1482,7 @@ def main(argv=None) -> int:
     try:
         if args.replay is not None:
             records, findings = run_cases([args.replay], args.seed, root, args.case_timeout, args.kinds,
-                                          keep=args.keep is not None, progress=False)
+                                          keep=args.keep is not None, progress=False, classes=args.classes)
             (rec,) = records
             print(json.dumps(rec))
             for f in findings.values():
@@ -1111,12 +1490,14 @@ def main(argv=None) -> int:
             return 0
         start = time.perf_counter()
         records, findings = run_cases(range(args.cases), args.seed, root, args.case_timeout, args.kinds,
-                                      keep=args.keep is not None, progress=not args.no_progress)
+                                      keep=args.keep is not None, progress=not args.no_progress,
+                                      classes=args.classes)
         import jax
 
         meta = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "host": platform.platform(),
                 "jax": jax.__version__, "backend": jax.default_backend(), "seed": args.seed,
-                "kinds_requested": args.kinds or list(KINDS), "case_timeout_s": args.case_timeout,
+                "kinds_requested": args.kinds or list(KINDS), "classes_requested": args.classes or list(CLASSES),
+                "case_timeout_s": args.case_timeout,
                 "xla_flags": os.environ.get("XLA_FLAGS", ""), "seconds": round(time.perf_counter() - start, 1),
                 "command": "python -m tests.fuzz.fuzz_cli " + " ".join(argv if argv is not None else sys.argv[1:])}
         result = summarise(records, findings, meta)

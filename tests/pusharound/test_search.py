@@ -224,9 +224,9 @@ def test_bad_config_raises(field, value):
 
 def test_bad_inputs_raise(one_world):
     world, _ = one_world
-    with pytest.raises(ValueError, match="scene"):
+    with pytest.raises(TypeError, match="scene"):
         plan_pushes("scene.json")
-    with pytest.raises(ValueError, match="config"):
+    with pytest.raises(TypeError, match="config"):
         plan_pushes(ONE, {"presearch": False})
     with pytest.raises(ValueError, match="mode_table"):
         plan_pushes(ONE, FAST, mode_table={})

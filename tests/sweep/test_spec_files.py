@@ -2,10 +2,15 @@
 in a spec that are: one ValueError ``sweep spec: ...`` naming the file, one ``error:`` line in the CLI."""
 from __future__ import annotations
 
+import itertools
+
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from jaxplan import sweep
 from jaxplan.cli import main
+from jaxplan.sweep.spec import Settings
 
 
 @pytest.mark.parametrize("content, words", [
@@ -68,3 +73,32 @@ def test_absurd_sizes_and_names_are_named(spec, words):
     with pytest.raises(ValueError) as info:
         sweep.load_spec(spec)
     assert str(info.value).startswith("sweep spec: ") and words in str(info.value), str(info.value)
+
+
+def test_a_sweep_of_a_billion_settings_is_refused_before_anything_is_built():
+    """The defect: three 1,000-value lists were accepted and grew by 200 MB/s writing nothing."""
+    values = lambda lo, hi: [lo + (hi - lo) * i / 999 for i in range(1000)]  # noqa: E731
+    spec = {"scenes": ["default"], "fabric": {"theta_tol_deg": values(10.0, 170.0), "tau_h": values(0.0, 1.0)},
+            "spill": {"lam": values(0.01, 1.0)}}
+    with pytest.raises(ValueError, match=r"1,000,000,000 settings \(1 scene\(s\) x 1000 theta_tol_deg"):
+        sweep.load_spec(spec)
+
+
+@settings(max_examples=60, deadline=None)
+@given(n_scenes=st.integers(1, 3), lengths=st.lists(st.integers(1, 4), max_size=4), data=st.data())
+def test_lazy_settings_list_what_the_product_lists(n_scenes, lengths, data):
+    lists = [tuple(range(10 * j, 10 * j + n)) for j, n in enumerate(lengths)]
+    k = data.draw(st.integers(0, len(lists)))
+    lazy = Settings(n_scenes, lists[:k], lists[k:])
+    want = [(i, c[:k], c[k:]) for i in range(n_scenes) for c in itertools.product(*lists)]
+    assert len(lazy) == len(want) and list(lazy) == want
+    assert lazy[-1] == want[-1] and lazy[1:3] == want[1:3]
+    with pytest.raises(IndexError):
+        lazy[len(want)]
+
+
+def test_deeply_nested_toml_is_one_named_error(tmp_path):
+    path = tmp_path / "deep.toml"
+    path.write_text("scenes = " + "[" * 5000 + "]" * 5000 + "\n")
+    with pytest.raises(ValueError, match="nested too deeply"):
+        sweep.load_spec(path)

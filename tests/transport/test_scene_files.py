@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jaxplan.transport import scene as S
+from jaxplan.transport import scene_files as SF
 
 WKT = "POLYGON ((2 0, 3 0, 3 2, 2 2, 2 0))"
 DOC = {"format_version": 1, "name": "t", "cell_size": 1.0, "origin": [0.0, 0.0],
@@ -220,3 +221,49 @@ def test_save_refuses_a_grid_load_could_not_read(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="at most 2 x 2"):
         scene.save(tmp_path / "big.npz")
     assert not (tmp_path / "big.npz").exists()
+
+
+def _archive(path, members: dict) -> None:
+    """A scene archive of ``members`` (key -> raw .npy bytes), the rest from ``_arrays``."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        for key, value in _arrays().items():
+            if key not in members:
+                buf = io.BytesIO()
+                np.save(buf, value)
+                zf.writestr(f"{key}.npy", buf.getvalue())
+        for key, raw in members.items():
+            zf.writestr(f"{key}.npy", raw)
+
+
+def test_a_member_that_decompresses_beyond_its_bound_is_refused_unread(tmp_path, monkeypatch):
+    """The defect: a 5 MB deflated member that decompressed to a 1 GiB string was read (2.6 GB); here a
+    target of 2,000 characters against a bound of 1,000 bytes, checked from the archive's directory."""
+    buf = io.BytesIO()
+    np.save(buf, np.str_("POLYGON ((2 0, 3 0, 3 2, 2 2, 2 0))" + " " * 2000))
+    path = tmp_path / "big.npz"
+    _archive(path, {"target_wkt": buf.getvalue()})
+    monkeypatch.setattr(SF, "MAX_MEMBER_BYTES", 1000)
+    message = _load_error(path)
+    assert "target_wkt: the archive member decompresses to" in message and "at most 1,000" in message
+
+
+def test_a_header_declaring_a_huge_string_is_refused_before_reading(tmp_path):
+    """A target whose .npy header declares a 400 MB string over a few bytes of data."""
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<U100000000", "fortran_order": False, "shape": ()})
+    path = tmp_path / "huge.npz"
+    _archive(path, {"target_wkt": header.getvalue() + b"\0" * 16})
+    message = _load_error(path)
+    assert "target_wkt: its header declares 400,000,000 bytes" in message
+
+
+def test_a_member_held_twice_is_refused(tmp_path):
+    """Which copy of a duplicated name a reader takes is not defined: a bad copy first and a good one
+    last was read without complaint (found by tests/fuzz/fuzz_cli.py, class archive)."""
+    buf = io.BytesIO()
+    np.save(buf, np.float64(-1.0))
+    path = tmp_path / "twice.npz"
+    _archive(path, {})
+    with zipfile.ZipFile(path, "a") as zf:
+        zf.writestr("cell_size.npy", buf.getvalue())
+    assert "holds the member 'cell_size.npy' twice" in _load_error(path)
