@@ -12,45 +12,23 @@ Each system is a package (``jaxplan.transport``, ``jaxplan.fleet``, ``jaxplan.pu
 that only make sense inside one system (the transport episode's ``reset`` and ``step``, its ``Push``
 and ``Route`` records) stay in that system's package.
 """
-from jaxplan.core import limit_malloc_arenas, single_cpu
-from jaxplan.transport import (
-    BUILTIN_SCENES,
-    DEFAULT_SCENE,
-    Connectors,
-    Episode,
-    EpisodeParams,
-    EpisodeState,
-    Fabric,
-    FabricParams,
-    Paths,
-    Scene,
-    Selection,
-    SoftFabric,
-    SpillParams,
-    box,
-    build_fabric,
-    builtin_scene,
-    circle,
-    extract_paths,
-    plan_connectors,
-    random_scene,
-    refresh_connectors,
-    reselect,
-    run_episode,
-    select_routes,
-    selective_rebuild,
-)
-
-# PushAround, the team model, sweeps and tuning load on first use: each pulls in libraries (MuJoCo,
-# optax) that planning on a grid does not need, so ``import jaxplan`` stays quick and small.
+# Every name loads on first use, so that ``import jaxplan`` imports neither JAX nor MuJoCo: the
+# command line installs its signal handlers before those imports (``jaxplan.cli.entry``), and a
+# program that only plans on a grid never loads MuJoCo or optax.
+_TRANSPORT = ("BUILTIN_SCENES", "DEFAULT_SCENE", "Connectors", "Episode", "EpisodeParams", "EpisodeState", "Fabric",
+              "FabricParams", "Paths", "Scene", "Selection", "SoftFabric", "SpillParams", "box", "build_fabric",
+              "builtin_scene", "circle", "extract_paths", "plan_connectors", "random_scene", "refresh_connectors",
+              "reselect", "run_episode", "select_routes", "selective_rebuild")
 _LAZY = {
+    **{name: "jaxplan.core" for name in ("limit_malloc_arenas", "single_cpu")},
+    **{name: "jaxplan.transport" for name in _TRANSPORT},
     **{name: "jaxplan.pusharound" for name in ("PushScene", "RankingParams", "SearchConfig", "build_wccg",
                                                 "connectivity", "nominal_scene", "plan_pushes", "rank_gaps")},
     **{name: "jaxplan.teams" for name in ("SiteParams", "TeamsConfig", "paper_scenario", "random_sites",
                                            "run_sites", "simulate_site")},
     **{name: "jaxplan.fleet" for name in ("FleetConfig", "FleetRun", "run_fleet")},
 }
-_LAZY_MODULES = ("sweep", "tune", "pusharound", "teams", "physics", "reference", "cli", "fleet")
+_LAZY_MODULES = ("core", "transport", "sweep", "tune", "pusharound", "teams", "physics", "reference", "cli", "fleet")
 
 __all__ = [
     # shared

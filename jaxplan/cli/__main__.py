@@ -1,4 +1,4 @@
 """``python -m jaxplan.cli``: the command line as a process (``jaxplan.cli.entry``)."""
-from jaxplan.cli.main import entry
+from jaxplan.cli import entry
 
 entry()

@@ -99,7 +99,7 @@ def test_the_error_states_the_allowed_range(cmd, flag, value, words, tmp_path, m
 
 
 def test_good_extremes_parse(tmp_path):
-    from jaxplan.cli.main import build_parser
+    from jaxplan.cli.app import build_parser
 
     args = build_parser().parse_args(["episode", "--scene", "default", "--out", "e", "--rearrange-margin", "inf",
                                       "--turn-saturation", "inf", "--fps", "50", "--max-pushes", "0",

@@ -58,7 +58,7 @@ def test_rover_bad_input_exits_2(tmp_path, capsys, argv, field):
 
 
 def test_turning_options_select_the_capacity_model():
-    from jaxplan.cli.main import build_parser
+    from jaxplan.cli.app import build_parser
     from jaxplan.cli.transport import spill_params
 
     args = build_parser().parse_args(["rover", "--miss", "0.2", "--turn-saturation", "1.5"])
@@ -68,7 +68,7 @@ def test_turning_options_select_the_capacity_model():
 
 
 def test_rover_predicts_with_the_fitted_model_unless_a_spill_option_is_given():
-    from jaxplan.cli.main import build_parser
+    from jaxplan.cli.app import build_parser
     from jaxplan.cli.transport import spill_params
     from jaxplan.transport.spillage import SpillParams
     from jaxplan.transport.spillage.capacity import ROVER_FIT

@@ -1,4 +1,4 @@
-"""The ``jaxplan`` CLI, run in-process through ``jaxplan.cli.main``: fabric, demo, scenes, --help and
+"""The ``jaxplan`` CLI, run in-process through ``jaxplan.cli.app``: fabric, demo, scenes, --help and
 bad input (one ``error:`` line, exit code 2, never a traceback)."""
 from __future__ import annotations
 
@@ -265,7 +265,7 @@ def test_episode_writes_summary_metrics_figure_and_animation(tmp_path, capsys):
 
 
 def test_episode_reselect_flag_reaches_the_episode_params():
-    from jaxplan.cli.main import build_parser
+    from jaxplan.cli.app import build_parser
     from jaxplan.cli.transport import episode_params
 
     args = build_parser().parse_args(["episode", "--scene", "default", "--out", "o", "--reselect"])

@@ -1,5 +1,5 @@
 """Fuzz the CLI's input files: mutate valid scene files, sweep specs and PushAround scenes, run the
-``jaxplan`` CLI in-process (``jaxplan.cli.main.main(argv)``) on each, and check how it fails.
+``jaxplan`` CLI in-process (``jaxplan.cli.app.main(argv)``) on each, and check how it fails.
 
 Kinds of input (each case picks one, writes a fresh valid file and mutates it, or leaves it valid):
 
@@ -1052,7 +1052,7 @@ def _innermost(tb, package: str | None = None) -> str | None:
 
 
 def execute(argv: list[str]) -> dict:
-    """Run ``jaxplan.cli.main.main(argv)`` in this process, capturing stdout, stderr and warnings.
+    """Run ``jaxplan.cli.app.main(argv)`` in this process, capturing stdout, stderr and warnings.
 
     Returns a dict: ``code`` (the return value or SystemExit code; None when it raised), ``exception``
     (the traceback's last line), ``where`` (innermost jaxplan frame), ``frame`` (innermost frame),
