@@ -44,3 +44,20 @@ def test_handlers_come_back_and_nothing_is_left_pending():
         signal.raise_signal(signal.SIGINT)
     assert signal.getsignal(signal.SIGTERM) is before
     check_interrupt()   # nothing pending: no raise
+
+
+def test_an_interrupt_while_an_animation_is_written_stays_an_interrupt(tmp_path):
+    """Found by experiments/interrupts.py: a SIGTERM before the GIF's first frame became matplotlib's
+    IndexError (its writer finishes the file in a finally clause), so the run was marked failed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxplan.core import save_animation
+
+    def draw(i):
+        raise StopSignal(signal.SIGTERM)
+
+    with pytest.raises(StopSignal):
+        save_animation(plt.figure(), draw, 3, tmp_path / "a.gif", fps=2, dpi=40)
