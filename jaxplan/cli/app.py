@@ -18,13 +18,10 @@ from typing import NoReturn
 
 from jaxplan.cli import fleet, pusharound, rover, sweep, teams, transport
 from jaxplan.cli.common import EXIT_BAD_INPUT, CLIError, Parser, wrap
-from jaxplan.core import shown_path, signal_number, stop_signals_interrupt
+from jaxplan.core import INTERRUPT_SIGNALS, shown_path, signal_number, stop_signals_interrupt
 from jaxplan.transport import BUILTIN_SCENES
 
 __all__ = ["entry", "main"]
-
-# the signals that stop_signals_interrupt turns into interrupts
-_STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -98,7 +95,7 @@ def entry(argv=None) -> NoReturn:
         if code is None:   # before main's own handlers, or as they came off
             code = 128 + signal_number(exc)
             print("interrupted", file=sys.stderr)
-    for s in _STOP_SIGNALS:   # the outcome is decided: leave without being cut short
+    for s in INTERRUPT_SIGNALS:   # the outcome is decided: leave without being cut short
         signal.signal(s, signal.SIG_IGN)
     if code is None:
         code = 0
@@ -109,7 +106,7 @@ def entry(argv=None) -> NoReturn:
         sys.stdout.flush()
     with contextlib.suppress(Exception):
         sys.stderr.flush()
-    if code > 128 and code - 128 in _STOP_SIGNALS:
+    if code > 128 and code - 128 in INTERRUPT_SIGNALS:
         os._exit(code)
     sys.exit(code)
 

@@ -15,10 +15,17 @@ from jaxplan.core.compilation import SMALL_GRID_CELLS, grid_jit, limit_malloc_ar
 from jaxplan.core.files import path_kind, read_text, shown_path
 from jaxplan.core.memory import available_memory_bytes
 from jaxplan.core.outputs import RunFolder, RunInterrupted, atomic_write, read_manifest
-from jaxplan.core.signals import StopSignal, check_interrupt, signal_name, signal_number, stop_signals_interrupt
+from jaxplan.core.signals import (
+           INTERRUPT_SIGNALS,
+           StopSignal,
+           check_interrupt,
+           signal_name,
+           signal_number,
+           stop_signals_interrupt,
+)
 from jaxplan.core.timing import timed
 
-__all__ = ["RunFolder", "RunInterrupted", "SMALL_GRID_CELLS", "StopSignal", "atomic_write", "available_memory_bytes",
-           "check_interrupt", "grid_jit", "lattice", "limit_malloc_arenas", "path_kind", "read_manifest",
-           "read_text", "save_animation", "shown_path", "signal_name", "signal_number", "single_cpu",
-           "stop_signals_interrupt", "timed", "traced"]
+__all__ = ["INTERRUPT_SIGNALS", "RunFolder", "RunInterrupted", "SMALL_GRID_CELLS", "StopSignal", "atomic_write",
+           "available_memory_bytes", "check_interrupt", "grid_jit", "lattice", "limit_malloc_arenas", "path_kind",
+           "read_manifest", "read_text", "save_animation", "shown_path", "signal_name", "signal_number",
+           "single_cpu", "stop_signals_interrupt", "timed", "traced"]

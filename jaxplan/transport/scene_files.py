@@ -33,6 +33,7 @@ MAX_FILE_SIDE = 4096
 # archive cannot make ``Scene.load`` read more.
 MAX_MEMBER_BYTES = 64 * 2**20
 MAX_OBJ_BYTES = MAX_FILE_SIDE * MAX_FILE_SIDE * 8
+NPY_HEADER_BYTES = 2**16   # room for the counts' .npy header within the obj member
 
 
 def _ring_wkt(ring) -> str:
@@ -164,7 +165,7 @@ def _check_member_sizes(zf: zipfile.ZipFile) -> None:
     more), within its bound."""
     for info in zf.infolist():
         key = info.filename[:-len(".npy")] if info.filename.endswith(".npy") else info.filename
-        limit = MAX_OBJ_BYTES + 2**16 if key == "obj" else MAX_MEMBER_BYTES   # + the .npy header
+        limit = _member_limit(key) + (NPY_HEADER_BYTES if key == "obj" else 0)
         if info.file_size > limit:
             raise _FileProblem(f"{key}: the archive member decompresses to {info.file_size:,} bytes; a scene "
                                f"file's {key} holds at most {limit:,}")
