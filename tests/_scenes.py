@@ -40,8 +40,9 @@ SHAPES = ((1, 1), (1, 6), (6, 1), (2, 3), (5, 5), (7, 12), (13, 9), (16, 16), (3
 
 
 @st.composite
-def scenes(draw, max_side: int = 30, integer_counts: bool = True):
-    """A random Scene: size, density, target shape and counts."""
+def scenes(draw, max_side: int = 30, integer_counts: bool = True, blocked: bool = False):
+    """A random Scene: size, density, target shape and counts; with ``blocked``, random blocked cells
+    (single cells and walls) off the target, and no material on them."""
     h, w = draw(st.sampled_from([s for s in SHAPES if max(s) <= max_side]))
     density = draw(st.sampled_from((0.2, 0.5, 0.8, 1.0)))
     kind = draw(st.sampled_from(TARGET_KINDS))
@@ -52,11 +53,29 @@ def scenes(draw, max_side: int = 30, integer_counts: bool = True):
     else:  # distinct-ish real counts, so exact ties between paths are rare
         counts = np.round(rng.uniform(0.5, 5.0, (h, w)), 3).astype(np.float32)
     obj = np.where(rng.random((h, w)) < density, counts, 0.0).astype(np.float32)
-    return Scene.from_arrays(obj, _target(kind, h, w, rng), cell_size=1.0)
+    target = _target(kind, h, w, rng)
+    if not blocked:
+        return Scene.from_arrays(obj, target, cell_size=1.0)
+    mask = random_blocked((h, w), rng) & ~np.asarray(Scene.from_arrays(obj, target).target_mask)
+    return Scene.from_arrays(np.where(mask, 0.0, obj), target, cell_size=1.0, blocked=mask)
+
+
+def random_blocked(shape, rng: np.random.Generator) -> np.ndarray:
+    """bool[H, W]: scattered blocked cells plus a few straight walls (buildings' sides)."""
+    h, w = shape
+    mask = rng.random((h, w)) < rng.choice((0.05, 0.15, 0.3))
+    for _ in range(rng.integers(0, 3)):
+        r, c = rng.integers(h), rng.integers(w)
+        if rng.random() < 0.5:
+            mask[r, c:c + rng.integers(2, max(3, w))] = True
+        else:
+            mask[r:r + rng.integers(2, max(3, h)), c] = True
+    return mask
 
 
 def reference_of(scene: Scene, params, **kw):
     """The serial reference on exactly the scene's geometry arrays (float64 copies)."""
+    kw.setdefault("blocked", np.asarray(scene.blocked) if bool(np.asarray(scene.blocked).any()) else None)
     return reference_fabric(
         np.asarray(scene.obj, np.float64), np.asarray(scene.target_mask),
         np.asarray(scene.dist, np.float64), np.asarray(scene.tvec, np.float64),
@@ -85,7 +104,8 @@ def has_borderline_step(scene: Scene, theta_tol_deg: float, margin: float = 5e-7
         nb = np.full((h, w), np.nan)
         rs, cs = slice(max(0, -dr), h - max(0, dr)), slice(max(0, -dc), w - max(0, dc))
         nb[rs, cs] = dist[max(0, dr):h + min(0, dr), max(0, dc):w + min(0, dc)]
-        mono = (dist - lattice.MONOTONE_EPS * s) - nb
+        with np.errstate(invalid="ignore"):   # inf - inf beside blocked cells: not a step either way
+            mono = (dist - lattice.MONOTONE_EPS * s) - nb
         if np.any(np.abs(cone) < margin) or np.any(np.abs(mono[np.isfinite(mono)]) < 2 * margin * s):
             return True
     return False

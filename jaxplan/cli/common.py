@@ -81,30 +81,49 @@ FPS = ranged(int, 1, 50, why="GIF frame delays are whole 1/100 s and viewers slo
 SEED = ranged(int, 0, 2**32 - 1, why="a 32-bit unsigned seed")
 
 
-def load_scene(spec: str):
-    """A built-in scene by name, or a scene file (.npz / .json) by path.
+MAP_SUFFIX = ".map"
+MAP_SCENE_HELP = ("; or a MovingAI benchmark map (FILE.map, https://movingai.com/benchmarks/): a site on its free "
+                  "cells, targets and material drawn from --site-seed (docs/scene-files.md)")
+
+
+def add_site_seed_option(p) -> None:
+    """``--site-seed N``: the seed of the site ``load_scene`` builds on a ``.map`` ``--scene``."""
+    p.add_argument("--site-seed", type=SEED, default=None, metavar="N",
+                   help="with a MovingAI FILE.map --scene: the seed that places the targets and the material "
+                        "piles (jaxplan.transport.site_from_map), an int in [0, 4294967295]; default 0")
+
+
+def load_scene(spec: str, site_seed: int | None = None):
+    """A built-in scene by name, a scene file (.npz / .json) by path, or a site on a MovingAI map
+    (``.map``, ``jaxplan.transport.site_from_map`` with seed ``site_seed``, default 0).
 
     A bad file -- missing, a directory, unreadable, damaged, wrong keys or values -- is one
-    ``CLIError("--scene: Scene file <path>: ...")`` (``Scene.load`` names what is wrong).
+    ``CLIError("--scene: Scene file <path>: ...")`` (``Scene.load`` names what is wrong), or
+    ``CLIError("--scene: Map file <path>: ...")``. A ``site_seed`` with a scene that is not a map is a
+    ``CLIError`` naming ``--site-seed``.
     """
-    from jaxplan.transport import Scene, builtin_scene
+    from jaxplan.transport import Scene, builtin_scene, site_from_map
 
+    path = Path(spec)
+    is_map = path.suffix.lower() == MAP_SUFFIX
+    if site_seed is not None and not is_map:
+        raise CLIError(f"--site-seed: {site_seed} is only used with a MovingAI .map --scene, and {spec!r} is not "
+                       "one; drop --site-seed or give a FILE.map.")
     if spec in BUILTIN_SCENES:
         return builtin_scene(spec)
-    path = Path(spec)
     kind = cli_path_kind(spec, "--scene")
     if kind == "dir":
-        raise CLIError(f"--scene: {spec!r} is a directory; give a .npz/.json scene file or a built-in "
-                       f"scene ({', '.join(BUILTIN_SCENES)}).")
+        raise CLIError(f"--scene: {spec!r} is a directory; give a .npz/.json scene file, a .map file or a "
+                       f"built-in scene ({', '.join(BUILTIN_SCENES)}).")
     if kind != "missing":
         try:
-            return Scene.load(path)
+            return site_from_map(path, 0 if site_seed is None else site_seed) if is_map else Scene.load(path)
         except ValueError as exc:
             raise CLIError(f"--scene: {exc}") from None
-    if path.suffix.lower() in (".npz", ".json") or os.sep in spec:
+    if path.suffix.lower() in (".npz", ".json", MAP_SUFFIX) or os.sep in spec:
         raise CLIError(f"--scene: no such scene file {spec!r}.")
     raise CLIError(f"--scene: {spec!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) "
-                   "nor an existing .npz/.json scene file.")
+                   "nor an existing .npz/.json scene file or .map file.")
 
 
 def cli_path_kind(path, flag: str) -> str:

@@ -3,7 +3,9 @@ from __future__ import annotations
 
 from jaxplan.cli.common import (
     FPS,
+    MAP_SCENE_HELP,
     CLIError,
+    add_site_seed_option,
     add_theta_option,
     fabric_params,
     load_scene,
@@ -18,11 +20,11 @@ MAX_ROVERS = 64
 MAX_STEPS = 1_000_000   # the step counter is an int32 in the compiled step; a million steps take hours
 
 
-def _fleet_scene(spec: str):
-    """A built-in fleet site (site128, site256, site512), a built-in scene, or a scene file."""
+def _fleet_scene(spec: str, site_seed=None):
+    """A built-in fleet site (site128, site256, site512), a built-in scene, a scene file or a .map site."""
     from jaxplan.fleet import SITES, site
 
-    return site(spec) if spec in SITES else load_scene(spec)
+    return site(spec) if spec in SITES and site_seed is None else load_scene(spec, site_seed)
 
 
 def _episode_params(args):
@@ -61,7 +63,7 @@ def _cmd_fleet(args) -> int:
     from jaxplan.fleet import FleetConfig, run_fleet, summary_of, write_fleet_outputs
 
     params, spill, ep = fabric_params(args), spill_params(args), _episode_params(args)
-    scene = _fleet_scene(args.scene)
+    scene = _fleet_scene(args.scene, args.site_seed)
     if args.rovers > _cells_outside_targets(scene):
         raise CLIError(f"--rovers: {args.rovers} rovers do not fit on the {_cells_outside_targets(scene)} cells "
                        "outside the targets; use fewer rovers or a larger scene.")
@@ -71,6 +73,7 @@ def _cmd_fleet(args) -> int:
         fleet = run_fleet(scene, n_rovers=args.rovers, strategy=args.strategy, params=params, spill=spill,
                           episode=ep, max_steps=args.max_steps, record=not args.no_animation, progress=True,
                           config=config)
+        fleet.scene_name = scene.name or args.scene     # summary.json's "scene": a file's path when unnamed
         extra = {"params": {"theta_tol_deg": float(params.theta_tol_deg), "k": int(params.k)},
                  "spill": spill_dict(spill), "max_steps": args.max_steps, "clearance": args.clearance,
                  "candidates": args.candidates}
@@ -119,9 +122,11 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                          "DIR/trajectory.npz, DIR/pushes.json, DIR/fleet.png, DIR/fleet.gif and, with "
                          "--physics, DIR/physics.json. See docs/fleet.md."),
         epilog="example:\n  jaxplan fleet --scene site128 --rovers 8 --out out/fleet8\n"
-               "  jaxplan fleet --scene default --rovers 2 --strategy independent --no-animation --out out/f2")
+               "  jaxplan fleet --scene default --rovers 2 --strategy independent --no-animation --out out/f2\n"
+               "  jaxplan fleet --scene tests/data/small.map --site-seed 3 --rovers 2 --out out/fleet_map")
     p.add_argument("--scene", required=True, metavar="NAME_OR_FILE",
-                   help=scene_help + "; or a fleet site: site128, site256, site512")
+                   help=scene_help + "; or a fleet site: site128, site256, site512" + MAP_SCENE_HELP)
+    add_site_seed_option(p)
     p.add_argument("--rovers", type=ranged(int, 1, MAX_ROVERS, why="the fleet's arrays are sized for it"),
                    default=4, metavar="N", help=f"number of rovers, an int in [1, {MAX_ROVERS}]; default 4")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")

@@ -8,7 +8,9 @@ import time
 import numpy as np
 
 from jaxplan.cli.common import (
+    MAP_SCENE_HELP,
     CLIError,
+    add_site_seed_option,
     add_theta_option,
     check_fabric_memory,
     fabric_params,
@@ -36,7 +38,7 @@ def _cmd_rover(args) -> int:
     # the prediction the physics is compared with: the model fitted to this rover unless asked otherwise
     spill = spill_params(args, default=ROVER_FIT)
     params = fabric_params(args)
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, args.site_seed)
     check_fabric_memory(args, scene, params)
     with run_folder(args) as run:
         summary = _check_and_write(args, scene, params, spill, run)
@@ -150,9 +152,11 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                           "unless a spill option (--lam, --capacity, --mu, --miss, --turn-saturation, "
                           "--spill-threshold) is given. See docs/physics.md."),
         epilog="example:\n  jaxplan rover --out out/rover\n"
-               "  jaxplan rover --scene corridor --routes 2 --backend c --out out/rover_corridor")
+               "  jaxplan rover --scene corridor --routes 2 --backend c --out out/rover_corridor\n"
+               "  jaxplan rover --scene tests/data/small.map --site-seed 3 --routes 2 --out out/rover_map")
     p.add_argument("--scene", default=DEFAULT_SCENE, metavar="NAME_OR_FILE",
-                   help=scene_help + f"; default {DEFAULT_SCENE!r}")
+                   help=scene_help + MAP_SCENE_HELP + f"; default {DEFAULT_SCENE!r}")
+    add_site_seed_option(p)
     p.add_argument("--out", default="out/rover", metavar="DIR",
                    help="output directory (created if missing); default out/rover")
     p.add_argument("--routes", type=ranged(int, 1, MAX_ROUTES, why="each route is one MuJoCo world with its "

@@ -12,7 +12,9 @@ import numpy as np
 
 from jaxplan.cli.common import (
     FPS,
+    MAP_SCENE_HELP,
     CLIError,
+    add_site_seed_option,
     add_theta_option,
     check_fabric_memory,
     check_out_file,
@@ -50,7 +52,7 @@ def _cmd_fabric(args) -> int:
         raise CLIError(f"--out: the output file must end in '.npz'; got {args.out!r}.")
     check_out_file(args.out)
     params = fabric_params(args)
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, args.site_seed)
     check_fabric_memory(args, scene, params)
     fabric = jax.block_until_ready(build_fabric(scene, params))
     arrays = {
@@ -90,7 +92,7 @@ def _cmd_demo(args) -> int:
     from jaxplan.transport import build_fabric, plan_connectors, plot_fabric
 
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
-    scene = load_scene(args.scene)  # bad input fails here, before the progress bar starts
+    scene = load_scene(args.scene, args.site_seed)  # bad input fails here, before the progress bar starts
     check_fabric_memory(args, scene, params)
     with run_folder(args) as run:
         stages = ["build fabric (first call compiles)", "warm builds", "plan connectors", "plot"]
@@ -286,6 +288,7 @@ def _episode_summary(scene, spec, params, spill, ep, episode) -> dict:
         "shape": [h, w],
         "initial_mass": totals["initial_mass"],
         "initial_remaining": totals["initial_remaining"],
+        "unreachable_mass": float(np.asarray(scene.unreachable_mass)),   # cut off from every target: never pushed
         "delivered": totals["delivered"],
         "spilled": totals["spilled"],
         "remaining": totals["remaining"],
@@ -324,7 +327,7 @@ def _cmd_episode(args) -> int:
 
     matplotlib.use("Agg")
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, args.site_seed)
     check_fabric_memory(args, scene, params)
     with run_folder(args) as run:
         episode = _run_episode(scene, params, spill, ep, record=not args.no_animation)
@@ -417,8 +420,10 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                           "cell_size, origin and the parameters. The file is written atomically "
                           "(temp file + rename)."),
         epilog="example:\n  jaxplan fabric --scene default --theta-tol 45 --out out/fabric.npz\n"
-               "  python -c \"import numpy as np; print(np.load('out/fabric.npz')['value'].max())\"")
-    p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help)
+               "  python -c \"import numpy as np; print(np.load('out/fabric.npz')['value'].max())\"\n"
+               "  jaxplan fabric --scene tests/data/small.map --site-seed 3 --out out/small_map.npz")
+    p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help + MAP_SCENE_HELP)
+    add_site_seed_option(p)
     add_theta_option(p)
     p.add_argument("--tau-h", type=ranged(float, 0.0, 1.0, why="a fraction of the largest heat value"), default=0.5,
                    metavar="X", help="highway threshold (Eq. 11), a fraction of max heat in [0, 1]; default 0.5")
@@ -444,9 +449,11 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                           "holds the fabric's sizes, totals and build times and, under 'episode', "
                           "the initial mass and the final delivered, spilled and remaining mass. "
                           "The first calls compile, which takes some seconds."),
-        epilog="example:\n  jaxplan demo --scene corridor --theta-tol 45 --out out/corridor")
+        epilog="example:\n  jaxplan demo --scene corridor --theta-tol 45 --out out/corridor\n"
+               "  jaxplan demo --scene tests/data/small.map --site-seed 3 --out out/small_map")
     p.add_argument("--scene", default=DEFAULT_SCENE, metavar="NAME_OR_FILE",
-                   help=scene_help + f"; default {DEFAULT_SCENE!r}")
+                   help=scene_help + MAP_SCENE_HELP + f"; default {DEFAULT_SCENE!r}")
+    add_site_seed_option(p)
     p.add_argument("--out", default="out/demo", metavar="DIR",
                    help="output directory (created if missing); default out/demo")
     add_theta_option(p)
@@ -468,8 +475,10 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                           "DIR/episode.gif (heatmap, headings, highways, connector and pushed route, "
                           "tick by tick)."),
         epilog="example:\n  jaxplan episode --scene default --out out/episode\n"
-               "  jaxplan episode --scene my_site.json --lam 0.1 --max-pushes 50 --out out/site")
-    p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help)
+               "  jaxplan episode --scene my_site.json --lam 0.1 --max-pushes 50 --out out/site\n"
+               "  jaxplan episode --scene tests/data/small.map --site-seed 3 --out out/small_map")
+    p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help + MAP_SCENE_HELP)
+    add_site_seed_option(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     add_theta_option(p)
     _add_episode_options(p)

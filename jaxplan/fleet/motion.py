@@ -18,6 +18,10 @@
   rover's cell). It costs d* + 1 rounds instead of the longest shortest path + 1, each round on a
   padded flat layout (``lattice.pad_flat``) with the 3 x 3 minimum taken as a column minimum, then a
   row minimum of that: four slices, no per-direction pad.
+- **Blocked cells** are never passable, and on a site with blocked cells (``corner``, the scene's
+  ``transport.corner_free``) a diagonal step may not cut a blocked cell's corner: the fields then
+  take the minimum over the 8 neighbours one direction at a time, masked by the corner rule, and
+  ``move_rovers`` never takes such a step.
 - **Field update** (``update_fields``): only the stale rovers' fields are recomputed (early stop, at
   their own cells), ``chunk`` rovers at a time (vmapped; a chunk runs until its last rover is
   done), so the cost grows with the number of stale rovers and is nothing when none is stale.
@@ -50,17 +54,19 @@ IDLE, APPROACH, PUSH = 0, 1, 2
 """Rover phases: no task, driving to the task's start, pushing along its route."""
 
 
-def distance_field(goal, passable):
+def distance_field(goal, passable, corner=None):
     """i32[H, W]: 8-connected steps from every cell to ``goal: i32[2]`` through ``passable: bool[H, W]``
     cells; ``FAR`` for impassable cells, cells that cannot reach the goal, and everywhere when the
-    goal itself is not passable."""
+    goal itself is not passable. corner: optional bool[8, H, W], the steps that cut no blocked
+    corner (``transport.corner_free``)."""
     h, w = passable.shape
     rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
     start = jnp.where((rows == goal[0]) & (cols == goal[1]) & passable, 0, FAR).astype(jnp.int32)
 
     def relax(carry):
         d, _ = carry
-        nearest = jnp.min(lattice.neighbours(d, FAR), 0)
+        near = lattice.neighbours(d, FAR)
+        nearest = jnp.min(near if corner is None else jnp.where(corner, near, FAR), 0)
         new = jnp.where(passable, jnp.minimum(d, jnp.minimum(nearest, FAR - 1) + 1), FAR)
         return new, jnp.any(new != d)
 
@@ -72,24 +78,32 @@ distance_fields = jax.vmap(distance_field)
 """i32[N, H, W]: ``distance_field`` for ``goals: i32[N, 2]`` and ``passable: bool[N, H, W]``."""
 
 
-def _relax_flat(d, open_rows, width):
+def _relax_flat(d, open_rows, width, corner_rows=None):
     """One relaxation round on ``lattice.pad_flat``'s layout: ``(d, changed)``.
 
     d: i32[(H + 2) * (W + 2)] distances, ``FAR`` on the border; open_rows: bool[H * (W + 2) - 2]
     passable cells in the rows layout (``lattice.padded_rows``; False on its border positions, which
     so stay ``FAR``); width: W. The 3 x 3 minimum is separable: a column minimum over the rows above
     and below, then a row minimum of that (a cell's own value is in it: min(d, d + 1) = d).
+    corner_rows: optional bool[8, H * (W + 2) - 2], the corner rule in the rows layout: then the
+    minimum is taken direction by direction, each neighbour masked by it.
     """
     stride = width + 2
     n = d.shape[0]
-    column = jnp.minimum(jnp.minimum(d[:n - 2 * stride], d[stride:n - stride]), d[2 * stride:])
-    block = jnp.minimum(jnp.minimum(column[:-2], column[1:-1]), column[2:])
     old = d[stride + 1:n - stride - 1]
+    if corner_rows is None:
+        column = jnp.minimum(jnp.minimum(d[:n - 2 * stride], d[stride:n - stride]), d[2 * stride:])
+        block = jnp.minimum(jnp.minimum(column[:-2], column[1:-1]), column[2:])
+    else:
+        block = old
+        for k, (dr, dc) in enumerate(lattice.DIRS):
+            start = stride + 1 + dr * stride + dc
+            block = jnp.minimum(block, jnp.where(corner_rows[k], d[start:start + old.shape[0]], FAR))
     new = jnp.where(open_rows, jnp.minimum(old, block + 1), FAR)        # FAR + 1 still fits an int32
     return jnp.concatenate([d[:stride + 1], new, d[n - stride - 1:]]), jnp.any(new != old)
 
 
-def distance_field_to(goal, passable, stop_at):
+def distance_field_to(goal, passable, stop_at, corner=None):
     """i32[H, W]: ``distance_field`` stopped once the cell ``stop_at: i32[2]`` is reached (module
     docstring, "Early stop").
 
@@ -97,10 +111,13 @@ def distance_field_to(goal, passable, stop_at):
     distance of ``stop_at``: every cell at distance <= d* holds its exact distance (as
     ``distance_field``), every other cell holds ``FAR``. When ``stop_at`` cannot reach the goal (or
     the goal is not passable) the result equals ``distance_field``. Costs d* + 1 rounds.
+    corner: optional bool[8, H, W] (``distance_field``).
     """
     h, w = passable.shape
     stride = w + 2
     open_rows = lattice.pad_flat(passable, False)[stride + 1:(h + 1) * stride - 1]
+    corner_rows = None if corner is None else jnp.stack(
+        [lattice.padded_rows(lattice.pad_flat(c, False), 0, 0, (h, w)) for c in corner])
     goal_open = passable[goal[0], goal[1]]
     start = jnp.full((h + 2) * stride, FAR, jnp.int32).at[(goal[0] + 1) * stride + goal[1] + 1].set(
         jnp.where(goal_open, 0, FAR))
@@ -111,16 +128,18 @@ def distance_field_to(goal, passable, stop_at):
         return changed & (d[stop] >= FAR)
 
     # An impassable goal leaves everything FAR: no round at all.
-    d, _ = jax.lax.while_loop(going, lambda carry: _relax_flat(carry[0], open_rows, w), (start, goal_open))
+    d, _ = jax.lax.while_loop(going, lambda carry: _relax_flat(carry[0], open_rows, w, corner_rows),
+                              (start, goal_open))
     return d.reshape(h + 2, stride)[1:-1, 1:-1]
 
 
-def update_fields(dist, goals, passable, pos, stale, *, chunk=8):
+def update_fields(dist, goals, passable, pos, stale, *, chunk=8, corner=None):
     """i32[N, H, W]: the stale rovers' fields recomputed (``distance_field_to`` toward their goals,
     stopped at their own cells), every other row of ``dist`` unchanged.
 
     dist: i32[N, H, W] the current fields; goals: i32[N, 2]; passable: bool[N, H, W] (read only for
     stale rovers); pos: i32[N, 2] rover cells; stale: bool[N]; chunk: rovers per batch (static).
+    corner: optional bool[8, H, W] shared by all rovers (``distance_field``).
     The stale rovers are gathered in index order and run ``chunk`` at a time in a ``lax.while_loop``
     over ceil(#stale / chunk) chunks, each chunk vmapped (it runs as many rounds as its slowest rover
     needs; a finished rover's field is held), so nothing runs when no rover is stale.
@@ -129,7 +148,7 @@ def update_fields(dist, goals, passable, pos, stale, *, chunk=8):
     chunk = max(1, min(chunk, n))
     rows = jnp.nonzero(stale, size=-(-n // chunk) * chunk, fill_value=n)[0].astype(jnp.int32).reshape(-1, chunk)
     chunks = (jnp.sum(stale, dtype=jnp.int32) + chunk - 1) // chunk
-    fields_to = jax.vmap(distance_field_to)
+    fields_to = jax.vmap(lambda g, p, s: distance_field_to(g, p, s, corner))
 
     def one_chunk(carry):
         k, dist = carry
@@ -143,13 +162,14 @@ def update_fields(dist, goals, passable, pos, stale, *, chunk=8):
     return jax.lax.while_loop(lambda carry: carry[0] < chunks, one_chunk, (jnp.int32(0), dist))[1]
 
 
-def move_rovers(pos, phase, dist, owner, push_next):
+def move_rovers(pos, phase, dist, owner, push_next, corner=None):
     """One step of every rover, in index order (module docstring): ``(pos i32[N, 2], moved bool[N])``.
 
     pos: i32[N, 2] (row, col), distinct cells; phase: i32[N] (``IDLE``, ``APPROACH``, ``PUSH``);
     dist: i32[N, H, W] each rover's distance field (read for rovers not pushing); owner: i32[H, W]
     footprint owner (-1 none); push_next: i32[N, 2] the next push-path cell of pushing rovers (their
-    own cell when the path is done).
+    own cell when the path is done); corner: optional bool[8, H, W], the steps that cut no blocked
+    corner.
     """
     n = pos.shape[0]
     h, w = owner.shape
@@ -165,6 +185,8 @@ def move_rovers(pos, phase, dist, owner, push_next):
         qf = jnp.where(inside, q[:, 0] * w + q[:, 1], 0)
         mine = (owner.reshape(-1)[qf] < 0) | (owner.reshape(-1)[qf] == r)
         free = inside & mine & (held[qf] < 0)
+        if corner is not None:
+            free = free & corner[:, here[0], here[1]]
         d_nb = jnp.where(free, dist[r].reshape(-1)[qf], FAR + 1)
         k = jnp.argmin(d_nb)
         closer = d_nb[k] < dist[r, here[0], here[1]]

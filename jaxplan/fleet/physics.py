@@ -12,9 +12,11 @@ world, and reports what the 2D fleet model assumes but cannot see:
   predicts) against the simulated delivered mass, and whether they agree within ``tolerance``
   (15%: the fleet issue's target).
 
-The world (``build_world(..., n_rovers=N)``) holds the particles of every route's non-target cells
-(``particle_layout``, seeded by the route's index); a cell on several routes gets its particles once,
-for the lowest-index route (only crossing routes share cells). A particle is attributed to the route
+The world (``build_world(..., n_rovers=N)``; the scene's blocked cells are static boxes in it, which
+rovers and particles collide with, and a rover's contact with one is no rover-rover contact) holds the
+particles of every route's non-target cells (``particle_layout``, seeded by the route's index); a
+cell on several routes gets its particles once, for the lowest-index route (only crossing routes
+share cells). A particle is attributed to the route
 whose cell it started on and ends in exactly one of: delivered (a target cell), left behind (a cell
 of its own route), spilled (another in-grid cell, possibly another route's), lost (off the grid, or
 the physics diverged): ``bridge.particle_fates``. Other cells keep their counts and have no
@@ -271,7 +273,8 @@ def _particles(scene, routes, n: int, cfg: RoverConfig):
 
 
 def _geom_rover(world: World) -> np.ndarray:
-    """``i32[ngeom]``: the rover each geom belongs to (its root body's), -1 for the floor and particles."""
+    """``i32[ngeom]``: the rover each geom belongs to (its root body's), -1 for the floor, the blocked
+    cells' boxes and the particles (a rover against a wall is no rover-rover contact)."""
     m = world.model
     roots = {int(m.body_rootid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY,
                                                  rover_prefix(i, world.n_rovers) + "rover")]): i

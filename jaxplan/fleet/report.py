@@ -3,15 +3,20 @@
 Everything here reads a :class:`jaxplan.fleet.run.FleetRun` and nothing else. The files
 :func:`write_fleet_outputs` writes into a run's output folder (``FLEET_OUTPUTS``):
 
-- ``summary.json``, :func:`summary_of`: the run in numbers (mass, T50 / T90, pushes and idle time
-  per rover, planning time per event, conflicts, stop reason);
+- ``summary.json``, :func:`summary_of`: the run in numbers (the scene's name, mass, mass cut off
+  from every target, T50 / T90, pushes and idle time per rover, planning time per event, conflicts,
+  stop reason);
 - ``trajectory.npz``, :func:`trajectory_arrays`: ``pos i32[T+1, N, 2]`` (row, col), ``delivered
-  f64[T+1]``, ``outside f64[T+1]`` (objects), ``initial_mass f64[]``;
+  f64[T+1]``, ``outside f64[T+1]`` (objects), ``initial_mass f64[]``, the counts ``obj_initial`` and
+  ``obj_final`` (f32[H, W]) and ``convention`` (a string: cells are (row, col), rows = y);
 - ``pushes.json``, :func:`pushes_records`: one record per push;
 - ``fleet.png``, :func:`plot_fleet`: delivered mass over time with T50 / T90, and the final counts
   with the rovers' final cells;
 - ``fleet.gif``, :func:`animate_fleet`: heatmap, highways, every rover and its current route, step
   by step (from ``run.frames``; only when the run was recorded).
+
+Both pictures draw the scene's blocked cells (``scene.blocked``) as solid dark-grey squares, like
+every scene figure of :mod:`jaxplan.transport.viz` (``draw_blocked``).
 
 T50 and T90 are the first step at which the mass delivered since the start (``delivered[t] -
 delivered[0]``) reaches 50% / 90% of the mass that started outside the targets; None if it never
@@ -26,10 +31,10 @@ import numpy as np
 
 from jaxplan.core import save_animation
 from jaxplan.fleet.run import FleetRun
-from jaxplan.transport import PALETTE, cell_edges, polygon_rings
+from jaxplan.transport import PALETTE, blocked_handle, blocked_of, cell_edges, draw_blocked, polygon_rings
 
-__all__ = ["DEFAULT_MAX_FRAMES", "FLEET_OUTPUTS", "animate_fleet", "frame_steps", "plot_fleet", "pushes_records",
-           "summary_of", "t_fraction", "trajectory_arrays", "write_fleet_outputs"]
+__all__ = ["DEFAULT_MAX_FRAMES", "FLEET_OUTPUTS", "TRAJECTORY_CONVENTION", "animate_fleet", "frame_steps",
+           "plot_fleet", "pushes_records", "summary_of", "t_fraction", "trajectory_arrays", "write_fleet_outputs"]
 
 FLEET_OUTPUTS = ("summary.json", "trajectory.npz", "pushes.json", "fleet.png", "fleet.gif")
 
@@ -82,6 +87,8 @@ def summary_of(run: FleetRun) -> dict:
     delivered: mass brought into the targets during the run (``delivered[T] - delivered[0]``);
     spilled: sum of the pushes' spills (spilled mass stays on the site and may be pushed again);
     remaining: mass outside the targets at the end. idle_fraction: ``idle_steps / steps`` per rover.
+    scene: the scene's name (``FleetRun.scene_name``), None without one. unreachable_mass: objects on
+    free cells cut off from every target by blocked cells (``Scene.unreachable_mass``): never pushed.
     delivered_per_rover_step: delivered / (N * T). plan_ms: per planning event (a step in which an
     assignment happened and no push ended, so no fabric refresh), median and p95 (None without events).
     """
@@ -90,13 +97,14 @@ def summary_of(run: FleetRun) -> dict:
     plan = np.asarray(run.plan_ms, np.float64)
     has_plan = plan.size > 0
     return {
-        "scene": getattr(run.scene, "name", None),
+        "scene": run.scene_name if run.scene_name is not None else getattr(run.scene, "name", None),
         "grid": list(run.scene.shape),
         "n_rovers": n,
         "strategy": str(run.strategy),
         "steps": t,
         "initial_mass": float(run.initial_mass),
         "initial_outside": float(run.initial_outside),
+        "unreachable_mass": float(np.asarray(run.scene.unreachable_mass)),
         "delivered": delivered,
         "spilled": float(sum(float(p["spilled"]) for p in run.pushes)),
         "remaining": float(run.outside[-1]),
@@ -115,15 +123,27 @@ def summary_of(run: FleetRun) -> dict:
     }
 
 
+TRAJECTORY_CONVENTION = "cells are (row, col); rows = y, columns = x"
+
+
 def trajectory_arrays(run: FleetRun) -> dict:
     """The arrays of trajectory.npz: ``pos i32[T+1, N, 2]`` (row, col), ``delivered f64[T+1]`` (mass
-    inside the targets), ``outside f64[T+1]`` (mass outside), ``initial_mass f64[]`` (objects)."""
+    inside the targets), ``outside f64[T+1]`` (mass outside), ``initial_mass f64[]`` (objects),
+    ``obj_initial`` and ``obj_final`` (f32[H, W], the counts at the start and the end; rows = y) and
+    ``convention`` (a string scalar, ``TRAJECTORY_CONVENTION``)."""
     _check_run(run)
+    grids = {"obj_initial": run.scene.obj, "obj_final": run.final_scene.obj}
+    for field, obj in grids.items():
+        if np.shape(obj) != tuple(run.scene.shape):
+            raise ValueError(f"FleetRun.{'scene' if field == 'obj_initial' else 'final_scene'}: counts of shape "
+                             f"{np.shape(obj)}, expected the grid's {tuple(run.scene.shape)}.")
     return {
         "pos": np.asarray(run.pos, np.int32),
         "delivered": np.asarray(run.delivered, np.float64),
         "outside": np.asarray(run.outside, np.float64),
         "initial_mass": np.asarray(run.initial_mass, np.float64),
+        **{field: np.asarray(obj, np.float32) for field, obj in grids.items()},
+        "convention": np.asarray(TRAJECTORY_CONVENTION),
     }
 
 
@@ -161,6 +181,18 @@ def _frame_of(scene):
     return x0, y0, s, extent, centre
 
 
+def _finite_max(arrays) -> float:
+    """The largest finite value over ``arrays`` if > 0, else 1.0 (a colour scale's top that NaN / inf
+    cannot break or stretch)."""
+    top = 0.0
+    for a in arrays:
+        a = np.asarray(a, np.float64)
+        finite = a[np.isfinite(a)]
+        if finite.size:
+            top = max(top, float(finite.max()))
+    return top if top > 0 else 1.0
+
+
 def _rover_colors(n: int):
     """One colour per rover, hues from green through blue to magenta: clear of the ``hot`` heatmap's
     reds and yellows (and of the cyan highways for small N)."""
@@ -168,6 +200,12 @@ def _rover_colors(n: int):
 
     hues = 0.3 + 0.62 * np.arange(n) / max(n - 1, 1) if n > 1 else np.array([0.6])
     return [mcolors.hsv_to_rgb((h, 0.85, 1.0)) for h in hues]
+
+
+def _blocked_cells(run: FleetRun) -> np.ndarray:
+    """``bool[H, W]``: the cells blocked in the run's scene or its final scene (the same mask, as a
+    run never changes its geometry; a scene without blocked cells gives all False)."""
+    return blocked_of(run.scene) | blocked_of(run.final_scene)
 
 
 def _draw_targets(ax, scene, x0, y0, s, lw):
@@ -213,6 +251,8 @@ def plot_fleet(run: FleetRun):
                       cmap="viridis", interpolation="nearest")
     fig.colorbar(im, ax=right, fraction=0.046, pad=0.03).set_label("objects left per cell")
     _draw_targets(right, scene, x0, y0, s, lw=1.2 if max(h, w) <= 80 else 0.6)
+    if draw_blocked(right, _blocked_cells(run), s, (x0, y0)) is not None:
+        right.legend(handles=[blocked_handle()], loc="upper left", fontsize=7, framealpha=0.75)
     final = centre(np.asarray(run.pos)[-1])
     right.scatter(final[:, 0], final[:, 1], c=_rover_colors(n), s=36 if n <= 16 else 14, edgecolors="white",
                   linewidths=0.8, zorder=6)
@@ -250,9 +290,10 @@ def animate_fleet(run: FleetRun, path, *, fps: int = 8, max_frames: int = DEFAUL
     """Write the recorded run step by step to ``path`` (``.gif`` with Pillow, ``.mp4`` with ffmpeg).
 
     Each frame: the heatmap ``H(X)`` (``hot``), the counts as a white veil, highway cells tinted cyan,
-    the targets outlined, and every rover (one colour each) with its current route as a line from
-    the route's start. At most ``max_frames`` frames (evenly subsampled, :func:`frame_steps`).
-    progress: optional ``progress(i, n)`` after each rendered frame. Returns the frames written.
+    blocked cells as dark-grey squares, the targets outlined, and every rover (one colour each) with
+    its current route as a line from the route's start. At most ``max_frames`` frames (evenly
+    subsampled, :func:`frame_steps`). progress: optional ``progress(i, n)`` after each rendered
+    frame. Returns the frames written.
     Needs ``run.frames`` (``run_fleet(..., record=True)``).
     """
     import matplotlib.pyplot as plt
@@ -267,8 +308,12 @@ def animate_fleet(run: FleetRun, path, *, fps: int = 8, max_frames: int = DEFAUL
     h, w = scene.shape
     pos = np.asarray(run.pos)
     colors = _rover_colors(n)
-    vmax = max(float(np.max(frames[i]["heat"])) for i, _ in picks) or 1.0
-    obj_max = max(float(np.max(frames[i]["obj"])) for i, _ in picks) or 1.0
+    vmax = _finite_max(frames[i]["heat"] for i, _ in picks)
+    obj_max = _finite_max(frames[i]["obj"] for i, _ in picks)
+
+    def heat(values):   # non-finite heat left blank, never on the colour scale
+        values = np.asarray(values, np.float64)
+        return np.where(np.isfinite(values), values, np.nan)
 
     def veil(obj):   # counts as white with alpha ~ count: the material shows over the heatmap
         rgba = np.ones((h, w, 4))
@@ -282,11 +327,12 @@ def animate_fleet(run: FleetRun, path, *, fps: int = 8, max_frames: int = DEFAUL
 
     fig, ax = plt.subplots(figsize=(7.2, 6.4))
     first = frames[picks[0][0]]
-    im = ax.imshow(first["heat"], origin="lower", extent=extent, cmap="hot", vmin=0, vmax=vmax,
+    im = ax.imshow(heat(first["heat"]), origin="lower", extent=extent, cmap="hot", vmin=0, vmax=vmax,
                    interpolation="nearest", zorder=0)
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03).set_label("heat H(X) (objects)")
     obj_im = ax.imshow(veil(first["obj"]), origin="lower", extent=extent, interpolation="nearest", zorder=1)
     hw_im = ax.imshow(tint(first["highways"]), origin="lower", extent=extent, interpolation="nearest", zorder=2)
+    draw_blocked(ax, _blocked_cells(run), s, (x0, y0), zorder=3)   # the same cells in every frame
     _draw_targets(ax, scene, x0, y0, s, lw=1.2 if max(h, w) <= 80 else 0.6)
     route_lines = [ax.plot([], [], color=colors[i], lw=1.8, alpha=0.9, zorder=6)[0] for i in range(n)]
     rovers = ax.scatter(np.zeros(n), np.zeros(n), c=colors, s=40 if n <= 16 else 14, edgecolors="white",
@@ -304,7 +350,7 @@ def animate_fleet(run: FleetRun, path, *, fps: int = 8, max_frames: int = DEFAUL
     def draw(k):
         i, step = picks[k]
         f = frames[i]
-        im.set_data(f["heat"])
+        im.set_data(heat(f["heat"]))
         obj_im.set_data(veil(f["obj"]))
         hw_im.set_data(tint(f["highways"]))
         xy = centre(pos[step])

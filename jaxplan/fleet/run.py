@@ -50,6 +50,8 @@ class FleetRun:
     "highways": bool[H, W], "routes": N entries, i32[k, 2] cells of the rover's task or None}.
     kernel_conflicts: the step's own count of the same violations (``FleetRecord.conflicts``), summed.
     dropped: tasks dropped because their start could not be reached.
+    scene_name: the name of the scene the run was given (``scene`` is the compiled step's copy, which
+    carries no name); None when it had none. summary.json's ``scene`` (``report.summary_of``).
     """
 
     scene: Scene
@@ -72,6 +74,7 @@ class FleetRun:
     frames: list | None = None
     kernel_conflicts: int = 0
     dropped: int = 0
+    scene_name: str | None = None
 
 
 def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts,
@@ -94,12 +97,13 @@ def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max
             not 1 <= max_steps <= MAX_STEPS_LIMIT:
         raise ValueError(f"max_steps: {max_steps!r} is out of range; it must be an int in [1, {MAX_STEPS_LIMIT}].")
     target = np.asarray(scene.target_mask)
-    free = int(target.size - target.sum())
+    no_start = target | ~np.isfinite(np.asarray(scene.dist))
+    free = int(no_start.size - no_start.sum())
     if free < n_rovers:
-        raise ValueError(f"n_rovers: {n_rovers} rovers need as many cells outside the targets; the scene has "
-                         f"{free}. Use at most {free} rovers.")
+        raise ValueError(f"n_rovers: {n_rovers} rovers need as many free cells outside the targets (not blocked, "
+                         f"not cut off from every target); the scene has {free}. Use at most {free} rovers.")
     if starts is not None:
-        _check_starts(starts, n_rovers, target)
+        _check_starts(starts, n_rovers, target, np.asarray(scene.blocked), np.asarray(scene.cut_off))
     check_fleet_memory(scene.shape, config, params)
 
 
@@ -116,9 +120,9 @@ def _matching_config(config: FleetConfig | None, n_rovers: int, strategy: str) -
     return config
 
 
-def _check_starts(starts, n_rovers: int, target: np.ndarray) -> None:
+def _check_starts(starts, n_rovers: int, target: np.ndarray, blocked: np.ndarray, cut_off: np.ndarray) -> None:
     """ValueError naming ``starts`` unless it holds ``n_rovers`` distinct (row, col) cells of the grid
-    outside the targets (``target: bool[H, W]``)."""
+    outside the targets (``target: bool[H, W]``), none blocked or cut off from every target."""
     cells = np.asarray(starts)
     h, w = target.shape
     if cells.shape != (n_rovers, 2) or not np.issubdtype(cells.dtype, np.integer):
@@ -131,6 +135,12 @@ def _check_starts(starts, n_rovers: int, target: np.ndarray) -> None:
         raise ValueError(f"starts: two rovers start on one cell; give {n_rovers} distinct cells.")
     if np.any(target[cells[:, 0], cells[:, 1]]):
         raise ValueError("starts: a rover starts inside a target; start every rover outside the targets.")
+    for bad, what in ((blocked, "on a blocked cell"), (cut_off, "on a cell cut off from every target")):
+        hit = bad[cells[:, 0], cells[:, 1]]
+        if np.any(hit):
+            r, c = cells[np.argmax(hit)]
+            raise ValueError(f"starts: rover {int(np.argmax(hit))} starts {what} (row {r}, col {c}); start it on a "
+                             "free cell a target can be reached from.")
 
 
 def _gb(n: int) -> str:
@@ -307,5 +317,5 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
         rover_pushes=np.asarray(final.pushes, np.int32), idle_steps=np.asarray(final.idle_steps, np.int32),
         plan_ms=plan_ms, conflicts=len(conflicts(pos, reservations)), stop_reason=reason,
         message=_message(reason, final, episode, int(max_steps)), frames=frames,
-        kernel_conflicts=kernel_conflicts, dropped=dropped)
+        kernel_conflicts=kernel_conflicts, dropped=dropped, scene_name=getattr(scene, "name", None))
 

@@ -68,9 +68,10 @@ def _border_order(shape) -> np.ndarray:
 
 
 def spread_starts(target_mask, n: int):
-    """i32[N, 2]: n distinct cells outside the target, spread evenly along the grid's border
-    (clockwise from the top-left corner; the interior row-major where the border has too few). The
-    grid must have at least n cells outside the target."""
+    """i32[N, 2]: n distinct cells outside ``target_mask`` (bool[H, W]: the targets, and any other cell
+    a rover may not start on), spread evenly along the grid's border (clockwise from the top-left
+    corner; the interior row-major where the border has too few). The grid must have at least n
+    cells outside the mask."""
     h, w = target_mask.shape
     order = jnp.asarray(_border_order((h, w)))
     border = jnp.arange(h * w) < (2 * (h + w) - 4 if h > 1 and w > 1 else h * w)
@@ -85,8 +86,9 @@ def spread_starts(target_mask, n: int):
 
 def sector_starts(target_mask, region: np.ndarray):
     """i32[N, 2]: for each sector i of ``region`` (a concrete i32[H, W], ``sectors``), the cell outside
-    the target nearest the sector's centre (ties: row-major), chosen in sector order among cells
-    not yet taken; a sector with no such cell takes the nearest free cell outside it."""
+    ``target_mask`` (as in ``spread_starts``) nearest the sector's centre (ties: row-major), chosen
+    in sector order among cells not yet taken; a sector with no such cell takes the nearest free cell
+    outside it."""
     h, w = target_mask.shape
     region = np.asarray(region)
     n = int(region.max()) + 1

@@ -56,6 +56,7 @@ from jaxplan.transport import (
     FabricParams,
     Route,
     build_fabric,
+    corner_free,
     default_walk_cap,
     estimate_build_bytes,
     execute_push,
@@ -326,7 +327,7 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
     every rover idle at its start cell, the stop checks of an episode's start applied (no material,
     done, budget 0). Pure and jittable (``vmap`` it over scenes of one shape).
 
-    starts: i32[N, 2] distinct cells outside the targets (default: ``sectors.spread_starts``, or
+    starts: i32[N, 2] distinct free cells outside the targets (default: ``sectors.spread_starts``, or
     ``sectors.sector_starts`` for ``partitioned``, so rover i starts in sector i); not checked here
     (``run_fleet`` does). max_steps: step limit (default 100,000). max_pushes: the push budget
     (default ``episode.max_pushes``; an argument so a traced one needs no recompile). Only spill's
@@ -342,14 +343,15 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
     n = cfg.n_rovers
     scene = scene.with_obj(quantize(scene.obj))
     fabric = build_fabric(scene, params)
-    target = jnp.asarray(scene.target_mask, bool)
+    # no rover starts in a target, on a blocked cell or on a cell cut off from every target
+    no_start = jnp.asarray(scene.target_mask, bool) | ~jnp.isfinite(scene.dist)
     if cfg.strategy == "partitioned":
         cells = sectors.sectors(shape, n)
         region = jnp.asarray(cells)
-        default_starts = sectors.sector_starts(target, cells)
+        default_starts = sectors.sector_starts(no_start, cells)
     else:
         region = jnp.full(shape, -1, jnp.int32)
-        default_starts = sectors.spread_starts(target, n)
+        default_starts = sectors.spread_starts(no_start, n)
     pos = default_starts if starts is None else _i32(starts).reshape(n, 2)
     s = route_slots(cfg, shape)
     route = Route(jnp.full((n, s, 2), -1, jnp.int32), jnp.ones(n, jnp.int32), jnp.zeros(n, bool),
@@ -427,9 +429,10 @@ def _parked(pos, home, phase):
     return (phase == IDLE) & jnp.all(pos == home, -1)
 
 
-def _fields(dist, pos, home, phase, route, owner, stale):
+def _fields(dist, pos, home, phase, route, owner, stale, blocked):
     """Step 2: ``(dist i32[N, H, W], computed bool[N])``: the distance fields (module docstring),
-    recomputed for the ``stale: bool[N]`` rovers that drive (``computed``); the other rows kept."""
+    recomputed for the ``stale: bool[N]`` rovers that drive (``computed``); the other rows kept.
+    blocked: bool[H, W], the scene's blocked cells (never passable, their corners never cut)."""
     n = pos.shape[0]
     h, w = owner.shape
     parked_rover = _parked(pos, home, phase)
@@ -437,10 +440,15 @@ def _fields(dist, pos, home, phase, route, owner, stale):
         jnp.where(parked_rover, jnp.arange(n, dtype=jnp.int32), -1)).reshape(h, w)
     rovers = jnp.arange(n, dtype=jnp.int32)[:, None, None]
     passable = ((owner[None] < 0) | (owner[None] == rovers)) & ((parked[None] < 0) | (parked[None] == rovers))
+    passable = passable & ~blocked[None]
     goals = jnp.where((phase == APPROACH)[:, None], route.cells[:, 0], home)
     drives = (phase == APPROACH) | ((phase == IDLE) & ~parked_rover)
     computed = stale & drives
-    return motion.update_fields(dist, goals, passable, pos, computed, chunk=FIELD_CHUNK), computed
+    update = lambda corner: motion.update_fields(dist, goals, passable, pos, computed,  # noqa: E731
+                                                 chunk=FIELD_CHUNK, corner=corner)
+    # the corner rule's per-direction minimum costs twice the open site's separable one
+    fields = jax.lax.cond(jnp.any(blocked), lambda _: update(corner_free(blocked)), lambda _: update(None), None)
+    return fields, computed
 
 
 def _conflicts(before, after, moved, owner):
@@ -509,7 +517,7 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     progress = jnp.where(assigned, 0, state.progress)
     # 2. distance fields, unreachable starts dropped
     stale = state.stale | assigned | jnp.any(assigned)      # a new goal, or new footprints in the way
-    dist, computed = _fields(state.dist, state.pos, state.home, phase, route, owner, stale)
+    dist, computed = _fields(state.dist, state.pos, state.home, phase, route, owner, stale, state.scene.blocked)
     here = dist[jnp.arange(n), state.pos[:, 0], state.pos[:, 1]]
     dropped = (phase == APPROACH) & (here >= FAR)
     owner = jnp.where((owner >= 0) & dropped[jnp.maximum(owner, 0)], -1, owner)
@@ -517,7 +525,7 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     idle_now = phase == IDLE
     # 3. move
     push_next = jax.vmap(lambda r, k: footprint.path_cell(r, k))(route, progress + 1)
-    pos, moved = motion.move_rovers(state.pos, phase, dist, owner, push_next)
+    pos, moved = motion.move_rovers(state.pos, phase, dist, owner, push_next, corner_free(state.scene.blocked))
     conflicts = _conflicts(state.pos, pos, moved, owner)
     pushing = phase == PUSH
     progress = jnp.where(pushing & moved, progress + 1, progress)

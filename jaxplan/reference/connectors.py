@@ -56,7 +56,7 @@ def anchors(heat, highways, occupied, cell_size, anchor_lambda) -> np.ndarray:
     return out
 
 
-def anchor_graph(root, anchor, obj, occupied, cell_size, cos_theta, monotone):
+def anchor_graph(root, anchor, obj, occupied, cell_size, cos_theta, monotone, blocked=None):
     """The successor graph oriented to ``anchor`` and the nodes reachable from ``root``.
 
     Returns ``(graph, forward, nodes, longest)``: the search ``Graph`` (with its ``h_raw`` filled in
@@ -93,6 +93,8 @@ def anchor_graph(root, anchor, obj, occupied, cell_size, cos_theta, monotone):
                 continue
             if not cone_ok(fwd, k, cos_theta):
                 continue
+            if blocked is not None and dr and dc and (blocked[r + dr, c] or blocked[r, c + dc]):
+                continue
             if monotone and not (dist_to_anchor(nxt) < dist_to_anchor(cell) - MONOTONE_EPS * s):
                 continue
             out.append((k, nxt, is_goal))
@@ -114,7 +116,7 @@ def anchor_graph(root, anchor, obj, occupied, cell_size, cos_theta, monotone):
     return graph, forward, order, longest
 
 
-def connector(root, anchor, obj, occupied, cell_size, cos_theta, *, monotone, max_hops, stats):
+def connector(root, anchor, obj, occupied, cell_size, cos_theta, *, monotone, max_hops, stats, blocked=None):
     """The best connector ``root -> anchor`` as a ``Candidate`` (``None`` if no path exists).
 
     obj: f64[H, W]; occupied: bool[H, W]; cell_size: world units; cos_theta: ``cos(theta_tol)``.
@@ -122,7 +124,7 @@ def connector(root, anchor, obj, occupied, cell_size, cos_theta, *, monotone, ma
     the path, or, for a connector that falls back at the root, the in-grid neighbour best aligned with
     the direction to the anchor (as for target fallbacks); ``None`` if undefined.
     """
-    graph, forward, _, longest = anchor_graph(root, anchor, obj, occupied, cell_size, cos_theta, monotone)
+    graph, forward, _, longest = anchor_graph(root, anchor, obj, occupied, cell_size, cos_theta, monotone, blocked)
     if monotone:
         # Per-node pruning is exact unless the hop cap can cut a path short (then per (node, hops)).
         dominance = "node" if longest[root] <= max_hops else "node_hops"
@@ -140,7 +142,8 @@ def connector(root, anchor, obj, occupied, cell_size, cos_theta, *, monotone, ma
     return best, hop
 
 
-def connectors(anchor, obj, occupied, value, length, cell_size, cos_theta, *, monotone, max_hops, stats):
+def connectors(anchor, obj, occupied, value, length, cell_size, cos_theta, *, monotone, max_hops, stats,
+               blocked=None):
     """Connectors and via-highway routes for every root with an anchor.
 
     anchor: int[H, W, 2] from ``anchors``; obj: f64[H, W]; value, length: f64[H, W] ``J`` and ``L``.
@@ -164,7 +167,7 @@ def connectors(anchor, obj, occupied, value, length, cell_size, cos_theta, *, mo
                 continue
             hstar = (int(anchor[r, c, 0]), int(anchor[r, c, 1]))
             best, hop = connector((r, c), hstar, obj, occupied, cell_size, cos_theta,
-                                  monotone=monotone, max_hops=max_hops, stats=stats)
+                                  monotone=monotone, max_hops=max_hops, stats=stats, blocked=blocked)
             if best is None:
                 conn_raw[r, c], conn_len[r, c] = -math.inf, math.inf
                 via_raw[r, c], via_len[r, c] = -math.inf, math.inf

@@ -90,12 +90,13 @@ def first_visits(cells):
 
 
 def execute_route(obj, target_mask, dist, tvec, cell_size, origin, cells, fallback, *,
-                  lam: float, threshold: float, samples_per_step: int, spline_alpha: float = 0.5):
+                  lam: float, threshold: float, samples_per_step: int, spline_alpha: float = 0.5, blocked=None):
     """Push the route ``cells`` (list of (row, col)) on a copy of ``obj``.
 
     Returns ``(new_obj, info)`` with info keys ``collected``, ``spilled``, ``delivered`` (collected - spilled),
     ``residual_load`` (the evaluator's delivered mass, before spills are rounded to ``QUANTUM``), ``length``,
-    ``samples``, ``spills``, ``drop_cells``.
+    ``samples``, ``spills``, ``drop_cells``. blocked: optional bool[H, W]; a spill that would land on a
+    blocked cell drops on the route cell its sample's segment leaves instead.
     """
     obj = np.array(obj, np.float64)
     h, w = obj.shape
@@ -125,7 +126,7 @@ def execute_route(obj, target_mask, dist, tvec, cell_size, origin, cells, fallba
             left = np.array([-s["tangent"][1], s["tangent"][0]])
             x, y = s["pos"] - math.copysign(1.0, s["turn"]) * left * cell_size
             r, c = math.floor((y - oy) / cell_size), math.floor((x - ox) / cell_size)
-            if 0 <= r < h and 0 <= c < w and not target_mask[r, c]:
+            if 0 <= r < h and 0 <= c < w and not target_mask[r, c] and not (blocked is not None and blocked[r, c]):
                 drop = (r, c)
         drops.append(drop)
         obj[drop] += amount

@@ -104,7 +104,7 @@ def _new_stats() -> dict:
 def reference_fabric(obj, target_mask, dist, tvec, cell_size, theta_tol_deg, *, monotone=True, k=4,
                      slack_tau=None, reuse=True, max_hops=None, tau_h=0.5, highway_relative=True,
                      highway_smoothing=False, highway_nms=False, anchor_lambda=1.0,
-                     with_connectors=True) -> ReferenceFabric:
+                     with_connectors=True, blocked=None) -> ReferenceFabric:
     """Build the fabric serially (Sections 3.1-3.4, Algorithms 1-4).
 
     obj: f[H, W], objects per cell (rounded to float32 values, the kernels' dtype, then float64: sums
@@ -119,6 +119,8 @@ def reference_fabric(obj, target_mask, dist, tvec, cell_size, theta_tol_deg, *, 
       it changes the work, never the result. max_hops: grid-step cap; default H*W with the monotone
       rule, 2*(H+W) without. tau_h, highway_relative, highway_smoothing, highway_nms: Eq. 11.
     anchor_lambda: Eq. 12, heat units per world unit. with_connectors: compute anchors/connectors.
+    blocked: optional bool[H, W], blocked cells (``dist`` is then the obstacle-aware distance, inf on
+      cells cut off from every target, which are not occupied).
     """
     t_start = time.perf_counter()
     obj = np.asarray(obj, dtype=np.float32).astype(np.float64)
@@ -138,7 +140,7 @@ def reference_fabric(obj, target_mask, dist, tvec, cell_size, theta_tol_deg, *, 
         raise ValueError(f"reference_fabric: need k >= 1, max_hops >= 1 and cell_size > 0; "
                          f"got k={k}, max_hops={max_hops}, cell_size={s}.")
     max_hops = int(max_hops)
-    occupied = ~target & (obj > 0)
+    occupied = ~target & (obj > 0) & np.isfinite(dist)
 
     # --- Visibility (Algorithm 1) for every occupied cell, once.
     succ = {}
@@ -146,7 +148,7 @@ def reference_fabric(obj, target_mask, dist, tvec, cell_size, theta_tol_deg, *, 
     for r in range(h):
         for c in range(w):
             if occupied[r, c]:
-                vis = successors(r, c, occupied, target, dist, tvec, s, cos_theta, monotone)
+                vis = successors(r, c, occupied, target, dist, tvec, s, cos_theta, monotone, blocked)
                 succ[(r, c)] = [(d, nxt, bool(target[nxt])) for d, nxt in vis]
                 for d, _ in vis:
                     feasible[r, c, d] = True
@@ -238,7 +240,7 @@ def reference_fabric(obj, target_mask, dist, tvec, cell_size, theta_tol_deg, *, 
         anchor = find_anchors(heat, highways, occupied, s, anchor_lambda)
         conn_raw, conn_len, conn_hop, via_raw, via_len, conn_paths = find_connectors(
             anchor, obj, occupied, value, length, s, cos_theta, monotone=monotone, max_hops=max_hops,
-            stats=conn_stats)
+            stats=conn_stats, blocked=blocked)
     else:
         anchor = np.full((h, w, 2), -1, dtype=np.int64)
         conn_hop = np.full((h, w, 2), -1, dtype=np.int64)

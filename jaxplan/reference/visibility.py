@@ -66,13 +66,14 @@ def cone_ok(forward_xy, k: int, cos_theta: float) -> bool:
     return forward_xy[0] * ux + forward_xy[1] * uy >= cos_theta - CONE_EPS
 
 
-def successors(r, c, occupied, target_mask, dist, tvec, cell_size, cos_theta, monotone=True):
+def successors(r, c, occupied, target_mask, dist, tvec, cell_size, cos_theta, monotone=True, blocked=None):
     """``Vis(C)`` for cell ``C = (r, c)`` (Algorithm 1), as a list of ``(direction, (row, col))``.
 
     occupied: bool[H, W] (non-target cells with obj > 0); target_mask: bool[H, W];
     dist: f64[H, W], world units, d(., T) (0 on target cells); tvec: f64[H, W, 2], unit (x, y) vector
     to the closest boundary point; cell_size: world units; cos_theta: ``cos(theta_tol)``;
-    monotone: apply the strict monotone rule.
+    monotone: apply the strict monotone rule. blocked: optional bool[H, W]; a diagonal step may not
+    pass between a blocked cell and another cell (cut its corner).
 
     The list is in direction order (0..7). Only occupied cells have successors; an empty list means
     the boundary fallback (see ``fallback_hop``).
@@ -90,6 +91,8 @@ def successors(r, c, occupied, target_mask, dist, tvec, cell_size, cos_theta, mo
         if not (occupied[nr, nc] or target_mask[nr, nc]):
             continue
         if not cone_ok(forward, k, cos_theta):
+            continue
+        if blocked is not None and dr and dc and (blocked[r + dr, c] or blocked[r, c + dc]):
             continue
         # Strictly closer: makes the successor graph acyclic (every step lowers d by > 1e-5 s).
         if monotone and not (dist[nr, nc] < dist[r, c] - MONOTONE_EPS * cell_size):

@@ -43,7 +43,7 @@ def metrics_of(scene, fp: FabricParams, sp: SpillParams, top: int, max_steps: in
     entry = sel.entry[:, None]
     raw = jnp.take_along_axis(fab.table.raw[sources[:, 0], sources[:, 1]], entry, -1)[:, 0]
     delivered = jnp.take_along_axis(sel.delivered, entry, -1)[:, 0]
-    hops = jnp.take_along_axis(count_table_hops(fab.table)[sources[:, 0], sources[:, 1]], entry, -1)[:, 0]
+    hops = jnp.take_along_axis(count_table_hops(fab.table, scene.detour)[sources[:, 0], sources[:, 1]], entry, -1)[:, 0]
     # +1: a route ending in a boundary fallback takes one more walk step (conservative for the others)
     truncated = valid & (hops + 1 > max_steps)
     return dict(out, top_collected=jnp.sum(jnp.where(valid, raw, 0.0)),

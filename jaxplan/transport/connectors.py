@@ -129,7 +129,7 @@ def _connector_table(scene, fabric: Fabric, params: FabricParams, anchor_flat, c
     goal, dist, unit = anchor_frame(centers, anchor_flat)
     table, _, _, _ = continuation_dp(
         scene.obj, fabric.occupied & ~goal, goal, dist, unit, params.theta_tol_deg, scene.cell_size,
-        monotone=params.monotone, k=1, max_hops=params.resolved_max_hops((h, w)))
+        monotone=params.monotone, k=1, max_hops=params.resolved_max_hops((h, w)), blocked=scene.blocked)
     return table
 
 

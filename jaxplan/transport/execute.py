@@ -2,7 +2,8 @@
 
 Mass bookkeeping (docs/transport.md, "Executing a route"): the route's non-target cells are emptied
 (each cell once), every spline sample's spill is dropped one cell size to the *outside* of the turn
-(or, if that point is off the grid or in the target, back on the cell the sample's segment leaves),
+(or, if that point is off the grid, in the target or on a blocked cell, back on the cell the sample's
+segment leaves, a free route cell),
 and the rest, ``delivered = collected - sum(spill)``, is added to one target cell: the cell the route
 enters, or for a fallback route the target cell nearest to its boundary point. The grid's total mass
 is therefore unchanged up to float rounding.
@@ -141,7 +142,7 @@ def spill_cells(scene, route: Route, samples: spillage.PathSamples):
     left = jnp.stack([-samples.tangent[:, 1], samples.tangent[:, 0]], -1)
     outside = -jnp.sign(samples.turn)[:, None] * left
     r, c, inside = _cell_of(scene, samples.pos + outside * scene.cell_size)
-    ok = inside & ~scene.target_mask[r, c] & (samples.turn != 0)
+    ok = inside & ~scene.target_mask[r, c] & ~scene.blocked[r, c] & (samples.turn != 0)
     own = jnp.maximum(route.cells[jnp.clip(samples.segment, 0, route.cells.shape[0] - 1)], 0)
     return jnp.where(ok, r * w + c, own[:, 0] * w + own[:, 1])
 

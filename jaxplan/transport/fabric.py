@@ -19,9 +19,9 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.core import SMALL_GRID_CELLS, available_memory_bytes, grid_jit, lattice, traced
-from jaxplan.transport import heatmap, kbest, visibility
+from jaxplan.transport import heatmap, kbest, obstacles, visibility
 from jaxplan.transport.params import FabricParams, validate_params
-from jaxplan.transport.scene import Scene
+from jaxplan.transport.scene import Scene, occupied_cells
 
 
 class Table(NamedTuple):
@@ -118,7 +118,7 @@ def ranks_from_directions(direction):
 
 
 def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *,
-                    monotone: bool, k: int, max_hops: int, solver: str = "auto"):
+                    monotone: bool, k: int, max_hops: int, solver: str = "auto", blocked=None):
     """The K-best continuation table toward ``goal``: ``(table, feasible[8,H,W], rounds, converged)``.
 
     obj: f32[H, W] objects; occupied: bool[H, W] expandable cells; goal: bool[H, W] cells whose entry
@@ -127,8 +127,9 @@ def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *
     solver: "wavefront" (synchronous rounds; works without the monotone rule), "policy" (policy
     iteration + sidetracks, ``jaxplan.transport.kbest``; needs the monotone rule) or "auto" (policy when
     monotone). Both give the same table; ``rounds`` counts wavefront rounds or policy iterations.
+    blocked: optional bool[H, W], blocked cells (``visibility.feasible_successors``).
     """
-    graph = visibility.successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone)
+    graph = visibility.successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone, blocked)
     use_policy = solver == "policy" or (solver == "auto" and monotone)
     if use_policy and not monotone:
         raise ValueError("solver='policy' needs the monotone rule (an acyclic successor graph); "
@@ -216,7 +217,7 @@ def own_fields(scene, table: Table, feasible, rounds, converged, entry=None):
     highways are None (``with_flow`` adds them). hop_len: f32[H, W] world units. Arguments as in
     ``derive``."""
     obj = jnp.asarray(scene.obj, jnp.float32)
-    occupied = ~jnp.asarray(scene.target_mask, bool) & (obj > 0)
+    occupied = occupied_cells(obj, scene.target_mask, scene.dist)
     hop, heading, hop_len = first_hops(table, scene.tvec, scene.cell_size, entry)
     value = jnp.where(occupied, table.raw[..., 0], 0.0)
     length = jnp.where(occupied, table.length[..., 0], 0.0)
@@ -254,9 +255,9 @@ def full_table(scene, params: FabricParams):
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
     return continuation_dp(
-        obj, ~target & (obj > 0), target, scene.dist, scene.tvec, params.theta_tol_deg, scene.cell_size,
-        monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape),
-        solver=params.solver)
+        obj, occupied_cells(obj, target, scene.dist), target, scene.dist, scene.tvec, params.theta_tol_deg,
+        scene.cell_size, monotone=params.monotone, k=params.k, max_hops=params.resolved_max_hops(obj.shape),
+        solver=params.solver, blocked=scene.blocked)
 
 
 def fabric_of(scene, params: FabricParams) -> Fabric:
@@ -397,19 +398,24 @@ class Paths(NamedTuple):
     complete: jax.Array
 
 
-def walk_table(table: Table, source, rank, max_steps: int) -> Paths:
+def walk_table(table: Table, source, rank, max_steps: int, detour=None) -> Paths:
     """Follow one table entry from ``source: i32[2]`` (row, col), entry ``rank: i32[]``, for a static
     ``max_steps`` grid steps; a ``Paths`` row without the batch axis (cells ``i32[max_steps + 1, 2]``).
-    Traceable: ``extract_paths`` is its batched, jitted form."""
+    detour: optional i32[H, W] (``Scene.detour``): a fallback from a cell with a detour drives the
+    detour's steps, listed as the path's cells, up to the first cell without one, and goes straight
+    from there. Traceable: ``extract_paths`` is its batched, jitted form."""
     dirs = jnp.asarray(lattice.DIRS_ARRAY)
 
     def step(carry, _):
         rc, rk, done, fell_back = carry
         d = table.next_dir[rc[0], rc[1], rk]
+        falls = fell_back | (d == lattice.FALLBACK)          # on the fallback leg: detour steps, then straight
+        if detour is not None:
+            d = jnp.where(falls, jnp.where(detour[rc[0], rc[1]] >= 0, detour[rc[0], rc[1]], lattice.FALLBACK), d)
         moves = (~done) & (d >= 0) & (d < lattice.FALLBACK)
-        nxt_rk = table.next_rank[rc[0], rc[1], rk]
+        nxt_rk = jnp.where(falls, 0, table.next_rank[rc[0], rc[1], rk])
         new_rc = jnp.where(moves, rc + dirs[jnp.clip(d, 0, 7)], rc)
-        fell_back = fell_back | ((~done) & (d == lattice.FALLBACK))
+        fell_back = fell_back | ((~done) & falls)
         done = done | ~moves | (nxt_rk < 0)
         return (new_rc, jnp.where(moves, jnp.maximum(nxt_rk, 0), rk), done, fell_back), \
             jnp.where(moves, new_rc, -1)
@@ -422,38 +428,42 @@ def walk_table(table: Table, source, rank, max_steps: int) -> Paths:
     return Paths(cells, n, table.raw[r, c, rank], table.length[r, c, rank], fell_back, done)
 
 
-def count_table_hops(table: Table):
-    """``i32[H, W, K]`` grid steps of every table entry, by pointer doubling over (cell, entry)."""
+def count_table_hops(table: Table, detour=None):
+    """``i32[H, W, K]`` grid steps of every table entry, by pointer doubling over (cell, entry); with
+    ``detour`` (``Scene.detour``) a fallback entry counts its detour's steps (``walk_table``)."""
     h, w, k = table.raw.shape
     n = h * w * k
     steps = (table.next_dir >= 0) & (table.next_dir < lattice.FALLBACK)
     nb = lattice.neighbour_index(table.next_dir)
     continues = steps & (table.next_rank >= 0)
     pointer = jnp.append(jnp.where(continues, (nb[..., 0] * w + nb[..., 1]) * k + table.next_rank, n).reshape(-1), n)
-    (hops,) = lattice.sum_to_sink((jnp.append(steps.astype(jnp.int32).reshape(-1), 0),), pointer)
+    own = steps.astype(jnp.int32)
+    if detour is not None:
+        own = own + jnp.where(table.next_dir == lattice.FALLBACK, obstacles.count_detour_hops(detour)[..., None], 0)
+    (hops,) = lattice.sum_to_sink((jnp.append(own.reshape(-1), 0),), pointer)
     return hops[:-1].reshape(h, w, k)
 
 
 table_hops = grid_jit(count_table_hops)
 
 
-def extract_paths(fabric: Fabric, sources, ranks=None, *, max_steps: int | None = None) -> Paths:
+def extract_paths(fabric: Fabric, sources, ranks=None, *, max_steps: int | None = None, detour=None) -> Paths:
     """Read paths for many sources in one batched call (``vmap`` of a fixed-length walk).
 
     fabric: a ``Fabric`` (its continuation table is read); sources: i32[B, 2] (row, col); ranks:
     i32[B] table entries (default 0, the selected path). max_steps: static walk length; default =
     1 + the longest entry of the table (``table_hops``, read on the host, so pass it explicitly under
-    ``jit``).
+    ``jit``). detour: the scene's ``Scene.detour`` where it has blocked cells (``walk_table``).
     """
     sources = jnp.asarray(sources, jnp.int32).reshape(-1, 2)
     ranks = jnp.zeros(sources.shape[0], jnp.int32) if ranks is None else jnp.asarray(ranks, jnp.int32)
-    if max_steps is None:
-        max_steps = 1 + int(jnp.max(table_hops(fabric.table)))   # +1: a final fallback is a scan step
-    return _extract_jit(fabric.table, sources, ranks, max_steps)
+    if max_steps is None:   # +1: a final fallback is a scan step
+        max_steps = 1 + int(jnp.max(table_hops(fabric.table, detour)))
+    return _extract_jit(fabric.table, sources, ranks, max_steps, detour)
 
 
-def _extract(table, sources, ranks, max_steps):
-    return jax.vmap(lambda s, r: walk_table(table, s, r, max_steps))(sources, ranks)
+def _extract(table, sources, ranks, max_steps, detour):
+    return jax.vmap(lambda s, r: walk_table(table, s, r, max_steps, detour))(sources, ranks)
 
 
 _extract_jit = grid_jit(_extract, static_argnums=3)

@@ -13,7 +13,7 @@ __all__ = ["BUILTIN_SCENES", "DEFAULT_SCENE", "LAYOUTS", "builtin_scene", "rando
 
 
 DEFAULT_SCENE = "default"
-BUILTIN_SCENES: tuple[str, ...] = ("default", "corridor", "two_targets", "sparse65")
+BUILTIN_SCENES: tuple[str, ...] = ("default", "corridor", "two_targets", "sparse65", "yard")
 
 
 def _piles(shape, piles, max_count: int = 6) -> np.ndarray:
@@ -67,11 +67,29 @@ def _scene_sparse65() -> Scene:
     return _with_target_cleared(obj, circle((32.5, 32.5), 6.0), "sparse65")
 
 
+# (row, col, rows, cols) of the yard's blocked rectangles: two buildings, a fence with a gate, a
+# parked machine
+_YARD_BLOCKED = ((14, 6, 8, 10), (24, 24, 9, 7), (10, 20, 1, 16), (30, 8, 3, 4))
+
+
+def _scene_yard() -> Scene:
+    rng = np.random.default_rng(40)
+    blocked = np.zeros((40, 40), bool)
+    for r, c, n_rows, n_cols in _YARD_BLOCKED:
+        blocked[r:r + n_rows, c:c + n_cols] = True
+    piles = _random_piles(rng, 6, (3.0, 37.0), (14.0, 38.0))
+    obj = np.where(blocked, 0.0, _piles((40, 40), piles))
+    target = box(14.0, 0.0, 24.0, 4.0)
+    free = Scene.from_arrays(np.zeros_like(obj), target)
+    return Scene.from_arrays(np.where(np.asarray(free.target_mask), 0.0, obj), target, name="yard", blocked=blocked)
+
+
 _BUILDERS = {
     "default": _scene_default,
     "corridor": _scene_corridor,
     "two_targets": _scene_two_targets,
     "sparse65": _scene_sparse65,
+    "yard": _scene_yard,
 }
 
 
@@ -87,6 +105,8 @@ def builtin_scene(name: str = DEFAULT_SCENE) -> Scene:
     corridor: 45x45, box target on the right edge, a band of piles leading to it.
     two_targets: 30x30, MultiPolygon of two circles in opposite corners.
     sparse65: 65x65, central circle target, ~15% of cells hold random counts 1..6.
+    yard: 40x40, a box target on the bottom edge, two buildings, a fence and a parked machine
+    (blocked cells), piles of material behind and between them.
     Counts are integers stored as floats, 0 on target cells.
     """
     if not isinstance(name, str) or name not in _BUILDERS:

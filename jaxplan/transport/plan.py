@@ -8,6 +8,7 @@ One tick (``docs/transport.md``, "Episodes"):
 2. **Deliver route**: among the source's slack-tau candidates, the one with the largest delivered mass
    under the spill model, then the shortest (Eq. 6; entry 0 with spillage off).
 3. **Rearrange route**: if the source is a root with a highway anchor h* (Eq. 12), the connector to h*
+   (one whose straight jump to h* crosses a blocked cell is not driven: ``obstacles.jump_clear``)
    followed by h*'s selected path (Section 3.4; ``Fabric.selected``).
 4. **Choice**: Rearrange when ``via_raw > (1 + rearrange_margin) * raw(Deliver route)``, i.e. when
    going through the highway collects clearly more; otherwise Deliver. ``rearrange_margin`` is a
@@ -28,7 +29,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.core import grid_jit, lattice
-from jaxplan.transport import connectors, execute, selection, spillage
+from jaxplan.transport import connectors, execute, obstacles, selection, spillage
 from jaxplan.transport.fabric import Fabric, Table, walk_table
 from jaxplan.transport.params import FabricParams
 
@@ -137,17 +138,19 @@ def plan_with_connector(scene, params: FabricParams, ep: EpisodeParams, spill: s
     sel = selection.select_routes(scene, fabric, source[None], params.slack_tau, spill,
                                   max_steps=max_steps, evaluator=evaluator)
     entry = sel.entry[0]
-    direct = walk_table(fabric.table, source, entry, max_steps)
+    direct = walk_table(fabric.table, source, entry, max_steps, scene.detour)
     safe_anchor = jnp.maximum(anchor, 0)
     anchor_rc = jnp.stack([safe_anchor // w, safe_anchor % w]).astype(jnp.int32)
     conn = walk_table(ctable, source, jnp.int32(0), max_steps)
     anchor_entry = fabric.selected[anchor_rc[0], anchor_rc[1]]
-    tail = walk_table(fabric.table, anchor_rc, anchor_entry, max_steps)
+    tail = walk_table(fabric.table, anchor_rc, anchor_entry, max_steps, scene.detour)
     # a connector that enters h* lists it last; the tail starts at h*, so drop the duplicate
     conn_cells = jnp.where(conn.fallback, conn.n_cells, conn.n_cells - 1)
     via_cells, via_n = _concat_paths(conn.cells, conn_cells, tail.cells, tail.n_cells)
     via_raw = conn.raw + fabric.table.raw[anchor_rc[0], anchor_rc[1], anchor_entry]
-    can_rearrange = (anchor >= 0) & jnp.isfinite(conn.raw) & conn.complete & tail.complete
+    jump_from = conn.cells[jnp.maximum(conn.n_cells - 1, 0)]
+    drivable = ~conn.fallback | obstacles.jump_clear(scene.blocked, jump_from, anchor_rc)
+    can_rearrange = (anchor >= 0) & jnp.isfinite(conn.raw) & conn.complete & tail.complete & drivable
     rearrange = can_rearrange & (via_raw > (1.0 + ep.rearrange_margin) * direct.raw)
 
     rows = via_cells.shape[0]

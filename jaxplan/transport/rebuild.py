@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.core import grid_jit, lattice, traced
-from jaxplan.transport import compact, connectors, heatmap, visibility
+from jaxplan.transport import compact, connectors, heatmap, obstacles, visibility
 from jaxplan.transport.connectors import Connectors
 from jaxplan.transport.fabric import (
     Fabric,
@@ -50,6 +50,7 @@ from jaxplan.transport.fabric import (
     with_flow,
 )
 from jaxplan.transport.params import FabricParams
+from jaxplan.transport.scene import occupied_cells
 
 
 class Affected(NamedTuple):
@@ -93,7 +94,7 @@ def upstream_closure(seed, feasible_old, feasible_new):
 
 
 def _upstream_queue(changed, old_feasible, occupied, goal, dist, tvec, cos_t, monotone: bool, cell_size,
-                    capacity: int, window: int = 64):
+                    capacity: int, window: int = 64, blocked=None):
     """The upstream closure of ``changed`` as a list: ``(cells i32[capacity], count i32[], dirty
     bool[H, W])``, breadth-first from the changed cells, ``window`` queued cells at a time.
 
@@ -109,6 +110,7 @@ def _upstream_queue(changed, old_feasible, occupied, goal, dist, tvec, cos_t, mo
     enterable = occupied | goal
     old_edges = old_feasible.reshape(n, lattice.N_DIRS)
     into = jnp.arange(lattice.N_DIRS)[None]                             # a predecessor's step onto the cell
+    corner = None if blocked is None else jnp.moveaxis(obstacles.corner_free(blocked), 0, -1).reshape(n, -1)
     seeds = lattice.true_indices(flat, capacity + window)
 
     def more(carry):
@@ -125,7 +127,7 @@ def _upstream_queue(changed, old_feasible, occupied, goal, dist, tvec, cos_t, mo
             jnp.stack([visibility.step_alignment(lattice.take_cells(tvec, pred[:, d], 0.0), d)
                        for d in range(lattice.N_DIRS)], -1),
             lattice.take_cells(dist, pred, 0.0), lattice.take_cells(dist, head, jnp.inf)[:, None], cos_t, monotone,
-            cell_size)
+            cell_size, True if corner is None else corner.at[pred, into].get(mode="fill", fill_value=False))
         old_edge = old_edges.at[pred, into].get(mode="fill", fill_value=False)
         found = jnp.where(old_edge | new_edge, pred, n).reshape(-1)
         cells, grown, in_set, owner, _ = lattice.append_new(cells, count, in_set, owner, it * found.size, found)
@@ -166,8 +168,9 @@ def _lanes(scene, params: FabricParams, cells):
     """The new successor graph's rows of ``cells`` (``visibility.successor_lanes``)."""
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
-    return visibility.successor_lanes(cells, obj, ~target & (obj > 0), target, scene.dist, scene.tvec,
-                                      params.theta_tol_deg, scene.cell_size, params.monotone)
+    return visibility.successor_lanes(cells, obj, occupied_cells(obj, target, scene.dist), target, scene.dist,
+                                      scene.tvec, params.theta_tol_deg, scene.cell_size, params.monotone,
+                                      scene.blocked)
 
 
 def _patch_own_fields(scene, fabric: Fabric, table: Table, g, cells, rounds, converged):
@@ -269,12 +272,14 @@ def _dirty_cells(scene, params: FabricParams, fabric: Fabric, changed, capacity:
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
     if dense:
-        feasible = visibility.feasible_successors(~target & (obj > 0), target, scene.dist, scene.tvec,
-                                                  params.theta_tol_deg, params.monotone, scene.cell_size)
+        feasible = visibility.feasible_successors(occupied_cells(obj, target, scene.dist), target, scene.dist,
+                                                  scene.tvec, params.theta_tol_deg, params.monotone, scene.cell_size,
+                                                  scene.blocked)
         dirty = upstream_closure(changed, jnp.moveaxis(fabric.feasible, -1, 0), feasible)
         return lattice.true_indices(dirty.reshape(-1), capacity), jnp.sum(dirty, dtype=jnp.int32), dirty
-    return _upstream_queue(changed, fabric.feasible, ~target & (obj > 0), target, scene.dist, scene.tvec,
-                           visibility.cone_cos(params.theta_tol_deg), params.monotone, scene.cell_size, capacity)
+    return _upstream_queue(changed, fabric.feasible, occupied_cells(obj, target, scene.dist), target, scene.dist,
+                           scene.tvec, visibility.cone_cos(params.theta_tol_deg), params.monotone, scene.cell_size,
+                           capacity, blocked=scene.blocked)
 
 
 def _exact_dirty(scene, params: FabricParams, fabric: Fabric, changed, new_feasible):
@@ -432,9 +437,9 @@ def _refresh_connectors(scene, params: FabricParams, fabric: Fabric, old_occupie
         old_table = jax.tree.map(lambda t: t[jnp.argmax(match)], old.tables)
         goal, dist, unit = connectors.anchor_frame(centers, jnp.maximum(anchor, 0))
         graph = visibility.successor_graph(scene.obj, fabric.occupied & ~goal, goal, dist, unit,
-                                           params.theta_tol_deg, scene.cell_size, params.monotone)
+                                           params.theta_tol_deg, scene.cell_size, params.monotone, scene.blocked)
         old_feasible = visibility.feasible_successors(old_occupied & ~goal, goal, dist, unit, params.theta_tol_deg,
-                                                      params.monotone, scene.cell_size)
+                                                      params.monotone, scene.cell_size, scene.blocked)
         dirty = upstream_closure(changed, old_feasible, graph.feasible)
         reuse = jnp.any(match) & (jnp.sum(dirty) <= capacity)
 

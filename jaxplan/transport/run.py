@@ -55,6 +55,7 @@ class Episode:
     stop_reason: "done" | "budget" | "no_material" | "no_route"; message: a sentence for people.
     final_obj: f32[H, W] counts at the end.  frames: per-tick snapshots when ``record=True``.
     rebuild: the rebuild the ticks ran, "selective" or "full" (``rebuild_mode`` of EpisodeParams.rebuild).
+    unreachable_mass: objects on cells cut off from every target by blocked cells (never planned).
     """
 
     delivered: np.ndarray
@@ -80,6 +81,7 @@ class Episode:
     final_obj: np.ndarray
     frames: list = dataclasses.field(default_factory=list)
     rebuild: str = "selective"
+    unreachable_mass: float = 0.0
 
     @property
     def n_pushes(self) -> int:
@@ -93,6 +95,7 @@ class Episode:
                     remaining=last(self.remaining, self.initial_remaining), pushes=self.n_pushes,
                     rearrange_pushes=int(np.sum(self.mode)), driven=last(self.driven, 0.0),
                     stop_reason=self.stop_reason, message=self.message, rebuild=self.rebuild,
+                    unreachable_mass=self.unreachable_mass,
                     median_plan_ms=float(np.median(self.plan_ms)) if len(self.plan_ms) else None,
                     median_rebuild_ms=float(np.median(self.rebuild_ms)) if len(self.rebuild_ms) else None)
 
@@ -113,7 +116,10 @@ def _stop_message(code: int, state: EpisodeState, ep: EpisodeParams, plan: Plan 
         remaining, initial = float(state.remaining), float(state.initial_remaining)
         return f"{remaining:.3g} objects left outside the target (<= {float(ep.stop_fraction):.3g} of {initial:.3g})"
     if code == CLEARED:
-        return "no occupied cell left outside the target"
+        cut_off = float(state.scene.unreachable_mass)
+        return "no occupied cell left outside the target" + (
+            f" that a target can be reached from ({cut_off:.3g} objects are cut off by blocked cells)"
+            if cut_off > 0 else "")
     if code == NO_ROUTE:
         return (f"no complete route from cell {tuple(np.asarray(plan.source))} "
                 "to the target (raise FabricParams.max_hops or use monotone=True)")
@@ -231,7 +237,8 @@ def _assemble(rows, frames, initial_mass, initial_remaining, stop_reason, messag
         driven=np.cumsum(pushed + col("approach")), plan_ms=col("plan_ms"), rebuild_ms=col("rebuild_ms"),
         execute_ms=col("execute_ms"), dirty=col("dirty", np.int32), full_rebuild=col("full_rebuild", bool),
         initial_mass=initial_mass, initial_remaining=initial_remaining, stop_reason=stop_reason,
-        message=message, final_obj=np.asarray(scene.obj), frames=frames, rebuild=mode)
+        message=message, final_obj=np.asarray(scene.obj), frames=frames, rebuild=mode,
+        unreachable_mass=float(scene.unreachable_mass))
 
 
 def _progress(total: int, enabled: bool):

@@ -22,6 +22,7 @@ from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry import box as _shapely_box
 
 from jaxplan.transport.geometry import box, circle, target_geometry, target_segments
+from jaxplan.transport.obstacles import NO_DETOUR, obstacle_geometry
 from jaxplan.transport.scene_files import (
     FORMAT_VERSION,
     MAX_FILE_SIDE,
@@ -30,7 +31,7 @@ from jaxplan.transport.scene_files import (
     write_scene_file,
 )
 
-__all__ = ["FORMAT_VERSION", "MAX_FILE_SIDE", "Scene", "box", "circle", "stack_scenes"]
+__all__ = ["FORMAT_VERSION", "MAX_FILE_SIDE", "Scene", "box", "circle", "occupied_cells", "stack_scenes"]
 
 _F32_MAX = float(np.finfo(np.float32).max)
 
@@ -115,6 +116,36 @@ def _validate_target(target):
     return target
 
 
+def _validate_blocked(blocked, shape) -> np.ndarray:
+    """``blocked`` as ``bool[H, W]`` numpy (all False for None), or ValueError naming ``Scene.blocked``."""
+    if blocked is None:
+        return np.zeros(shape, bool)
+    try:
+        arr = np.asarray(blocked)
+    except Exception as exc:  # e.g. ragged nested lists
+        raise ValueError(f"Scene.blocked: could not be read as an array ({exc}). Pass a bool [H, W] mask, "
+                         "True on buildings and no-go cells.") from None
+    if arr.shape != tuple(shape):
+        raise ValueError(f"Scene.blocked: shape {arr.shape} disagrees with Scene.obj's {tuple(shape)}; pass one "
+                         "bool per cell, rows = y, columns = x.")
+    if arr.dtype != bool:
+        if arr.dtype.kind not in "biu" or not np.isin(arr, (0, 1)).all():
+            raise ValueError(f"Scene.blocked: must be a bool mask (or 0/1); got dtype {arr.dtype}. Pass True on "
+                             "blocked cells and False elsewhere.")
+        arr = arr.astype(bool)
+    return arr
+
+
+def _check_blocked_cells(blocked, obj, mask) -> None:
+    for bad, what, fix in (
+        (blocked & (obj > 0), "material", "Move the material to a free cell or unblock the cell."),
+        (blocked & np.asarray(mask), "target area", "Move the target off the blocked cells or unblock them."),
+    ):
+        if bad.any():
+            raise ValueError(f"Scene.blocked: {int(bad.sum())} blocked cell(s) hold {what} ({_first_index(bad)}). "
+                             f"{fix}")
+
+
 def _validate_name(name):
     if name is not None and not isinstance(name, str):
         raise ValueError(f"Scene.name: must be a str or None, got {type(name).__name__}.")
@@ -153,7 +184,8 @@ def _check_leaf_shapes(scene) -> None:
     if len(shape) != 2 or 0 in shape:
         raise ValueError(f"Scene.obj: must be a non-empty 2-D grid [H, W] (rows = y, columns = x); got shape "
                          f"{shape}. Build scenes with Scene.from_arrays(obj, target).")
-    wanted = dict(target_mask=shape, dist=shape, tvec=shape + (2,), cell_size=(), origin=(2,))
+    wanted = dict(target_mask=shape, dist=shape, tvec=shape + (2,), cell_size=(), origin=(2,), blocked=shape,
+                  detour=shape)
     for field, want in wanted.items():
         got = tuple(np.shape(getattr(scene, field)))
         if got != want:
@@ -166,7 +198,7 @@ def _check_leaf_shapes(scene) -> None:
 # Scene
 # --------------------------------------------------------------------------------------------------
 
-_LEAVES = ("obj", "target_mask", "dist", "tvec", "cell_size", "origin")
+_LEAVES = ("obj", "target_mask", "dist", "tvec", "cell_size", "origin", "blocked", "detour")
 
 
 @jax.tree_util.register_pytree_with_keys_class
@@ -177,12 +209,16 @@ class Scene:
       obj: f32[H, W], aggregate count per cell (rows = y, columns = x), >= 0.
       target_mask: bool[H, W], True where the cell centre is covered by the target.
       dist: f32[H, W], world units, ``d(C, T)``: distance from the centre to the target, 0 on target
-        cells.
-      tvec: f32[H, W, 2], unit (x, y) vector from the centre to the closest point of ``∂T``; (0, 0) on
-        target cells.
+        cells; around blocked cells the geodesic distance, +inf on blocked cells and on free cells cut
+        off from every target (``jaxplan.transport.obstacles``).
+      tvec: f32[H, W, 2], unit (x, y) vector from the centre to the closest point of ``∂T`` (around
+        blocked cells, along the first step of the detour); (0, 0) on target, blocked and cut-off cells.
       cell_size: f32[], world units per cell side.
       origin: f32[2], world (x, y) of the grid corner; cell (r, c) has centre
         ``origin + ((c + 0.5) s, (r + 0.5) s)``.
+      blocked: bool[H, W], buildings, equipment and no-go cells: no route, rover or material enters them.
+      detour: i32[H, W], the first step's direction (0-7) of a cell whose straight way to the target is
+        blocked, ``obstacles.NO_DETOUR`` (-1) elsewhere.
 
     Non-leaf attributes (plain Python, NOT in the pytree):
       target: the shapely Polygon/MultiPolygon (world units) the geometry was computed from.
@@ -197,9 +233,13 @@ class Scene:
 
     __slots__ = _LEAVES + ("target", "name")
 
-    def __init__(self, obj, target_mask, dist, tvec, cell_size, origin, target=None, name=None):
+    def __init__(self, obj, target_mask, dist, tvec, cell_size, origin, blocked=None, detour=None, target=None,
+                 name=None):
+        if blocked is None and detour is None and np.ndim(obj) == 2:   # a scene without blocked cells
+            blocked = jnp.zeros(np.shape(obj), bool)
+            detour = jnp.full(np.shape(obj), NO_DETOUR, jnp.int32)
         values = dict(obj=obj, target_mask=target_mask, dist=dist, tvec=tvec, cell_size=cell_size,
-                      origin=origin, target=target, name=name)
+                      origin=origin, blocked=blocked, detour=detour, target=target, name=name)
         for key, value in values.items():
             object.__setattr__(self, key, value)
 
@@ -225,12 +265,14 @@ class Scene:
     # -- construction ------------------------------------------------------------------------
 
     @classmethod
-    def from_arrays(cls, obj, target, cell_size=1.0, origin=(0.0, 0.0), name=None) -> Scene:
-        """Validate the inputs and compute ``target_mask``, ``dist``, ``tvec`` with the JAX kernel.
+    def from_arrays(cls, obj, target, cell_size=1.0, origin=(0.0, 0.0), name=None, blocked=None) -> Scene:
+        """Validate the inputs and compute ``target_mask``, ``dist``, ``tvec``, ``detour`` with the JAX kernels.
 
         obj: [H, W] counts (array-like, finite, >= 0; rows = y, columns = x).
         target: shapely Polygon/MultiPolygon, world units; must be valid and cover >= 1 cell centre.
         cell_size: world units per cell, > 0. origin: world (x, y) of the grid corner.
+        blocked: optional bool [H, W], True on buildings and no-go cells; none may hold material or
+        target area.
         Raises ValueError naming the offending field.
         """
         obj = _validate_obj(obj)
@@ -239,12 +281,18 @@ class Scene:
         target = _validate_target(target)
         name = _validate_name(name)
         shape = tuple(int(v) for v in obj.shape)
+        blocked = _validate_blocked(blocked, shape)
         _check_target_on_grid(target, shape, cell_size, origin)
         mask, dist, tvec = target_geometry(jnp.asarray(target_segments(target)), shape,
                                            jnp.asarray(cell_size), jnp.asarray(origin))
         _check_target_covers_a_cell(mask, target, shape, cell_size)
+        _check_blocked_cells(blocked, obj, mask)
+        if blocked.any():
+            dist, tvec, detour = obstacle_geometry(blocked, mask, dist, tvec, jnp.asarray(cell_size))
+        else:   # every cell is clear: the straight-line geometry stands
+            detour = jnp.full(shape, NO_DETOUR, jnp.int32)
         return cls(jnp.asarray(obj), mask, dist, tvec, jnp.asarray(cell_size), jnp.asarray(origin),
-                   target=target, name=name)
+                   jnp.asarray(blocked), detour, target=target, name=name)
 
     def with_obj(self, obj) -> Scene:
         """The same geometry with new counts ``obj: [H, W]`` (same shape).
@@ -263,9 +311,11 @@ class Scene:
                 raise ValueError(f"Scene.obj: new counts have shape {new.shape} but the scene's "
                                  f"grid is {self.shape}. Build a new scene with Scene.from_arrays "
                                  "for a different grid.")
+            if np.any(np.asarray(self.blocked) & (new > 0)):
+                _check_blocked_cells(np.asarray(self.blocked), new, np.zeros(new.shape, bool))
             new = jnp.asarray(new)
-        return Scene(new, self.target_mask, self.dist, self.tvec, self.cell_size, self.origin,
-                     target=self.target, name=self.name)
+        return Scene(new, self.target_mask, self.dist, self.tvec, self.cell_size, self.origin, self.blocked,
+                     self.detour, target=self.target, name=self.name)
 
     @classmethod
     def check(cls, scene, argument: str = "scene", *, counts: bool = True) -> None:
@@ -307,8 +357,18 @@ class Scene:
 
     @property
     def occupied(self):
-        """bool[H, W], occupied cells: not a target cell and ``obj > 0``."""
-        return ~self.target_mask & (self.obj > 0)
+        """bool[H, W], occupied cells: not a target cell, ``obj > 0`` and a finite way to a target."""
+        return occupied_cells(self.obj, self.target_mask, self.dist)
+
+    @property
+    def cut_off(self):
+        """bool[H, W], free non-target cells with no way to any target (``dist = inf``)."""
+        return ~self.target_mask & ~self.blocked & ~jnp.isfinite(self.dist)
+
+    @property
+    def unreachable_mass(self):
+        """f32[], objects on cells cut off from every target: never planned."""
+        return jnp.sum(jnp.where(self.cut_off, self.obj, 0.0))
 
     @property
     def total_mass(self):
@@ -348,11 +408,19 @@ class Scene:
         try:
             fields = read_scene_file(path)
             return cls.from_arrays(fields["obj"], fields["target"], cell_size=fields["cell_size"],
-                                   origin=fields["origin"], name=fields["name"])
+                                   origin=fields["origin"], name=fields["name"], blocked=fields.get("blocked"))
         except ValueError as exc:
             message = str(exc)
+            if message.startswith("Scene file "):   # the file reader names the file already
+                raise ValueError(message) from None
             message = message[len("Scene."):] if message.startswith("Scene.") else message
             raise ValueError(f"Scene file {path}: {message}") from None
+
+
+def occupied_cells(obj, target_mask, dist):
+    """``bool[H, W]``: the cells a route can start from or pass through: not a target cell, ``obj >
+    0``, and a finite ``dist`` (not cut off from every target by blocked cells)."""
+    return ~jnp.asarray(target_mask, bool) & (jnp.asarray(obj) > 0) & jnp.isfinite(dist)
 
 
 def stack_scenes(scenes) -> Scene:

@@ -4,11 +4,16 @@ Reading is defensive: the grid's shape is checked before its counts are read, an
 a file (unreadable, damaged, wrong keys or types) raises one ``ValueError("Scene file <path>: <what>;
 <fix>")``. The formats and the checks are in ``docs/scene-files.md``. The values are validated by
 ``Scene.from_arrays`` afterwards, like any other input.
+
+Format version 2 (written by ``Scene.save``) adds ``blocked``, the scene's blocked cells: a bool
+``(H, W)`` array in ``.npz``, H strings of W characters (``@`` blocked, ``.`` free) in ``.json``.
+Version-1 files (no ``blocked``) still load, with every cell free.
 """
 from __future__ import annotations
 
 import json
 import math
+import re
 import struct
 import tokenize
 import zipfile
@@ -19,10 +24,12 @@ import numpy as np
 import shapely
 from shapely.geometry import MultiPolygon
 
-__all__ = ["FORMAT_VERSION", "MAX_FILE_SIDE", "MAX_MEMBER_BYTES", "read_scene_file", "scene_file_format",
-           "write_scene_file"]
+__all__ = ["FORMAT_VERSION", "MAX_FILE_SIDE", "MAX_MEMBER_BYTES", "READ_VERSIONS", "read_scene_file",
+           "scene_file_format", "write_scene_file"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+# the versions ``read_scene_file`` reads: 1 (no blocked cells) and 2 (``blocked``)
+READ_VERSIONS = (1, 2)
 
 # A scene file's grid has at most this many rows and columns (64 MiB of float32 counts): a bound on
 # what a file can make ``Scene.load`` allocate, checked before the counts are read.
@@ -78,7 +85,8 @@ def _read_scene_file(path: Path, suffix: str) -> dict:
     """The raw fields of a scene file (format_version checked, types checked, values not yet).
 
     Returns ``{"obj": f64/f32[H, W], "cell_size": float, "origin": f64[2], "target": str (WKT),
-    "name": str | None}``. Raises ValueError ``"Scene file <path>: <what>; <fix>"``.
+    "name": str | None, "blocked": bool[H, W] | None}`` (``blocked`` None in a version-1 file).
+    Raises ValueError ``"Scene file <path>: <what>; <fix>"``.
     """
     kind = "a NumPy .npz archive" if suffix == ".npz" else "JSON text (UTF-8)"
     try:
@@ -103,17 +111,37 @@ def _check_keys(keys, allowed: tuple, optional: tuple = ()) -> None:
     """Refuse unknown keys (naming them and the allowed ones) and missing required keys."""
     unknown = [k for k in keys if k not in allowed]
     if unknown:
+        hint = (" (blocked cells need format_version 2)" if "blocked" in unknown and "blocked" not in allowed
+                else "")
         raise _FileProblem(f"unknown key(s) {', '.join(map(repr, unknown))}; a scene file has exactly the "
-                           f"keys {', '.join(allowed)} (docs/scene-files.md)")
+                           f"keys {', '.join(allowed)}{hint} (docs/scene-files.md)")
     missing = [k for k in allowed if k not in keys and k not in optional]
     if missing:
         raise _FileProblem(f"missing key(s) {', '.join(missing)}; see docs/scene-files.md")
 
 
-def _check_version(version) -> None:
-    if version != FORMAT_VERSION:
+_VERSIONS_TEXT = " or ".join(map(str, READ_VERSIONS))
+
+
+def _check_version(version) -> int:
+    if version not in READ_VERSIONS:
         raise _FileProblem(f"format_version is {version!r}; this version of jaxplan reads format_version "
-                           f"{FORMAT_VERSION} only")
+                           f"{_VERSIONS_TEXT} only")
+    return int(version)
+
+
+def _file_version(keys, version) -> int:
+    """The format version whose keys a file is checked against: its own, or (when ``format_version`` is
+    missing, which ``_check_keys`` then reports) the one its keys suggest."""
+    if version is not None:
+        return _check_version(version)
+    return 2 if "blocked" in keys else 1
+
+
+def _blocked_shape_problem(shape, grid) -> None:
+    if tuple(shape) != tuple(grid):
+        raise _FileProblem(f"blocked: has shape {tuple(shape)} but obj has {tuple(grid)}; store one bool per "
+                           "cell of obj (rows = y, columns = x), True on blocked cells")
 
 
 def _check_grid_shape(shape) -> None:
@@ -129,7 +157,8 @@ def _check_grid_shape(shape) -> None:
 # .npz
 # --------------------------------------------------------------------------------------------------
 
-_NPZ_KEYS = ("format_version", "obj", "cell_size", "origin", "target_wkt", "name")
+_NPZ_KEYS = ("format_version", "obj", "cell_size", "origin", "target_wkt", "name", "blocked")
+_NPZ_KEYS_V1 = _NPZ_KEYS[:-1]
 
 # key -> (allowed dtype kinds, allowed shapes (None: any), what the key must hold)
 _NPZ_FIELDS = {
@@ -139,6 +168,8 @@ _NPZ_FIELDS = {
     "origin": ("iuf", ((2,),), "2 numbers (x, y)"),
     "target_wkt": ("U", ((),), "a string scalar (WKT)"),
     "name": ("U", ((), (0,)), "a string scalar, or an empty (0,) array for no name"),
+    "blocked": ("b", None, "a bool (H, W) array of obj's shape, True on blocked cells "
+                           "(np.asarray(blocked, bool))"),
 }
 
 
@@ -171,8 +202,9 @@ def _check_member_sizes(zf: zipfile.ZipFile) -> None:
                                f"file's {key} holds at most {limit:,}")
 
 
-def _npz_array(zf: zipfile.ZipFile, key: str) -> np.ndarray:
-    """The member ``<key>.npy``, its dtype, shape and size checked (from the header) before reading it."""
+def _npz_array(zf: zipfile.ZipFile, key: str, grid=None) -> np.ndarray:
+    """The member ``<key>.npy``, its dtype, shape and size checked (from the header) before reading it;
+    ``grid``: obj's shape, which ``blocked`` must have."""
     shape, dtype = _npy_header(zf, key)
     kinds, shapes, what = _NPZ_FIELDS[key]
     if dtype.hasobject:
@@ -183,6 +215,8 @@ def _npz_array(zf: zipfile.ZipFile, key: str) -> np.ndarray:
     empty_name = key == "name" and shape == (0,)
     if (dtype.kind not in kinds and not empty_name) or (shapes is not None and shape not in shapes):
         raise _FileProblem(f"{key}: holds dtype {dtype} with shape {shape}; it must hold {what}")
+    if key == "blocked":
+        _blocked_shape_problem(shape, grid)
     nbytes = math.prod(shape) * dtype.itemsize
     if nbytes > _member_limit(key):
         raise _FileProblem(f"{key}: its header declares {nbytes:,} bytes ({dtype} {tuple(shape)}); a scene "
@@ -203,10 +237,13 @@ def _read_npz(path: Path) -> dict:
             raise _FileProblem(f"holds {odd[0]!r}, which is not a .npy array; a scene archive holds "
                                f"only the arrays {', '.join(_NPZ_KEYS)}")
         keys = [m[:-len(".npy")] for m in members]
-        if "format_version" in keys:  # first: another version may have other keys
-            _check_version(int(_npz_array(zf, "format_version")))
-        _check_keys(keys, _NPZ_KEYS)
-        arrays = {key: _npz_array(zf, key) for key in _NPZ_KEYS}
+        # format_version first: another version may have other keys
+        version = _file_version(keys, int(_npz_array(zf, "format_version")) if "format_version" in keys else None)
+        wanted = _NPZ_KEYS if version == 2 else _NPZ_KEYS_V1
+        _check_keys(keys, wanted)
+        arrays = {}
+        for key in wanted:   # obj before blocked: blocked must have obj's shape
+            arrays[key] = _npz_array(zf, key, grid=arrays["obj"].shape if key == "blocked" else None)
     name = arrays["name"]
     return {
         "obj": arrays["obj"],
@@ -214,6 +251,7 @@ def _read_npz(path: Path) -> dict:
         "origin": arrays["origin"].astype(np.float64),
         "target": str(arrays["target_wkt"]),
         "name": str(name) if name.ndim == 0 else None,
+        "blocked": arrays.get("blocked"),
     }
 
 
@@ -221,7 +259,10 @@ def _read_npz(path: Path) -> dict:
 # .json
 # --------------------------------------------------------------------------------------------------
 
-_JSON_KEYS = ("format_version", "name", "cell_size", "origin", "obj", "target")
+_JSON_KEYS = ("format_version", "name", "cell_size", "origin", "obj", "blocked", "target")
+_JSON_KEYS_V1 = tuple(k for k in _JSON_KEYS if k != "blocked")
+BLOCKED_CHAR, FREE_CHAR = "@", "."
+_NOT_A_CELL = re.compile(r"[^@.]")
 
 
 def _is_number(v) -> bool:
@@ -260,6 +301,30 @@ def _json_obj(rows) -> np.ndarray:
         raise _FileProblem("obj: holds an integer too large for a float; rescale the counts") from None
 
 
+def _json_blocked(rows, grid) -> np.ndarray:
+    """``blocked`` from its JSON rows (H strings of W characters, ``@`` blocked, ``.`` free, row 0
+    first): bool[H, W]; names the first bad row or character."""
+    h, w = grid
+    form = (f"a list of {h} strings of {w} characters, one per row of obj (row 0 first), '{BLOCKED_CHAR}' "
+            f"on a blocked cell and '{FREE_CHAR}' on a free one")
+    if not isinstance(rows, list):
+        raise _FileProblem(f"blocked: must be {form}; got {_json_type(rows)}")
+    if len(rows) != h:
+        raise _FileProblem(f"blocked: has {len(rows)} row(s) but obj has {h}; give {form}")
+    for r, row in enumerate(rows):
+        if not isinstance(row, str):
+            raise _FileProblem(f"blocked: row {r} is {_json_type(row)}, not a string; give {form}")
+        if len(row) != w:
+            raise _FileProblem(f"blocked: row {r} has {len(row)} character(s) but obj has {w} column(s); "
+                               f"give {form}")
+        bad = _NOT_A_CELL.search(row)
+        if bad:
+            raise _FileProblem(f"blocked: row {r}, column {bad.start()} is {bad.group()!r}; use "
+                               f"'{BLOCKED_CHAR}' for a blocked cell and '{FREE_CHAR}' for a free one")
+    codes = np.frombuffer("".join(rows).encode("ascii"), np.uint8)
+    return (codes == ord(BLOCKED_CHAR)).reshape(h, w)
+
+
 def _read_json(path: Path) -> dict:
     raw = path.read_bytes()
     try:
@@ -274,13 +339,14 @@ def _read_json(path: Path) -> dict:
     if not isinstance(doc, dict):
         raise _FileProblem(f"the top level must be a JSON object with the keys {', '.join(_JSON_KEYS)}; "
                            f"got {_json_type(doc)}")
+    version = None
     if "format_version" in doc:  # first: another version may have other keys
         version = doc["format_version"]
         if type(version) is not int:
-            raise _FileProblem(f"format_version: must be the integer {FORMAT_VERSION}; got "
+            raise _FileProblem(f"format_version: must be the integer {_VERSIONS_TEXT}; got "
                                f"{_json_type(version)}")
-        _check_version(version)
-    _check_keys(list(doc), _JSON_KEYS, optional=("name",))
+    version = _file_version(list(doc), version)
+    _check_keys(list(doc), _JSON_KEYS if version == 2 else _JSON_KEYS_V1, optional=("name",))
     cell_size, origin, target, name = (doc.get(k) for k in ("cell_size", "origin", "target", "name"))
     if not _is_number(cell_size):
         raise _FileProblem(f"cell_size: must be a number (world units per cell side); got "
@@ -292,8 +358,10 @@ def _read_json(path: Path) -> dict:
                            f"{_json_type(target)}")
     if name is not None and not isinstance(name, str):
         raise _FileProblem(f"name: must be a string or null; got {_json_type(name)}")
-    return {"obj": _json_obj(doc["obj"]), "cell_size": float(cell_size),
-            "origin": np.asarray(origin, np.float64), "target": target, "name": name}
+    obj = _json_obj(doc["obj"])
+    blocked = _json_blocked(doc["blocked"], obj.shape) if version == 2 else None
+    return {"obj": obj, "cell_size": float(cell_size), "origin": np.asarray(origin, np.float64),
+            "target": target, "name": name, "blocked": blocked}
 
 
 def parse_wkt(wkt: str):
@@ -315,21 +383,26 @@ def write_scene_file(path: Path, scene) -> Path:
     cell_size = float(np.asarray(scene.cell_size))
     origin = [float(v) for v in np.asarray(scene.origin)]
     wkt = _to_wkt(scene.target)
+    blocked = np.asarray(scene.blocked, bool) if scene.blocked is not None else np.zeros(obj.shape, bool)
     if suffix == ".npz":
         np.savez(path, format_version=np.int64(FORMAT_VERSION), obj=obj,
                  cell_size=np.float64(cell_size), origin=np.asarray(origin, np.float64),
                  target_wkt=np.str_(wkt),
-                 name=np.str_(scene.name) if scene.name is not None else np.zeros(0, np.str_))
+                 name=np.str_(scene.name) if scene.name is not None else np.zeros(0, np.str_),
+                 blocked=blocked)
     else:
+        chars = np.where(blocked, ord(BLOCKED_CHAR), ord(FREE_CHAR)).astype(np.uint8)
         doc = {"format_version": FORMAT_VERSION, "name": scene.name, "cell_size": cell_size,
-               "origin": origin, "obj": obj.astype(np.float64).tolist(), "target": wkt}
+               "origin": origin, "obj": obj.astype(np.float64).tolist(),
+               "blocked": [row.tobytes().decode("ascii") for row in chars], "target": wkt}
         path.write_text(json.dumps(doc))
     return path
 
 
 def read_scene_file(path: Path) -> dict:
     """The fields of the scene file at ``path``: ``{"obj": [H, W], "cell_size": float, "origin":
-    f64[2], "target": shapely geometry, "name": str | None}``, types checked, values not yet (the
-    caller builds the Scene). Raises ValueError naming the file, or naming ``target`` for bad WKT."""
+    f64[2], "target": shapely geometry, "name": str | None, "blocked": bool[H, W] | None}`` (``blocked``
+    None in a version-1 file: no blocked cells), types checked, values not yet (the caller builds the
+    Scene). Raises ValueError naming the file, or naming ``target`` for bad WKT."""
     fields = _read_scene_file(path, scene_file_format(path))
     return {**fields, "target": parse_wkt(fields["target"])}

@@ -58,7 +58,7 @@ def _pick(delivered, length, candidate):
 
 def _delivered(scene, table, source, rank, spill: spillage.SpillParams, max_steps: int, evaluator):
     """f32[]: objects delivered by pushing table entry ``rank`` of ``source`` (i32[2])."""
-    path = walk_table(table, source, rank, max_steps)
+    path = walk_table(table, source, rank, max_steps, scene.detour)
     route = execute.route_from_path(scene, path.cells, path.n_cells, path.fallback)
     points, n_points = execute.waypoints(scene, route)
     pickup, _ = execute.waypoint_pickup(scene, route)
@@ -98,10 +98,12 @@ def _pairs_to_evaluate(fabric: Fabric, slack_tau):
 
 
 @grid_jit
-def _pair_counts(fabric: Fabric, slack_tau):
-    """``(pairs, longest)``: how many pairs need the evaluator, and the most grid steps among them."""
+def _pair_counts(fabric: Fabric, slack_tau, detour):
+    """``(pairs, longest)``: how many pairs need the evaluator, and the most grid steps among them
+    (detour steps included; detour: ``Scene.detour``)."""
     pairs = _pairs_to_evaluate(fabric, slack_tau)
-    return jnp.sum(pairs, dtype=jnp.int32), jnp.max(jnp.where(pairs, _fabric.count_table_hops(fabric.table), 0))
+    hops = _fabric.count_table_hops(fabric.table, detour)
+    return jnp.sum(pairs, dtype=jnp.int32), jnp.max(jnp.where(pairs, hops, 0))
 
 
 def _select_pairs(scene, fabric: Fabric, slack_tau, spill: spillage.SpillParams, *, capacity: int,
@@ -148,7 +150,7 @@ def select_all(scene, fabric: Fabric, slack_tau, spill: spillage.SpillParams, *,
         return jnp.zeros((h, w), jnp.int32)
     if traced(scene, fabric, slack_tau, spill):
         return _select_every_cell(scene, fabric, slack_tau, spill, max_steps=max_steps, evaluator=evaluator)
-    n_pairs, longest = (int(x) for x in _pair_counts(fabric, slack_tau))
+    n_pairs, longest = (int(x) for x in _pair_counts(fabric, slack_tau, scene.detour))
     if n_pairs == 0:
         return jnp.zeros((h, w), jnp.int32)
     capacity = _bucket(n_pairs, fabric.table.raw.size, 64)

@@ -36,8 +36,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.core import grid_jit, lattice
-from jaxplan.transport import visibility
+from jaxplan.transport import obstacles, visibility
 from jaxplan.transport.params import FabricParams
+from jaxplan.transport.scene import occupied_cells
 
 MIN_TEMPERATURE = 1e-6   # a traced temperature is floored here, so t = 0 under vmap/grad cannot divide by 0
 _TINY = 1e-30            # floor inside logs of probabilities (gradient 0 where it binds)
@@ -157,7 +158,7 @@ def mass_scale(obj, occupied):
 # Soft successor gates (Eqs. 1-2)
 
 
-def edge_logits(occupied, goal, dist, tvec, theta_tol_deg, monotone: bool, cell_size, t):
+def edge_logits(occupied, goal, dist, tvec, theta_tol_deg, monotone: bool, cell_size, t, blocked=None):
     """``(z f32[8, H, W], allowed bool[8, H, W])``: the cone gate's logit of every step.
 
     The rules that carry no parameter stay hard (``allowed``: C occupied, the neighbour in grid and
@@ -167,6 +168,8 @@ def edge_logits(occupied, goal, dist, tvec, theta_tol_deg, monotone: bool, cell_
     """
     in_grid = jnp.asarray(lattice.in_grid(occupied.shape))
     allowed = occupied[None] & in_grid & lattice.neighbours(occupied | goal, False)
+    if blocked is not None:
+        allowed = allowed & obstacles.corner_free(blocked)
     if monotone:
         # steps that do not get strictly closer stay forbidden: the soft graph is the hard DAG, so
         # the recursion cannot gain mass around a cycle
@@ -442,13 +445,16 @@ def soft_anchors(heat_map, candidate, occupied, centers, anchor_lambda, t):
 def _soft_build(scene, params: FabricParams, spill=None) -> SoftFabric:
     obj = jnp.asarray(scene.obj, jnp.float32)
     target = jnp.asarray(scene.target_mask, bool)
-    occupied = ~target & (obj > 0)
+    occupied = occupied_cells(obj, target, scene.dist)
+    # blocked and cut-off cells (d = inf) are never entered; a finite stand-in keeps inf - inf out of
+    # the masked arithmetic (and its gradients)
+    dist = jnp.where(occupied, scene.dist, 0.0)
     t = jnp.maximum(jnp.asarray(params.temperature, jnp.float32), MIN_TEMPERATURE)
     mass = mass_scale(obj, occupied)
     rounds = params.resolved_soft_rounds(obj.shape)
-    z, allowed = edge_logits(occupied, target, scene.dist, scene.tvec, params.theta_tol_deg,
-                             params.monotone, scene.cell_size, t)
-    value, raw, length, policy, log_sharp = soft_dp(obj, occupied, target, scene.dist, z, allowed,
+    z, allowed = edge_logits(occupied, target, dist, scene.tvec, params.theta_tol_deg,
+                             params.monotone, scene.cell_size, t, scene.blocked)
+    value, raw, length, policy, log_sharp = soft_dp(obj, occupied, target, dist, z, allowed,
                                                     scene.cell_size, t, mass, rounds)
     delivered = raw
     if spill is not None and spill.enabled:

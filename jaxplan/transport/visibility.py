@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.core import lattice
+from jaxplan.transport import obstacles
 
 
 def cone_cos(theta_tol_deg):
@@ -33,18 +34,18 @@ def step_alignment(tvec, d: int):
     return tvec[..., 0] * ux + tvec[..., 1] * uy
 
 
-def step_feasible(occupied, enterable, alignment, dist, nb_dist, cos_t, monotone: bool, cell_size):
+def step_feasible(occupied, enterable, alignment, dist, nb_dist, cos_t, monotone: bool, cell_size, corner_ok=True):
     """Eq. 1 and the monotone rule for single steps, elementwise (broadcasting): the step from a cell
     (``occupied``, ``dist``) to a neighbour (``enterable``: occupied or goal, at ``nb_dist``) whose
-    direction has ``alignment`` t . step_unit. cos_t: ``cone_cos(theta_tol)``. The caller masks
-    steps off the grid."""
-    ok = occupied & enterable & (alignment >= cos_t)
+    direction has ``alignment`` t . step_unit. cos_t: ``cone_cos(theta_tol)``. corner_ok: the step
+    cuts no blocked cell's corner (``obstacles.corner_free``). The caller masks steps off the grid."""
+    ok = occupied & enterable & (alignment >= cos_t) & corner_ok
     if monotone:
         ok = ok & (nb_dist < dist - lattice.MONOTONE_EPS * cell_size)
     return ok
 
 
-def feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone: bool, cell_size):
+def feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone: bool, cell_size, blocked=None):
     """``bool[8, H, W]``: is the neighbour of C in direction i a feasible successor (Eq. 1, 2)?
 
     occupied: bool[H, W], cells that can be expanded (sources).
@@ -52,7 +53,8 @@ def feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone: boo
     dist: f32[H, W], world units, distance to the goal (0 on goal cells).
     tvec: f32[H, W, 2], unit (x, y) vector to the closest goal point.
     theta_tol_deg: f32[], cone half-angle, degrees. monotone: static; the strict monotone rule.
-    cell_size: f32[], world units per cell.
+    cell_size: f32[], world units per cell. blocked: optional bool[H, W], blocked cells (a diagonal
+    step may not cut their corners; they are neither occupied nor goal cells, so never entered).
     """
     shape = occupied.shape
     # off the grid a neighbour is neither enterable nor nearer: the border of ``lattice.pad_flat``'s
@@ -68,7 +70,8 @@ def feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone: boo
                            source_dist, lattice.padded_rows(nb_dist, dr, dc, shape) if monotone else None, cos_t,
                            monotone, cell_size)
         steps.append(lattice.rows_to_grid(ok, shape))
-    return jnp.stack(steps)
+    steps = jnp.stack(steps)
+    return steps if blocked is None else steps & obstacles.corner_free(blocked)
 
 
 def fallback_direction(tvec):
@@ -115,10 +118,11 @@ class SuccessorGraph(NamedTuple):
     step_len: jax.Array
 
 
-def successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone: bool) -> SuccessorGraph:
+def successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone: bool,
+                    blocked=None) -> SuccessorGraph:
     """Build the ``SuccessorGraph`` (arguments as in ``feasible_successors``; dist is also the
     fallback length)."""
-    feasible = feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone, cell_size)
+    feasible = feasible_successors(occupied, goal, dist, tvec, theta_tol_deg, monotone, cell_size, blocked)
     return SuccessorGraph(
         obj=jnp.asarray(obj, jnp.float32),
         feasible=feasible,
@@ -129,7 +133,8 @@ def successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, m
     )
 
 
-def successor_lanes(cells, obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone: bool) -> SuccessorGraph:
+def successor_lanes(cells, obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone: bool,
+                    blocked=None) -> SuccessorGraph:
     """``successor_graph`` of a list of cells only: fields ``[C]`` and ``[8, C]`` instead of ``[H, W]``
     and ``[8, H, W]`` (the same values). cells: i32[C] flat indices, ``H*W`` for padding (no
     successors); the grids as in ``successor_graph``. Costs O(C), not O(H W)."""
@@ -140,8 +145,10 @@ def successor_lanes(cells, obj, occupied, goal, dist, tvec, theta_tol_deg, cell_
     alignment = cone_alignment(at(tvec, cells, 0.0))
     own_dist = at(dist, cells, 0.0)
     nb_dist = at(dist, nb, jnp.inf) if monotone else None
+    corner = True if blocked is None else obstacles.corner_free_of(at(blocked, nb, False))
     feasible = (nb < obj.size) & step_feasible(
-        occ[None], enterable, alignment, own_dist[None], nb_dist, cone_cos(theta_tol_deg), monotone, cell_size)
+        occ[None], enterable, alignment, own_dist[None], nb_dist, cone_cos(theta_tol_deg), monotone, cell_size,
+        corner)
     return SuccessorGraph(
         obj=at(jnp.asarray(obj, jnp.float32), cells, 0.0),
         feasible=feasible,

@@ -10,7 +10,12 @@ the bottom, as with ``imshow(..., origin="lower")``):
 - green arrows: the first-hop heading ``v(C)`` of every occupied cell (the selected target path);
 - orange arrows: the connector heading of every root that has a connector (Section 3.4);
 - highway cells (Eq. 11) outlined in cyan;
+- blocked cells (``scene.blocked``: buildings, equipment, no-go zones) as solid dark-grey squares;
 - optionally, selected paths ``P*(C)`` read from the continuation table, as polylines.
+
+Every figure of a scene that jaxplan draws (fabric, episode, fleet, rover check) shows blocked cells
+the same way, with :func:`draw_blocked`, and labels them "blocked" (:func:`blocked_handle`) in the
+legend of the panel that draws them.
 
 This module never selects a matplotlib backend; scripts without a display should call
 ``matplotlib.use("Agg")`` before importing pyplot (the ``jaxplan`` CLI does).
@@ -21,7 +26,8 @@ import numpy as np
 
 from jaxplan.core import save_animation
 
-__all__ = ["PALETTE", "animate_episode", "cell_edges", "plot_episode", "plot_fabric", "polygon_rings"]
+__all__ = ["BLOCKED_LABEL", "PALETTE", "animate_episode", "blocked_handle", "blocked_of", "cell_edges", "draw_blocked",
+           "plot_episode", "plot_fabric", "polygon_rings"]
 
 # Above this many cells per side, counts are drawn as dots instead of numbers.
 _TEXT_MAX_SIDE = 30
@@ -33,8 +39,15 @@ _ORANGE = "#f97316"
 _HIGHWAY = "#22d3ee"
 _TARGET = "#3b82f6"
 _PATH_COLORS = ("#a855f7", "#ec4899", "#14b8a6", "#eab308", "#6366f1", "#84cc16")
+# Blocked cells: a solid dark-grey fill, their region outlined in a lighter grey (it stays visible on
+# the black end of the ``hot`` heatmap).
+_BLOCKED = "#404040"
+_BLOCKED_EDGE = "#a3a3a3"
 # The colours above by role, for other systems' plots that draw the same things the same way.
-PALETTE = {"heading": _GREEN, "connector": _ORANGE, "highway": _HIGHWAY, "target": _TARGET, "paths": _PATH_COLORS}
+PALETTE = {"heading": _GREEN, "connector": _ORANGE, "highway": _HIGHWAY, "target": _TARGET, "paths": _PATH_COLORS,
+           "blocked": _BLOCKED, "blocked_edge": _BLOCKED_EDGE}
+# The legend label (and the artists' label and gid) of the blocked-cell layer.
+BLOCKED_LABEL = "blocked"
 
 
 def cell_edges(mask: np.ndarray, x0: float, y0: float, s: float) -> np.ndarray:
@@ -56,6 +69,60 @@ def cell_edges(mask: np.ndarray, x0: float, y0: float, s: float) -> np.ndarray:
     return out.reshape(-1, 2, 2).astype(np.float64)
 
 
+def blocked_of(scene) -> np.ndarray:
+    """``bool[H, W]`` numpy: ``scene.blocked``, or all False for a scene without blocked cells."""
+    blocked = getattr(scene, "blocked", None)
+    if blocked is None:
+        return np.zeros(tuple(scene.shape), bool)
+    return np.asarray(blocked, bool)
+
+
+def draw_blocked(ax, blocked, cell_size, origin, *, zorder: float = 2.5):
+    """Draw the blocked cells as solid dark-grey squares (their region outlined in lighter grey).
+
+    ax: matplotlib Axes in world coordinates (rows = y, ``origin="lower"``). blocked: ``bool[H, W]``
+    (None or all False draws nothing). cell_size: world units per cell; origin: world (x, y) of the
+    grid corner, so cell (r, c) covers ``[x0 + c s, x0 + (c + 1) s] x [y0 + r s, y0 + (r + 1) s]``.
+    zorder: of the fill (the outline sits just above it); the default covers heatmaps and tints.
+
+    Returns the fill, an ``AxesImage`` with label and gid ``BLOCKED_LABEL`` ("blocked"), or None
+    when nothing is blocked. The axes limits are left as they are. Legends: :func:`blocked_handle`.
+    """
+    from matplotlib.collections import LineCollection
+    from matplotlib.colors import to_rgba
+    from matplotlib.image import AxesImage
+
+    if blocked is None:
+        return None
+    mask = np.asarray(blocked, bool)
+    if mask.ndim != 2:
+        raise ValueError(f"draw_blocked: blocked must be a bool [H, W] mask; got shape {mask.shape}.")
+    if not mask.any():
+        return None
+    s = float(np.asarray(cell_size))
+    x0, y0 = (float(v) for v in np.asarray(origin, np.float64).reshape(2))
+    h, w = mask.shape
+    rgba = np.zeros((h, w, 4))
+    rgba[mask] = to_rgba(_BLOCKED, 1.0)
+    # added directly (not through imshow): neither the limits nor the aspect of ``ax`` change
+    image = AxesImage(ax, interpolation="nearest", origin="lower", extent=(x0, x0 + w * s, y0, y0 + h * s),
+                      zorder=zorder, label=BLOCKED_LABEL, gid=BLOCKED_LABEL)
+    image.set_data(rgba)
+    ax.add_image(image)
+    outline = LineCollection(cell_edges(mask, x0, y0, s), colors=_BLOCKED_EDGE,
+                             linewidths=0.8 if max(h, w) <= 80 else 0.4, zorder=zorder + 0.01)
+    outline.set_gid(BLOCKED_LABEL)
+    ax.add_collection(outline, autolim=False)
+    return image
+
+
+def blocked_handle(label: str = BLOCKED_LABEL):
+    """A legend handle (``matplotlib.patches.Patch``) for the blocked cells drawn by :func:`draw_blocked`."""
+    from matplotlib.patches import Patch
+
+    return Patch(facecolor=_BLOCKED, edgecolor=_BLOCKED_EDGE, label=label)
+
+
 def polygon_rings(target):
     """Every ring (exterior and interiors) of a Polygon / MultiPolygon as ``f[N, 2]`` arrays."""
     polys = list(getattr(target, "geoms", [target]))
@@ -64,6 +131,18 @@ def polygon_rings(target):
         rings.append(np.asarray(poly.exterior.coords)[:, :2])
         rings.extend(np.asarray(ring.coords)[:, :2] for ring in poly.interiors)
     return rings
+
+
+def _finite_max(*arrays) -> float:
+    """The largest finite value of ``arrays`` if it is > 0, else 1.0: a colour scale's top that NaN
+    or inf (e.g. ``scene.dist`` on blocked and cut-off cells) can neither break nor stretch."""
+    top = 0.0
+    for a in arrays:
+        a = np.asarray(a, np.float64)
+        finite = a[np.isfinite(a)]
+        if finite.size:
+            top = max(top, float(finite.max()))
+    return top if top > 0 else 1.0
 
 
 def _stride(h: int, w: int) -> int:
@@ -120,8 +199,11 @@ def plot_fabric(scene, fabric, connectors=None, ax=None, path_sources=None):
     else:
         fig = ax.figure
 
-    # Heatmap background.
-    vmax = float(heat.max()) if heat.size and heat.max() > 0 else 1.0
+    blocked = blocked_of(scene)
+
+    # Heatmap background (non-finite values left blank; they never set the colour scale).
+    heat = np.where(np.isfinite(heat), heat, np.nan)
+    vmax = _finite_max(heat)
     im = ax.imshow(heat, origin="lower", extent=extent, cmap="hot", vmin=0.0, vmax=vmax,
                    interpolation="nearest", zorder=0)
     cbar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
@@ -134,6 +216,8 @@ def plot_fabric(scene, fabric, connectors=None, ax=None, path_sources=None):
     edge_lw = 1.2 if max(h, w) <= 80 else 0.6
     ax.add_collection(LineCollection(cell_edges(target_mask, x0, y0, s), colors=_TARGET,
                                      linewidths=edge_lw, zorder=2))
+    # Blocked cells: over the heatmap, under the outlines, counts and arrows.
+    draw_blocked(ax, blocked, s, (x0, y0), zorder=1.5)
     if scene.target is not None:
         for ring in polygon_rings(scene.target):
             ax.plot(ring[:, 0], ring[:, 1], color="white", lw=1.3, ls="--", zorder=6)
@@ -201,6 +285,8 @@ def plot_fabric(scene, fabric, connectors=None, ax=None, path_sources=None):
         Patch(facecolor="none", edgecolor=_HIGHWAY, label=f"highway cells ({int(highways.sum())})"),
         Patch(facecolor=(0.23, 0.51, 0.96, 0.45), edgecolor=_TARGET, label="target cells"),
     ]
+    if blocked.any():
+        handles.append(blocked_handle())
     if connectors is not None:
         handles.insert(1, Line2D([], [], color=_ORANGE, marker=r"$\rightarrow$", ls="",
                                  markersize=12, label=f"connector heading ({n_conn} roots)"))
@@ -230,12 +316,14 @@ def _draw_paths(ax, scene, fabric, path_sources, x0, y0, s) -> int:
         raise ValueError(f"plot_fabric: path_sources row {int(np.argmax(bad))} = "
                          f"{tuple(src[bad][0])} lies outside the {h}x{w} grid.")
     occupied = np.asarray(fabric.occupied, dtype=bool)
-    paths = extract_paths(fabric, src)
+    paths = extract_paths(fabric, src, detour=scene.detour)
     cells = np.asarray(paths.cells)
     n_cells = np.asarray(paths.n_cells)
     target_mask = np.asarray(scene.target_mask, dtype=bool)
     dist = np.asarray(scene.dist, dtype=np.float64)
     tvec = np.asarray(scene.tvec, dtype=np.float64)
+    detour = getattr(scene, "detour", None)
+    no_detour = np.ones((h, w), bool) if detour is None else np.asarray(detour) < 0
     drawn = 0
     for i, (r0, c0) in enumerate(src):
         if not occupied[r0, c0]:
@@ -243,9 +331,11 @@ def _draw_paths(ax, scene, fabric, path_sources, x0, y0, s) -> int:
         rc = cells[i, : int(n_cells[i])]
         pts = np.stack([x0 + (rc[:, 1] + 0.5) * s, y0 + (rc[:, 0] + 0.5) * s], -1)
         lr, lc = rc[-1]
-        if not target_mask[lr, lc]:
+        if not target_mask[lr, lc] and no_detour[lr, lc] and np.isfinite(dist[lr, lc]):
             # A path that does not end by entering a target cell ends with a boundary fallback:
-            # the straight segment to the closest boundary point.
+            # the straight segment to the closest boundary point, after the detour steps around
+            # blocked cells (listed as path cells); none from a cell cut off by blocked cells,
+            # whose ``dist`` is inf.
             pts = np.concatenate([pts, pts[-1:] + dist[lr, lc] * tvec[lr, lc][None]], 0)
         color = _PATH_COLORS[drawn % len(_PATH_COLORS)]
         ax.plot(pts[:, 0], pts[:, 1], color=color, lw=2.0, alpha=0.9, zorder=7,
@@ -296,6 +386,9 @@ def plot_episode(scene, episode):
     from matplotlib.collections import LineCollection
 
     right.add_collection(LineCollection(cell_edges(target_mask, x0, y0, s), colors=_TARGET, linewidths=1.2))
+    blocked = blocked_of(scene)
+    if draw_blocked(right, blocked, s, (x0, y0)) is not None:
+        right.legend(handles=[blocked_handle()], loc="upper left", fontsize=7, framealpha=0.75)
     totals = episode.totals()
     right.set_title(f"final counts: delivered {totals['delivered']:.1f} of {episode.initial_remaining:.1f}, "
                     f"remaining {totals['remaining']:.1f}", fontsize=10)
@@ -328,17 +421,18 @@ def animate_episode(scene, episode, path, *, fps: int = 4, dpi: int = 90, progre
     ys = y0 + (np.arange(h) + 0.5) * s
     cx, cy = np.meshgrid(xs, ys)
     target_mask = np.asarray(scene.target_mask, bool)
-    vmax = max(float(np.max(f["heat"])) for f in frames) or 1.0
+    vmax = _finite_max(*(f["heat"] for f in frames))
     stride = _stride(h, w)
     centre = lambda cells: np.stack([x0 + (cells[:, 1] + 0.5) * s, y0 + (cells[:, 0] + 0.5) * s], -1)  # noqa: E731
 
     fig, ax = plt.subplots(figsize=(7.2, 6.4))
-    im = ax.imshow(frames[0]["heat"], origin="lower", extent=extent, cmap="hot", vmin=0, vmax=vmax,
-                   interpolation="nearest")
+    im = ax.imshow(np.where(np.isfinite(frames[0]["heat"]), frames[0]["heat"], np.nan), origin="lower",
+                   extent=extent, cmap="hot", vmin=0, vmax=vmax, interpolation="nearest")
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03).set_label("heat H(X) before the push (objects)")
     ax.add_collection(LineCollection(cell_edges(target_mask, x0, y0, s), colors=_TARGET, linewidths=1.2))
     highway_lines = LineCollection([], colors=_HIGHWAY, linewidths=0.9)
     ax.add_collection(highway_lines)
+    draw_blocked(ax, blocked_of(scene), s, (x0, y0))   # static: the same cells in every frame
     quiver = ax.quiver(cx[::stride, ::stride], cy[::stride, ::stride], np.zeros_like(cx[::stride, ::stride]),
                        np.zeros_like(cy[::stride, ::stride]), color=_GREEN, angles="xy", scale_units="xy",
                        scale=1.0, width=0.004)
@@ -353,7 +447,7 @@ def animate_episode(scene, episode, path, *, fps: int = 4, dpi: int = 90, progre
 
     def draw(i):
         f = frames[i]
-        im.set_data(f["heat"])
+        im.set_data(np.where(np.isfinite(f["heat"]), f["heat"], np.nan))
         highway_lines.set_segments(list(cell_edges(f["highways"], x0, y0, s)))
         # NaN hides the arrow: only occupied cells carry a heading
         head = np.where(f["occupied"][..., None], f["heading"], np.nan)[::stride, ::stride] * 0.6 * s * stride

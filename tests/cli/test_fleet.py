@@ -38,17 +38,54 @@ def test_fleet_writes_every_file(fleet_run, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_rovers"] == 2 and summary["strategy"] == "coordinated" and summary["conflicts"] == 0
     assert summary["pushes"] <= 4 and len(summary["pushes_per_rover"]) == 2
+    assert summary["scene"] == "random14x14_piles_d0.4_s3"      # the file's scene name
+    assert summary["unreachable_mass"] == 0.0
     with np.load(out / "trajectory.npz") as data:
         t = summary["steps"]
         assert data["pos"].shape == (t + 1, 2, 2) and data["delivered"].shape == (t + 1,)
         total = data["delivered"] + data["outside"]
         np.testing.assert_allclose(total, float(data["initial_mass"]), rtol=0, atol=1e-6)   # mass identity
+        assert data["obj_initial"].dtype == data["obj_final"].dtype == np.float32
+        assert data["obj_initial"].shape == data["obj_final"].shape == (14, 14)
+        assert str(data["convention"]) == "cells are (row, col); rows = y, columns = x"
+        np.testing.assert_allclose(data["obj_initial"].sum(), float(data["initial_mass"]), rtol=1e-6)
+        np.testing.assert_allclose(data["obj_final"].sum(), total[-1], rtol=1e-6)
     pushes = json.loads((out / "pushes.json").read_text())
     assert len(pushes) == summary["pushes"]
     assert (out / "fleet.png").read_bytes()[:8] == PNG_MAGIC
     assert (out / "fleet.gif").read_bytes()[:3] == b"GIF"
     physics = json.loads((out / "physics.json").read_text())
     assert physics["rovers"] == len(physics["pushes"]) >= 1 and physics["contacts"] >= 0
+
+
+@pytest.fixture(scope="module")
+def walled_file(tmp_path_factory):
+    """The site of ``scene_file`` without a name, with a blocked L (row 10 and column 10 from 10 on)
+    that cuts the corner pocket rows 11-13 x columns 11-13 (2 objects per cell, 18) off the targets."""
+    from jaxplan import Scene
+
+    base = random_scene(3, (14, 14), layout="piles")
+    obj = np.asarray(base.obj).copy()
+    blocked = np.zeros((14, 14), bool)
+    blocked[10, 10:] = blocked[10:, 10] = True
+    obj[blocked] = 0
+    obj[11:, 11:] = 2
+    path = tmp_path_factory.mktemp("walled") / "walled.npz"
+    Scene.from_arrays(obj, base.target, blocked=blocked).save(path)
+    return path
+
+
+def test_fleet_names_an_unnamed_scene_file_by_its_path_and_counts_the_unreachable_mass(walled_file, tmp_path):
+    out = tmp_path / "out"
+    assert main(["fleet", "--scene", str(walled_file), "--rovers", "2", "--max-steps", "30", "--max-pushes", "2",
+                 "--no-animation", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scene"] == str(walled_file) and summary["unreachable_mass"] == 18.0
+    with np.load(out / "trajectory.npz") as data:
+        assert data["obj_initial"].shape == data["obj_final"].shape == (14, 14)
+        np.testing.assert_array_equal(data["obj_initial"][11:, 11:], 2.0)   # (row, col): the pocket ...
+        np.testing.assert_array_equal(data["obj_final"][11:, 11:], 2.0)     # ... never pushed
+        assert data["obj_initial"][10, 10:].sum() == 0 and data["obj_final"][10:, 10].sum() == 0
 
 
 @pytest.mark.parametrize("argv, starts", [

@@ -3,6 +3,7 @@ bad input (one ``error:`` line, exit code 2, never a traceback)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from jaxplan.cli import main
 from jaxplan.cli.transport import FABRIC_ARRAYS, SUMMARY_KEYS
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+SMALL_MAP = Path(__file__).resolve().parents[1] / "data" / "small.map"
 
 
 def _bad_input(argv, capsys) -> str:
@@ -67,6 +69,23 @@ def test_fabric_options_and_scene_file(tmp_path):
     with np.load(out) as data:
         assert data["table_raw"].shape == (25, 25, 2)
         assert float(data["theta_tol_deg"]) == 45.0 and not bool(data["monotone"])
+
+
+def test_fabric_on_a_movingai_map_site(tmp_path, capsys):
+    out = tmp_path / "f.npz"
+    assert main(["fabric", "--scene", str(SMALL_MAP), "--site-seed", "3", "--out", str(out)]) == 0
+    assert "fabric of small_site3 (24x32)" in capsys.readouterr().out
+    with np.load(out) as data:
+        assert data["value"].shape == (24, 32) and data["target_mask"].any()
+
+
+@pytest.mark.parametrize("command", ["fabric", "demo", "episode", "rover", "fleet"])
+def test_every_command_with_scene_takes_site_seed(command):
+    from jaxplan.cli.app import build_parser
+
+    argv = [command, "--scene", str(SMALL_MAP), "--out", "o", "--site-seed", "7"]
+    assert build_parser().parse_args(argv).site_seed == 7
+    assert build_parser().parse_args(argv[:-2]).site_seed is None   # used as 0 with a .map
 
 
 def test_fabric_failed_write_leaves_nothing(tmp_path, monkeypatch, capsys):
@@ -151,8 +170,9 @@ def test_scenes_lists_builtins(capsys):
     (["episode"], ["--scene", "--out", "--lam", "--max-pushes", "--rearrange-margin", "--stop-fraction",
                    "--source-rule", "--reselect", "--no-animation", "summary.json", "metrics.csv", "episode.gif",
                    "example"]),
-    (["fabric"], ["--scene", "--theta-tol", "--tau-h", "--k", "--no-monotone", "--out", "example"]),
-    (["demo"], ["--scene", "--out", "--theta-tol", "example", "summary.json", "fabric.png"]),
+    (["fabric"], ["--scene", "--theta-tol", "--tau-h", "--k", "--no-monotone", "--out", "example", "--site-seed",
+                  ".map", "--scene tests/data/small.map --site-seed 3"]),
+    (["demo"], ["--scene", "--out", "--theta-tol", "example", "summary.json", "fabric.png", "--site-seed"]),
     (["scenes"], ["example"]),
 ])
 def test_help(argv, expected, capsys):
@@ -183,6 +203,9 @@ def test_help(argv, expected, capsys):
     (["episode", "--scene", "default", "--out", "o", "--stop-fraction", "1.5"], "--stop-fraction"),
     (["episode", "--scene", "default", "--out", "o", "--rearrange-margin", "-2"], "--rearrange-margin"),
     (["episode", "--scene", "nope", "--out", "o"], "--scene"),
+    (["fabric", "--scene", "default", "--site-seed", "3", "--out", "x.npz"], "--site-seed"),
+    (["episode", "--scene", "missing.map", "--out", "o"], "--scene"),
+    (["fabric", "--scene", str(SMALL_MAP), "--site-seed", "-1", "--out", "x.npz"], "--site-seed"),
 ])
 def test_bad_input(argv, field, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
@@ -196,6 +219,14 @@ def test_bad_scene_file_content(tmp_path, capsys):
     bad.write_text("{not json")
     line = _bad_input(["fabric", "--scene", str(bad), "--out", str(tmp_path / "f.npz")], capsys)
     assert "bad.json" in line
+    assert not (tmp_path / "f.npz").exists()
+
+
+def test_bad_map_file_is_one_error_line(tmp_path, capsys):
+    bad = tmp_path / "bad.map"
+    bad.write_text("type octile\nheight 2\nwidth 3\nmap\n...\n.x.\n")
+    line = _bad_input(["fabric", "--scene", str(bad), "--out", str(tmp_path / "f.npz")], capsys)
+    assert line.startswith(f"error: --scene: Map file {bad}: line 6, character 2: 'x'"), line
     assert not (tmp_path / "f.npz").exists()
 
 
@@ -253,6 +284,7 @@ def test_episode_writes_summary_metrics_figure_and_animation(tmp_path, capsys):
     for key in ("initial_mass", "delivered", "spilled", "remaining", "pushes", "stop_reason", "message"):
         assert key in summary, key
     assert summary["pushes"] <= 4
+    assert summary["unreachable_mass"] == 0.0      # the default scene has no blocked cells
     metrics = json.loads((out / "metrics.json").read_text())
     assert len(metrics["per_tick"]["delivered"]) == summary["pushes"]
     assert metrics["totals"]["delivered"] == pytest.approx(summary["delivered"])
@@ -262,6 +294,29 @@ def test_episode_writes_summary_metrics_figure_and_animation(tmp_path, capsys):
     assert (out / "episode.png").read_bytes()[:8] == PNG_MAGIC
     assert (out / "episode.gif").read_bytes()[:3] == b"GIF"
     assert not list(out.glob(".*"))   # no temp files left
+
+
+def test_episode_summary_counts_the_mass_cut_off_by_blocked_cells():
+    from collections import defaultdict
+
+    from jaxplan import EpisodeParams, Scene, SpillParams, box
+    from jaxplan.cli.transport import _episode_summary
+
+    class Episode:            # the summary reads totals(), stop_reason and message
+        stop_reason, message = "done", "done"
+
+        def totals(self):
+            return defaultdict(float)
+
+    obj = np.zeros((6, 6))
+    obj[0, 0] = 2.5                 # behind the blocked column 1 and row 1 corner: cut off
+    obj[4, 3] = 1.0
+    blocked = np.zeros((6, 6), bool)
+    blocked[0:2, 1] = blocked[1, 0] = True
+    scene = Scene.from_arrays(obj, box(4.0, 4.0, 6.0, 6.0), blocked=blocked)
+    summary = _episode_summary(scene, "walls.json", FabricParams(), SpillParams(), EpisodeParams(), Episode())
+    assert summary["scene"] == "walls.json" and summary["unreachable_mass"] == 2.5
+    json.dumps(summary, allow_nan=False)
 
 
 def test_episode_reselect_flag_reaches_the_episode_params():

@@ -39,6 +39,11 @@ def test_random_fleets_keep_every_invariant(n, strategy, candidates_by, seed, la
     assert run.pos.shape == (t + 1, n, 2) and run.delivered.shape == run.outside.shape == (t + 1,)
     h, w = SITES[n]
     assert np.all((run.pos >= 0) & (run.pos < [h, w]))
+    blocked = np.asarray(scene.blocked)
+    assert not blocked[run.pos[..., 0], run.pos[..., 1]].any(), "a rover on a blocked cell"
+    assert not np.asarray(run.final_scene.obj)[blocked].any(), "material on a blocked cell"
+    for p in run.pushes:
+        assert not blocked[tuple(np.asarray(p["cells"]).T)].any(), "a route through a blocked cell"
     for a in (run.delivered, run.outside, [p[k] for p in run.pushes for k in ("collected", "delivered", "spilled")]):
         assert np.all(np.isfinite(a))
     # mass identity, exact: counts are multiples of execute.QUANTUM

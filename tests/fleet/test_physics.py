@@ -168,3 +168,29 @@ def test_the_first_round_is_the_first_step_with_the_most_tasks_running():
     assert [(p["rover"], p["first_step"]) for p in picked] == [(0, 6), (1, 3), (2, 7)]   # all running at step 7
     Run.pushes = []
     assert fp.first_round(Run()) == []
+
+
+def test_blocked_cells_are_walls_in_the_fleet_world_and_no_rover_contact():
+    """A wall of blocked cells (columns 4-5, rows 2-10) between the first two columns: one box in the
+    fleet's world; rover 0, started with its wing in the wall, touches it, and that is not counted as a
+    contact between rovers. Two control ticks."""
+    base = _scene()
+    blocked = np.zeros((16, 16), bool)
+    blocked[2:11, 4:6] = True
+    scene = Scene.from_arrays(np.asarray(base.obj), base.target, name="walled", blocked=blocked)
+    routes = _columns(scene)
+    starts = fp.check_concurrent_pushes(scene, routes, spill=SPILL, n_ticks=1).rover_xy[0].copy()
+    starts[0, 0] = 3.55                  # the wing's outer face at x = 4.05, 0.05 inside the wall
+    chk = fp.check_concurrent_pushes(scene, routes, starts, spill=SPILL, n_ticks=2)
+    m = chk.world.model
+    wall = m.geom("blocked0").id
+    assert chk.world.n_obstacles == 1 and chk.world.n_rovers == 3
+    np.testing.assert_allclose(m.geom_pos[wall][:2], [5.0, 6.5])
+    np.testing.assert_allclose(m.geom_size[wall][:2], [1.0, 4.5])
+    assert chk.finite and chk.contacts == 0 and chk.contact_events.shape == (0, 3)
+    d = mujoco.MjData(m)
+    d.qpos[:] = rover_mod.initial_qpos(chk.world, starts, np.full(3, np.pi / 2), [])
+    mujoco.mj_forward(m, d)
+    rover0 = m.body("r0_rover").id
+    touched = {int(g2 if g1 == wall else g1) for g1, g2 in d.contact.geom[: d.ncon] if wall in (g1, g2)}
+    assert touched and all(m.body_rootid[m.geom_bodyid[g]] == rover0 for g in touched)

@@ -62,7 +62,23 @@ def test_summary_numbers():
     assert s["plan_ms_median"] == pytest.approx(2.0) and s["plan_ms_p95"] == pytest.approx(2.9)
     assert (s["conflicts"], s["stop_reason"], s["message"]) == (0, "done", "all delivered")
     assert s["delivered_per_rover_step"] == pytest.approx(19.0 / 12)
+    assert s["scene"] == "tiny" and s["unreachable_mass"] == 0.0
     json.dumps(s, allow_nan=False)   # plain JSON types only
+
+
+def test_summary_names_the_given_scene_and_counts_mass_cut_off_by_blocked_cells():
+    # the run's scene is the compiled step's copy, which has no name: FleetRun.scene_name keeps it
+    obj = np.zeros((10, 10))
+    obj[1, 2:6] = 3.0
+    obj[0, 9] = 1.5                       # cut off: (0, 8) and (1, 9) are blocked, (0, 9) is a corner
+    blocked = np.zeros((10, 10), bool)
+    blocked[0, 8] = blocked[1, 9] = blocked[1, 8] = True
+    scene = Scene.from_arrays(obj, circle((8.5, 8.5), 1.2), blocked=blocked)
+    run = _fake_run(scene=scene, final_scene=scene, scene_name="walls.npz")
+    s = R.summary_of(run)
+    assert s["scene"] == "walls.npz" and s["unreachable_mass"] == 1.5
+    assert R.summary_of(_fake_run(scene=scene, final_scene=scene))["scene"] is None
+    assert R.summary_of(_fake_run(scene_name="site"))["scene"] == "site"
 
 
 def test_summary_without_events_or_reaching_t90():
@@ -84,6 +100,11 @@ def test_trajectory_and_pushes():
     assert arrays["pos"].dtype == np.int32 and arrays["pos"].shape == (T + 1, 2, 2)
     assert arrays["delivered"].dtype == np.float64 and arrays["outside"].shape == (T + 1,)
     assert arrays["initial_mass"].shape == () and float(arrays["initial_mass"]) == 20.0
+    for key, scene in (("obj_initial", run.scene), ("obj_final", run.final_scene)):   # f32[H, W], rows = y
+        assert arrays[key].dtype == np.float32 and arrays[key].shape == (10, 10)
+        np.testing.assert_array_equal(arrays[key], np.asarray(scene.obj))
+    assert arrays["obj_initial"][1, 2] == 3.0 and arrays["obj_initial"][2, 1] == 0.0     # (row, col)
+    assert str(arrays["convention"]) == R.TRAJECTORY_CONVENTION == "cells are (row, col); rows = y, columns = x"
     records = R.pushes_records(run)
     assert [r["rover"] for r in records] == [0, 1]
     assert records[0]["cells"] == [[1, 2], [1, 3], [1, 4]] and records[1]["mode"] == "rearrange"
@@ -113,9 +134,13 @@ def test_write_fleet_outputs(tmp_path):
     assert manifest["status"] == "complete" and sorted(manifest["files"]) == sorted(R.FLEET_OUTPUTS)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["T90"] == 6 and summary["seed"] == 0
-    with np.load(out / "trajectory.npz") as npz:
+    assert summary["scene"] == "tiny" and summary["unreachable_mass"] == 0.0
+    with np.load(out / "trajectory.npz") as npz:      # no pickles: the convention is a plain string array
         np.testing.assert_array_equal(npz["pos"], run.pos)
         assert npz["delivered"].dtype == np.float64
+        np.testing.assert_array_equal(npz["obj_initial"], np.asarray(run.scene.obj, np.float32))
+        np.testing.assert_array_equal(npz["obj_final"], np.asarray(run.final_scene.obj, np.float32))
+        assert str(npz["convention"]) == R.TRAJECTORY_CONVENTION
     assert len(json.loads((out / "pushes.json").read_text())) == 2
     assert Image.open(out / "fleet.png").size[0] > 0
     with Image.open(out / "fleet.gif") as gif:
@@ -148,3 +173,83 @@ def test_plot_and_animation_accept_many_rovers(tmp_path):
     calls = []
     assert R.animate_fleet(run, tmp_path / "many.gif", fps=5, max_frames=3, progress=lambda i, k: calls.append(i)) == 3
     assert calls == [1, 2, 3] and (tmp_path / "many.gif").stat().st_size > 0
+
+
+# --------------------------------------------------------------------------------------------------
+# Blocked cells (issue 45): fleet.png and fleet.gif draw them as solid dark-grey squares. The run is
+# hand-made (no rover or material on the block): these test the drawing, not the fleet's run.
+
+_BLOCK = (slice(5, 8), slice(4, 7))
+_BLOCKED_CELL, _FREE_CELL = (6, 5), (9, 1)
+_GREY = np.array([0x40, 0x40, 0x40])
+
+
+def _blocked_run(**changes) -> FleetRun:
+    run = _fake_run()
+    blocked = np.zeros((10, 10), bool)
+    blocked[_BLOCK] = True
+    scene = Scene.from_arrays(np.asarray(run.scene.obj), circle((8.5, 8.5), 1.2), name="tiny", blocked=blocked)
+    return _fake_run(scene=scene, final_scene=scene.with_obj(np.asarray(run.final_scene.obj)), **changes)
+
+
+def _blocked_pixels_ok(rgb, ax, scale=1.0, tol=3):
+    """The rendered image ``rgb`` of ``ax``'s figure (at ``scale`` x its dpi) is dark grey at a blocked
+    cell's centre and not at a free cell's."""
+    def pixel(cell):
+        x, y = ax.transData.transform((cell[1] + 0.5, cell[0] + 0.5)) * scale
+        return rgb[int(round(rgb.shape[0] - y)), int(round(x)), :3].astype(int)
+
+    return np.abs(pixel(_BLOCKED_CELL) - _GREY).max() <= tol and np.abs(pixel(_FREE_CELL) - _GREY).max() > 20
+
+
+def _blocked_layer(ax):
+    return [im for im in ax.get_images() if im.get_gid() == "blocked"]
+
+
+def test_plot_fleet_draws_blocked_cells():
+    import io
+
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    fig = R.plot_fleet(_blocked_run())
+    right = fig.axes[1]
+    (layer,) = _blocked_layer(right)
+    expected = np.zeros((10, 10), bool)
+    expected[_BLOCK] = True
+    np.testing.assert_array_equal(np.asarray(layer.get_array())[..., 3] > 0, expected)
+    assert [t.get_text() for t in right.get_legend().get_texts()] == ["blocked"]
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=fig.dpi)
+    assert _blocked_pixels_ok(np.asarray(Image.open(buf).convert("RGB")), right)
+    plt.close(fig)
+    # a scene without blocked cells: no layer, no legend on the map
+    fig = R.plot_fleet(_fake_run())
+    assert not _blocked_layer(fig.axes[1]) and fig.axes[1].get_legend() is None
+    plt.close(fig)
+
+
+def test_animate_fleet_draws_blocked_cells(tmp_path, monkeypatch):
+    from PIL import Image
+
+    seen = {}
+    real = R.save_animation
+
+    def spy(fig, draw, n, path, *, fps, dpi):
+        seen.update(ax=fig.axes[0], scale=dpi / fig.dpi)
+        real(fig, draw, n, path, fps=fps, dpi=dpi)
+
+    monkeypatch.setattr(R, "save_animation", spy)
+    assert R.animate_fleet(_blocked_run(), tmp_path / "fleet.gif", fps=5, max_frames=3, dpi=60) == 3
+    assert _blocked_layer(seen["ax"])
+    with Image.open(tmp_path / "fleet.gif") as gif:
+        for k in range(gif.n_frames):
+            gif.seek(k)
+            assert _blocked_pixels_ok(np.asarray(gif.convert("RGB")), seen["ax"], seen["scale"], tol=8), k
+
+
+def test_write_fleet_outputs_with_blocked_cells(tmp_path):
+    with RunFolder(tmp_path / "out", "fleet") as folder:
+        paths = R.write_fleet_outputs(_blocked_run(), folder, animate=True, fps=5, max_frames=2)
+    assert sorted(paths) == sorted(R.FLEET_OUTPUTS)
+    assert read_manifest(tmp_path / "out")["status"] == "complete"

@@ -13,10 +13,12 @@ from tests.fleet._sites import site
 SHAPE = (16, 16)
 PARAMS = FabricParams()
 SPILL = SpillParams(lam=0.1)
-CASES = (   # (seed, layout, stop_fraction, max_pushes): ends "done", "budget", "done" on two targets
-    (1, "uniform", 0.6, 20),
+CASES = (   # (seed, layout, stop_fraction, max_pushes): ends "done", "budget", "done" on two targets,
+    (1, "uniform", 0.6, 20),         # then on sites with buildings: random ones and a map-made one
     (2, "piles", 0.02, 10),
     (3, "two_targets", 0.5, 20),
+    (4, "buildings", 0.3, 20),
+    (5, "map", 0.3, 20),
 )
 
 
@@ -40,6 +42,8 @@ def test_one_independent_rover_pushes_the_episodes_routes(pair):
     np.testing.assert_allclose([p["spilled"] for p in fleet.pushes], episode.push_spilled, rtol=1e-5, atol=1e-3)
     assert fleet.stop_reason == episode.stop_reason
     np.testing.assert_allclose(np.asarray(fleet.final_scene.obj), episode.final_obj, atol=1e-3)
+    # the compiled step's scene copy has no name; the run keeps the given scene's
+    assert fleet.scene.name is None and fleet.scene_name
 
 
 def test_the_rover_drives_one_cell_a_step_and_stays_clear(pair):

@@ -3,6 +3,7 @@ projection back to the grid conserves mass and feeds the selective rebuild, a vm
 single rollouts. Tiny scenes and short horizons; each engine compiles/builds once per module."""
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -315,3 +316,118 @@ def test_check_routes_takes_a_friction_per_route(tiny):
             and fields[1, wheel, 0] == world.model.geom_friction[wheel, 0])
     with pytest.raises(ValueError, match="friction"):
         bridge.check_routes(scene, routes, n_ticks=2, world=world, simulator=sims["c"], friction=-1.0)
+
+
+# -- blocked cells: static boxes in the world (issue 45) ---------------------------------------------
+
+def _blocked_scene():
+    """6 x 8 cells of 0.5 m at origin (1, -2): an L of blocked cells (rows 1-2 x cols 3-4, and (3, 3))
+    and a single blocked cell at (0, 7); gravel at (4, 1), the target on cells (4-5, 6-7)."""
+    obj = np.zeros((6, 8))
+    obj[4, 1] = 2
+    blocked = np.zeros((6, 8), bool)
+    blocked[1:3, 3:5] = True
+    blocked[3, 3] = True
+    blocked[0, 7] = True
+    return Scene.from_arrays(obj, box(4.0, 0.0, 5.0, 1.0), cell_size=0.5, origin=(1.0, -2.0), name="walls",
+                             blocked=blocked)
+
+
+def _obstacle_geoms(model):
+    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(model.ngeom)]
+    return [g for g, name in enumerate(names) if name.startswith(rover.OBSTACLE_PREFIX)]
+
+
+def test_blocked_cells_become_static_boxes_at_their_cells():
+    scene = _blocked_scene()
+    world = rover.build_world(scene, 3)
+    m, s = world.model, 0.5
+    rects = rover.blocked_rectangles(scene.blocked)
+    np.testing.assert_array_equal(rects, [[0, 7, 1, 1], [1, 3, 2, 2], [3, 3, 1, 1]])   # (row, col, rows, cols)
+    geoms = _obstacle_geoms(m)
+    assert world.n_obstacles == len(geoms) == 3
+    height = rover.obstacle_height(s, world.config)
+    assert height >= 4 * 2 * world.config.particle_radius * s and height > 0.25 * s   # taller than the hull
+    # world (x, y) centre and half sizes: cell (r, c) has centre origin + ((c + 0.5) s, (r + 0.5) s)
+    expected = {"blocked0": ([4.75, -1.75], [0.25, 0.25]), "blocked1": ([3.0, -1.0], [0.5, 0.5]),
+                "blocked2": ([2.75, -0.25], [0.25, 0.25])}
+    for g in geoms:
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g)
+        centre, half = expected[name]
+        assert m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX and m.geom_bodyid[g] == 0      # static, world body
+        np.testing.assert_allclose(m.geom_pos[g], centre + [height / 2], atol=1e-9)     # standing on the floor
+        np.testing.assert_allclose(m.geom_size[g], half + [height / 2], atol=1e-9)
+        assert (m.geom_contype[g], m.geom_conaffinity[g]) == (1, 4)
+    # the boxes cover exactly the blocked cells: every cell centre is inside a box iff it is blocked
+    rows, cols = np.mgrid[0:6, 0:8]
+    xy = np.stack([1.0 + (cols + 0.5) * s, -2.0 + (rows + 0.5) * s], -1)
+    inside = np.zeros((6, 8), int)
+    for g in geoms:
+        inside += np.all(np.abs(xy - m.geom_pos[g][:2]) < m.geom_size[g][:2], -1)
+    np.testing.assert_array_equal(inside, np.asarray(scene.blocked).astype(int))
+    # MJX must keep every particle-box pair (walls have large bounding spheres) and their contacts
+    assert world.caps == rover.caps_for(3, world.config, 1, 3)
+    assert world.caps["max_geom_pairs"] >= 3 * (rover.HULL_BOXES + 3) + 4 * 3
+
+
+def test_a_scene_without_blocked_cells_gets_no_boxes_and_the_same_world():
+    scene = _tiny_scene()
+    world = rover.build_world(scene, 4)
+    assert world.n_obstacles == 0 and not _obstacle_geoms(world.model) and "blocked" not in world.xml
+    assert world.caps == rover.caps_for(4, world.config, 1)
+    assert rover.blocked_rectangles(np.zeros((5, 8), bool)).shape == (0, 4)
+    clear = Scene.from_arrays(np.asarray(scene.obj), scene.target, name="tiny", blocked=np.zeros((5, 8), bool))
+    assert rover.build_world(clear, 4).xml == world.xml
+    fleet = rover.build_world(scene, 4, n_rovers=2)
+    assert fleet.n_obstacles == 0 and not _obstacle_geoms(fleet.model)
+
+
+def test_blocked_rectangles_tile_any_mask_with_row_maximal_runs():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        mask = rng.random((rng.integers(1, 9), rng.integers(1, 9))) < 0.5
+        rects = rover.blocked_rectangles(mask)
+        cover = np.zeros(mask.shape, int)
+        for r, c, nr, nc in rects:
+            cover[r:r + nr, c:c + nc] += 1
+            for row in range(r, r + nr):     # a maximal run in each of its rows
+                assert c == 0 or not mask[row, c - 1]
+                assert c + nc == mask.shape[1] or not mask[row, c + nc]
+        np.testing.assert_array_equal(cover, mask.astype(int))     # disjoint, exact
+        runs = sum(int(np.sum(np.diff(np.concatenate([[0], row.astype(int), [0]])) == 1)) for row in mask)
+        assert len(rects) <= runs
+
+
+def test_particles_and_the_rover_collide_with_the_boxes_on_both_engines():
+    """One forward pass, no rollout: the blade, the wings and a particle pressed into blocked1 (x 2.5..3.5,
+    y -1.5..-0.5) touch it on the C engine and on MJX; a particle thrown at the wall stays out of it."""
+    from mujoco import mjx
+
+    scene = _blocked_scene()
+    world = rover.build_world(scene, 2)
+    m = world.model
+    r = world.config.particle_radius * 0.5
+    q = rover.initial_qpos(world, [2.5 - world.geometry.blade_front + 0.01, -1.0], 0.0,
+                           [[3.5 + r - 0.01, -0.75, r], [4.25, -0.25, r]])
+    wall = m.geom("blocked1").id
+    particle = m.body_geomadr[m.body("p0").id]
+    touching = {m.geom("blade").id, m.geom("wing_left").id, m.geom("wing_right").id, particle}
+    d = mujoco.MjData(m)
+    d.qpos[:] = q
+    mujoco.mj_forward(m, d)
+    pairs = {tuple(sorted(map(int, g))) for g, dist in zip(d.contact.geom[:d.ncon], d.contact.dist[:d.ncon])
+             if dist < 0}
+    assert {tuple(sorted((wall, g))) for g in touching} <= pairs
+    mx = jax.jit(mjx.forward)(mjx.put_model(m), mjx.put_data(m, d))
+    contact = mx._impl.contact
+    hit = {tuple(sorted(map(int, g))) for g, dist in zip(np.asarray(contact.geom), np.asarray(contact.dist))
+           if dist < 0}
+    assert {tuple(sorted((wall, g))) for g in touching} <= hit
+    # particle p1, just right of blocked2 (x 2.5..3.0, y -0.5..0), thrown at it at 2 m/s for 0.15 s
+    d = mujoco.MjData(m)
+    d.qpos[:] = rover.initial_qpos(world, [1.5, 0.5], 0.0, [[3.5 + r + 0.1, -0.75, r], [3.0 + r + 0.02, -0.25, r]])
+    p1 = m.jnt_dofadr[m.body("p1").jntadr[0]]
+    d.qvel[p1] = -2.0
+    for _ in range(30):
+        mujoco.mj_step(m, d)
+    assert world.particle_xyz(d.qpos)[1, 0] > 3.0 + 0.5 * r     # stopped by the wall, not through it

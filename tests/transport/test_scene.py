@@ -331,7 +331,8 @@ def test_save_load_round_trip(tmp_path, suffix, name):
 def test_json_layout(tmp_path):
     scene = scenes.builtin_scene("default")
     doc = json.loads(scene.save(tmp_path / "s.json").read_text())
-    assert doc["format_version"] == 1 and doc["name"] == "default"
+    assert doc["format_version"] == 2 and doc["name"] == "default"
+    assert doc["blocked"] == ["." * 25] * 25
     assert doc["cell_size"] == 1.0 and doc["origin"] == [0.0, 0.0]
     assert np.asarray(doc["obj"]).shape == (25, 25)
     assert shapely.from_wkt(doc["target"]).equals(scene.target)
@@ -343,9 +344,10 @@ def test_json_layout(tmp_path):
 
 @pytest.mark.parametrize("name, shape", [
     ("default", (25, 25)), ("corridor", (45, 45)), ("two_targets", (30, 30)), ("sparse65", (65, 65)),
+    ("yard", (40, 40)),
 ])
 def test_builtin_scenes(name, shape):
-    assert set(scenes.BUILTIN_SCENES) == {"default", "corridor", "two_targets", "sparse65"}
+    assert set(scenes.BUILTIN_SCENES) == {"default", "corridor", "two_targets", "sparse65", "yard"}
     assert scenes.DEFAULT_SCENE in scenes.BUILTIN_SCENES
     scene = scenes.builtin_scene(name)
     assert scene.name == name and scene.shape == shape
@@ -396,14 +398,15 @@ def test_with_obj_keeps_geometry():
 def test_pytree_structure():
     scene = scenes.builtin_scene()
     leaves, treedef = jax.tree_util.tree_flatten(scene)
-    assert len(leaves) == 6
+    assert len(leaves) == 8
     assert leaves[0] is scene.obj and leaves[3] is scene.tvec and leaves[5] is scene.origin
+    assert leaves[6] is scene.blocked and leaves[7] is scene.detour
     other = S.Scene.from_arrays(np.ones((25, 25)), S.box(0, 0, 3, 3), name="other")
     assert jax.tree_util.tree_structure(other) == treedef  # aux data is None: same structure
     rebuilt = jax.tree_util.tree_unflatten(treedef, leaves)
     assert rebuilt.target is None and rebuilt.name is None
     paths = [jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_flatten_with_path(scene)[0]]
-    assert paths == [".obj", ".target_mask", ".dist", ".tvec", ".cell_size", ".origin"]
+    assert paths == [".obj", ".target_mask", ".dist", ".tvec", ".cell_size", ".origin", ".blocked", ".detour"]
 
 
 def test_with_obj_under_jit():

@@ -1,5 +1,6 @@
 """Scene.load on broken files: every problem is one ValueError "Scene file <path>: ..." naming what is
-wrong (docs/scene-files.md, "What is checked when a file is read"), never a decoder's traceback."""
+wrong (docs/scene-files.md, "What is checked when a file is read"), never a decoder's traceback; and
+format version 2, whose ``blocked`` key holds the blocked cells (version-1 files still load)."""
 from __future__ import annotations
 
 import io
@@ -109,7 +110,7 @@ def test_object_array_is_never_unpickled(tmp_path):
     ({"obj": np.array([["a", "b"]])}, "obj: holds dtype <U1"),
     ({"obj": np.zeros((1, S.MAX_FILE_SIDE + 1), np.float32)}, "at most 4096 x 4096"),
     ({"format_version": np.str_("1")}, "format_version: holds dtype <U1"),
-    ({"format_version": np.int64(2)}, "reads format_version 1"),
+    ({"format_version": np.int64(3)}, "reads format_version 1 or 2 only"),
     ({"cell_size": np.array([1.0, 2.0])}, "cell_size: holds dtype float64 with shape (2,)"),
     ({"origin": np.array(["a", "b"])}, "origin: holds dtype <U1"),
     ({"target_wkt": np.float64(1.0)}, "target_wkt: holds dtype float64"),
@@ -195,7 +196,7 @@ def test_bad_json_text(tmp_path, content, words):
     ({"target": "POLYGON ((0 0, 2 2, 2 0, 0 2, 0 0))"}, "target: the geometry is invalid"),
     ({"format_version": "1"}, "format_version: must be the integer 1"),
     ({"format_version": 1.0}, "format_version: must be the integer 1"),
-    ({"format_version": 2}, "reads format_version 1"),
+    ({"format_version": 3}, "reads format_version 1 or 2 only"),
     ({"name": 5}, "name: must be a string or null"),
     ({"colour": "red"}, "unknown key(s) 'colour'; a scene file has exactly the keys format_version, name"),
     ({"cell_size": None}, "cell_size: must be a number"),
@@ -267,3 +268,142 @@ def test_a_member_held_twice_is_refused(tmp_path):
     with zipfile.ZipFile(path, "a") as zf:
         zf.writestr("cell_size.npy", buf.getvalue())
     assert "holds the member 'cell_size.npy' twice" in _load_error(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# format version 2: blocked cells
+# --------------------------------------------------------------------------------------------------
+
+BLOCKED = np.array([[False, False, False], [True, False, False], [False, True, False]])
+DOC2 = {**DOC, "format_version": 2, "obj": [[0.0, 1.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]],
+        "blocked": ["...", "@..", ".@."]}
+
+
+def _arrays2(**changes) -> dict:
+    return _arrays(**{"format_version": np.int64(2), "obj": np.array(DOC2["obj"], np.float32),
+                      "blocked": BLOCKED, **changes})
+
+
+def _blocked_scene(name="walls"):
+    """7 x 9 with a wall (rows 1..5 of column 4, a gap at the top), material on both sides, a target on the
+    right and a pocket closed on all sides holding material that no target reaches."""
+    blocked = np.zeros((7, 9), bool)
+    blocked[0:6, 4] = True
+    blocked[0:3, 0] = blocked[0:3, 2] = blocked[3, 0:3] = True   # closes the pocket (rows 0..2, col 1)
+    obj = np.zeros((7, 9))
+    obj[5, 1], obj[6, 6], obj[1, 1] = 2.0, 3.0, 4.0
+    return S.Scene.from_arrays(obj, S.box(7.0, 2.0, 9.0, 5.0), name=name, blocked=blocked)
+
+
+def test_blocked_scene_fixture_is_what_it_says():
+    scene = _blocked_scene()
+    assert np.asarray(scene.blocked).sum() == 6 + 3 + 3 + 3
+    assert float(scene.unreachable_mass) == 4.0
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".json"])
+def test_version_2_round_trip_keeps_blocked(tmp_path, suffix):
+    scene = _blocked_scene()
+    back = S.Scene.load(scene.save(tmp_path / f"s{suffix}"))
+    for key in ("obj", "blocked", "target_mask", "dist", "tvec", "detour", "cell_size", "origin"):
+        np.testing.assert_array_equal(np.asarray(getattr(back, key)), np.asarray(getattr(scene, key)), err_msg=key)
+        assert np.asarray(getattr(back, key)).dtype == np.asarray(getattr(scene, key)).dtype, key
+    assert float(back.unreachable_mass) == 4.0 and back.name == "walls"
+
+
+def test_save_writes_version_2_with_blocked_in_both_formats(tmp_path):
+    scene = _blocked_scene()
+    doc = json.loads(scene.save(tmp_path / "s.json").read_text())
+    assert doc["format_version"] == SF.FORMAT_VERSION == 2
+    assert len(doc["blocked"]) == 7 and doc["blocked"][0] == "@.@.@...." and doc["blocked"][6] == "." * 9
+    assert list(doc) == ["format_version", "name", "cell_size", "origin", "obj", "blocked", "target"]
+    with np.load(scene.save(tmp_path / "s.npz"), allow_pickle=False) as data:
+        assert int(data["format_version"]) == 2
+        assert data["blocked"].dtype == bool and data["blocked"].shape == (7, 9)
+        np.testing.assert_array_equal(data["blocked"], np.asarray(scene.blocked))
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".json"])
+def test_a_scene_without_blocked_cells_is_saved_all_free(tmp_path, suffix):
+    path = tmp_path / "v1.json"
+    path.write_text(json.dumps(DOC))
+    back = S.Scene.load(S.Scene.load(path).save(tmp_path / f"s{suffix}"))
+    assert not np.asarray(back.blocked).any()
+    if suffix == ".json":
+        assert json.loads((tmp_path / "s.json").read_text())["blocked"] == ["..."] * 3
+
+
+def test_version_1_files_load_with_every_cell_free(tmp_path):
+    (tmp_path / "s.json").write_text(json.dumps(DOC))
+    np.savez(tmp_path / "s.npz", **_arrays())
+    for name in ("s.json", "s.npz"):
+        scene = S.Scene.load(tmp_path / name)
+        assert scene.shape == (3, 3) and not np.asarray(scene.blocked).any(), name
+        assert float(scene.unreachable_mass) == 0.0
+
+
+def test_version_2_files_written_by_hand_load(tmp_path):
+    (tmp_path / "s.json").write_text(json.dumps(DOC2))
+    np.savez(tmp_path / "s.npz", **_arrays2())
+    for name in ("s.json", "s.npz"):
+        np.testing.assert_array_equal(np.asarray(S.Scene.load(tmp_path / name).blocked), BLOCKED, err_msg=name)
+
+
+def test_blocked_needs_version_2_and_version_2_needs_blocked(tmp_path):
+    (tmp_path / "v1.json").write_text(json.dumps({**DOC, "blocked": DOC2["blocked"]}))
+    assert "unknown key(s) 'blocked'" in (m := _load_error(tmp_path / "v1.json")) and "format_version 2" in m
+    np.savez(tmp_path / "v1.npz", **_arrays(blocked=BLOCKED))
+    assert "unknown key(s) 'blocked'" in (m := _load_error(tmp_path / "v1.npz")) and "format_version 2" in m
+    (tmp_path / "v2.json").write_text(json.dumps({k: v for k, v in DOC2.items() if k != "blocked"}))
+    assert "missing key(s) blocked" in _load_error(tmp_path / "v2.json")
+    np.savez(tmp_path / "v2.npz", **_arrays2(blocked=None))
+    assert "missing key(s) blocked" in _load_error(tmp_path / "v2.npz")
+
+
+@pytest.mark.parametrize("blocked, words", [
+    (np.zeros((3, 3), np.uint8), "blocked: holds dtype uint8 with shape (3, 3); it must hold a bool (H, W) array"),
+    (np.zeros((3, 3), np.float32), "blocked: holds dtype float32"),
+    (np.array([["@", ".", "."]] * 3), "blocked: holds dtype <U1"),
+    (np.zeros((3, 4), bool), "blocked: has shape (3, 4) but obj has (3, 3)"),
+    (np.zeros((3, 3, 1), bool), "blocked: has shape (3, 3, 1) but obj has (3, 3)"),
+    (np.zeros(9, bool), "blocked: has shape (9,) but obj has (3, 3)"),
+    (np.array([[True, None, False]] * 3, dtype=object), "blocked: is an object (pickled) array"),
+])
+def test_bad_npz_blocked(tmp_path, blocked, words):
+    path = tmp_path / "s.npz"
+    np.savez(path, **_arrays2(blocked=blocked))
+    message = _load_error(path)
+    assert words in message, message
+
+
+@pytest.mark.parametrize("blocked, words", [
+    ("@..\n...\n...", "blocked: must be a list of 3 strings of 3 characters"),
+    ([[True, False, False]] * 3, "blocked: row 0 is a list ([true, false, false]), not a string"),
+    (["...", "..."], "blocked: has 2 row(s) but obj has 3"),
+    (["...", "....", "..."], "blocked: row 1 has 4 character(s) but obj has 3 column(s)"),
+    (["...", "..", "..."], "blocked: row 1 has 2 character(s)"),
+    (["...", ".#.", "..."], "blocked: row 1, column 1 is '#'; use '@' for a blocked cell and '.' for a free one"),
+    (["...", "...", "..T"], "blocked: row 2, column 2 is 'T'"),
+    (["...", "...", ".. "], "blocked: row 2, column 2 is ' '"),
+    (["...", None, "..."], "blocked: row 1 is null"),
+    (None, "blocked: must be a list of 3 strings"),
+])
+def test_bad_json_blocked(tmp_path, blocked, words):
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({**DOC2, "blocked": blocked}))
+    message = _load_error(path)
+    assert words in message, message
+
+
+@pytest.mark.parametrize("suffix", [".json", ".npz"])
+def test_material_or_target_on_a_blocked_cell_is_refused_naming_the_first(tmp_path, suffix):
+    path = tmp_path / f"s{suffix}"
+    on_material = ["...", "...", "@@."]            # row 2 holds 1.0 at col 0
+    on_target = ["..@", "...", "..."]              # the target covers col 2 of rows 0 and 1
+    for rows, words in ((on_material, "blocked: 1 blocked cell(s) hold material (first at row 2, col 0)"),
+                        (on_target, "blocked: 1 blocked cell(s) hold target area (first at row 0, col 2)")):
+        if suffix == ".json":
+            path.write_text(json.dumps({**DOC2, "blocked": rows}))
+        else:
+            np.savez(path, **_arrays2(blocked=np.array([[ch == "@" for ch in row] for row in rows])))
+        assert _load_error(path).startswith(f"Scene file {path}: {words}")

@@ -316,7 +316,7 @@ def plan_routes(scene, params=None, n_routes: int = 4):
         raise ValueError("scene: no occupied cell outside the target, so there is no route to check.")
     w = scene.shape[1]
     sources = np.stack([order // w, order % w], -1).astype(np.int32)
-    paths = extract_paths(fabric, sources)
+    paths = extract_paths(fabric, sources, detour=scene.detour)
     return fabric, execute.routes_from_paths(scene, paths), sources
 
 

@@ -28,6 +28,16 @@ neighbours in a layer, 3 per particle counting each pair once; ``pair_factor = 4
 second layer against the blade), and the contact budget adds one floor contact per particle plus the
 2 wheels and the 2 casters. ``contact_usage`` measures the real counts with the C engine so a test can
 check that nothing is dropped.
+
+Blocked cells (``scene.blocked``: buildings, equipment, no-go zones) are static boxes of the world
+body, one per rectangle of ``blocked_rectangles`` (maximal runs of blocked cells in a row, runs of
+equal columns in consecutive rows merged), ``obstacle_height(s, cfg)`` tall (at least 4 particle
+diameters and twice the rover's hull), named ``"blocked{k}"``. Their collision bits, contype 1 (the
+floor's) and conaffinity 4 (the hull's), make particles, wheels, casters and hulls collide with them.
+With B boxes the caps grow by what B walls can add: ``B * (N + 4 R)`` pairs (every particle-box and
+wheel/caster-box pair, so no hull-particle pair is culled for a wall's large bounding sphere) and
+``N + R * (4 + 4 * hull_boxes)`` contacts (each particle, wheel and caster against one wall, each hull
+box a 4-point box-box manifold). A scene without blocked cells gets exactly the world it got before.
 """
 from __future__ import annotations
 
@@ -42,7 +52,8 @@ import numpy as np
 from mjx_models import MODEL_DIR
 
 __all__ = ["RoverConfig", "World", "build_world", "particle_layout", "contact_usage", "rover_pose",
-           "rover_prefix", "rover_xml", "rover_geometry", "Geometry", "MODEL_DIR"]
+           "rover_prefix", "rover_xml", "rover_geometry", "Geometry", "MODEL_DIR", "OBSTACLE_PREFIX",
+           "blocked_rectangles", "obstacle_height"]
 
 HULL_BOXES = 4           # chassis, blade, two wings
 ROVER_QPOS = 9           # qpos per rover: free joint (7) and the two wheel hinges
@@ -50,6 +61,11 @@ _OTHER_ROVER_BIT = 8     # collision bit of the other rovers in a world of sever
 _SLOTS = 3               # particles per cell side in one layer
 _PARK_GAP = 3.0          # parked particles are this many radii apart
 _SOLVERS = ("CG", "Newton")   # the constraint solvers both MJX and the C engine run
+OBSTACLE_PREFIX = "blocked"   # geom names of the blocked cells' boxes: blocked0, blocked1, ...
+_OBSTACLE_CELLS = 0.5         # box height in cells (twice the rover's hull, 0.25 s) ...
+_OBSTACLE_RADII = 8.0         # ... and at least this many particle radii (4 diameters)
+_OBSTACLE_CONTYPE = 1         # the floor's bit: particles, wheels and casters collide with it
+_OBSTACLE_CONAFFINITY = 4     # the hull's bit: chassis, blade and wings collide with it
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,6 +144,8 @@ class World:
     check. parking: f[N, 3] positions of parked particles. caps: the MJX caps written into the model.
     n_rovers: rovers in the world (R); with R > 1 rover i's free joint and wheels are qpos
     ``[9i : 9i + 9]`` and the particles start at ``9 R`` (``rover_qpos_adr``).
+    n_obstacles: static boxes of the scene's blocked cells (B; geoms ``"blocked{k}"``, one per
+    ``blocked_rectangles`` row).
     """
 
     model: mujoco.MjModel
@@ -142,6 +160,7 @@ class World:
     parking: np.ndarray
     caps: dict
     n_rovers: int = 1
+    n_obstacles: int = 0
 
     def particle_xyz(self, qpos):
         """``f[..., N, 3]`` particle positions from ``qpos f[..., nq]``."""
@@ -194,13 +213,46 @@ def rover_xml(s: float, cfg: RoverConfig, prefix: str = "", collide_rovers: bool
                        **{k: f"{v:.6g}" for k, v in fields.items()})
 
 
-def caps_for(n_particles: int, cfg: RoverConfig, n_rovers: int = 1) -> dict:
-    """The MJX contact caps for N particle bodies and R rovers (module docstring; every rover's hull
-    may touch every particle, and each rover has 4 floor contacts)."""
-    n, r = int(n_particles), int(n_rovers)
-    pairs = max(HULL_BOXES * r * n, cfg.pair_factor * n, 1)
+def caps_for(n_particles: int, cfg: RoverConfig, n_rovers: int = 1, n_obstacles: int = 0) -> dict:
+    """The MJX contact caps for N particle bodies, R rovers and B obstacle boxes (module docstring;
+    every rover's hull may touch every particle, each rover has 4 floor contacts, and the boxes add
+    their pairs and contacts; B = 0 gives the caps of a world without blocked cells)."""
+    n, r, b = int(n_particles), int(n_rovers), int(n_obstacles)
+    pairs = max(HULL_BOXES * r * n + b * (n + 4 * r), cfg.pair_factor * n, 1)
     points = (n + 4 * r) + cfg.pair_factor * n + cfg.hull_factor * r * n
+    if b:
+        points += n + r * (4 + 4 * HULL_BOXES)
     return {"max_geom_pairs": int(pairs), "max_contact_points": int(points)}
+
+
+def blocked_rectangles(blocked) -> np.ndarray:
+    """``i32[K, 4]`` rows ``(row, col, n_rows, n_cols)``: disjoint rectangles that cover exactly the
+    True cells of ``blocked: bool[H, W]`` (rows = y). Each row's maximal runs of blocked cells, a run
+    merged with the one of the same columns in the row below it; ordered by (row, col)."""
+    mask = np.asarray(blocked, bool)
+    if mask.ndim != 2:
+        raise ValueError(f"blocked: expected a bool [H, W] mask; got shape {mask.shape}.")
+    done, growing = [], {}          # growing: (col, n_cols) -> [row, n_rows] of a rectangle still open
+    for row in range(mask.shape[0] + 1):
+        runs = set()
+        if row < mask.shape[0]:
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], mask[row].astype(np.int8), [0]])))
+            runs = {(int(c0), int(c1 - c0)) for c0, c1 in zip(edges[::2], edges[1::2])}
+        for key in [k for k in growing if k not in runs]:      # not continued in this row: closed
+            first, n_rows = growing.pop(key)
+            done.append((first, key[0], n_rows, key[1]))
+        for key in runs:
+            if key in growing:
+                growing[key][1] += 1
+            else:
+                growing[key] = [row, 1]
+    return np.asarray(sorted(done), np.int32).reshape(-1, 4)
+
+
+def obstacle_height(s: float, cfg: RoverConfig) -> float:
+    """Height (world units) of the blocked cells' boxes for cell size ``s``: half a cell (twice the
+    rover's hull) and at least 4 particle diameters."""
+    return max(_OBSTACLE_CELLS * s, _OBSTACLE_RADII * cfg.particle_radius * s)
 
 
 def _parking(n: int, s: float, cfg: RoverConfig, origin, width_cells: int) -> np.ndarray:
@@ -233,7 +285,9 @@ def build_world(scene, n_particles: int, config: RoverConfig | None = None, n_ro
     margin = 3.0 * s
     lo = np.array([ox - margin, oy - margin - 1.5 * s - park_rows * s, -0.5 * s])
     hi = np.array([ox + w * s + margin, oy + h * s + margin, 3.0 * s])
-    caps = caps_for(n, cfg, n_rovers)
+    blocked = getattr(scene, "blocked", None)
+    rects = blocked_rectangles(np.zeros((h, w), bool) if blocked is None else blocked)
+    caps = caps_for(n, cfg, n_rovers, len(rects))
 
     mask = np.asarray(scene.target_mask)
     target_geoms = []
@@ -241,6 +295,14 @@ def build_world(scene, n_particles: int, config: RoverConfig | None = None, n_ro
         cx, cy = ox + (col + 0.5) * s, oy + (row + 0.5) * s
         target_geoms.append(f'<geom type="box" pos="{cx:.6g} {cy:.6g} 0.0005" size="{0.5 * s:.6g} {0.5 * s:.6g} '
                             f'0.0005" contype="0" conaffinity="0" rgba="0.23 0.51 0.96 0.45"/>')
+    hz = 0.5 * obstacle_height(s, cfg)
+    obstacle_geoms = []
+    for k, (row, col, n_rows, n_cols) in enumerate(rects):   # static boxes of the world body
+        cx, cy = ox + (col + 0.5 * n_cols) * s, oy + (row + 0.5 * n_rows) * s
+        obstacle_geoms.append(f'<geom name="{OBSTACLE_PREFIX}{k}" type="box" pos="{cx:.6g} {cy:.6g} {hz:.6g}" '
+                              f'size="{0.5 * n_cols * s:.6g} {0.5 * n_rows * s:.6g} {hz:.6g}" '
+                              f'contype="{_OBSTACLE_CONTYPE}" conaffinity="{_OBSTACLE_CONAFFINITY}" '
+                              'rgba="0.42 0.42 0.46 1"/>')
     # Gravel does not roll like a ball bearing: a free sphere would roll across the world once
     # pushed. Damping its joint (torque -d * omega) stops a rolling sphere in about
     # ``roll_stop`` seconds, d = I_contact / roll_stop with I_contact = 7/5 m r^2; on the
@@ -274,7 +336,7 @@ def build_world(scene, n_particles: int, config: RoverConfig | None = None, n_ro
     <light pos="{fx:.6g} {fy:.6g} {10 * s:.6g}" dir="0 0 -1" directional="true"/>
     <geom name="floor" type="plane" pos="{fx:.6g} {fy:.6g} 0" size="{fsize:.6g} {fsize:.6g} 0.1"
           contype="1" conaffinity="0" rgba="0.82 0.8 0.75 1"/>
-    {''.join(target_geoms)}
+    {''.join(target_geoms + obstacle_geoms)}
     {rovers}
     {''.join(particles)}
   </worldbody>
@@ -284,7 +346,7 @@ def build_world(scene, n_particles: int, config: RoverConfig | None = None, n_ro
 </mujoco>
 """
     model = mujoco.MjModel.from_xml_string(xml)
-    world = World(model, xml, cfg, g, n, s, (ox, oy), (h, w), (lo, hi), parking, caps, n_rovers)
+    world = World(model, xml, cfg, g, n, s, (ox, oy), (h, w), (lo, hi), parking, caps, n_rovers, len(rects))
     assert list(rover_qpos_adr(world)) == [ROVER_QPOS * i for i in range(n_rovers)]
     assert all(model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE for j in range(0, 3 * n_rovers, 3))
     return world

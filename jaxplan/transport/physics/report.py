@@ -22,11 +22,13 @@ def plot_check(scene, check, route: int = 0):
     """Top view of the 3D state before and after route ``route`` next to the 2D grids (Fig. 4 style).
 
     Left: the 2D grid before (counts) with the route; middle: particles and rover before and after
-    (world x, y); right: the grid projected back from the physics.
+    (world x, y); right: the grid projected back from the physics. Every panel draws the scene's
+    blocked cells as dark-grey squares (``jaxplan.transport.viz.draw_blocked``).
     """
     import matplotlib.pyplot as plt
 
     from jaxplan.transport.physics import bridge
+    from jaxplan.transport.viz import blocked_handle, blocked_of, draw_blocked
 
     world, traj = check.world, check.trajectory
     s = world.cell_size
@@ -41,15 +43,19 @@ def plot_check(scene, check, route: int = 0):
     fig, axes = plt.subplots(1, 3, figsize=(15, 5))
     vmax = max(float(np.max(np.asarray(scene.obj))), float(obj_after.max()), 1.0)
     target = np.ma.masked_where(~np.asarray(scene.target_mask), np.ones(scene.shape))
+    blocked = blocked_of(scene)
     for ax, grid, title in ((axes[0], np.asarray(scene.obj), "2D grid before (counts)"),
                             (axes[2], obj_after, "2D grid projected back after the push")):
         im = ax.imshow(grid, origin="lower", extent=extent, cmap="YlOrBr", vmin=0, vmax=vmax)
         ax.imshow(target, origin="lower", extent=extent, cmap="Blues", alpha=0.35, vmin=0, vmax=1.5)
+        if draw_blocked(ax, blocked, s, (ox, oy), zorder=1.5) is not None:
+            ax.legend(handles=[blocked_handle()], loc="upper left", fontsize=7)
         ax.plot(path[:, 0], path[:, 1], "-", color="#a855f7", lw=1.5)
         ax.set_title(title)
         fig.colorbar(im, ax=ax, fraction=0.046)
     ax = axes[1]
     ax.imshow(target, origin="lower", extent=extent, cmap="Blues", alpha=0.35, vmin=0, vmax=1.5)
+    has_blocked = draw_blocked(ax, blocked, s, (ox, oy), zorder=0.5) is not None
     ax.scatter(before[:, 0], before[:, 1], s=8, c="#9ca3af", label="particles before")
     ax.scatter(after[:, 0], after[:, 1], s=8, c="#b45309", label="particles after")
     ax.plot(path[:, 0], path[:, 1], "-", color="#a855f7", lw=1.5, label="spline")
@@ -63,7 +69,8 @@ def plot_check(scene, check, route: int = 0):
     ax.set_ylim(extent[2], extent[3])
     ax.set_aspect("equal")
     ax.set_title("3D state, top view (o start, s end)")
-    ax.legend(loc="upper left", fontsize=7)
+    handles, _ = ax.get_legend_handles_labels()
+    ax.legend(handles=handles + ([blocked_handle()] if has_blocked else []), loc="upper left", fontsize=7)
     fig.tight_layout()
     return fig
 
