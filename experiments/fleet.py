@@ -3,9 +3,10 @@
 For every site and fleet size N and strategy, ``run_fleet`` runs until the mass outside the targets is
 at most 2% of its start or ``--max-steps`` pass. Speed-up S(N) = T90(1) / T90(N) within a strategy
 (T90: the first step by which 90% of the mass that started outside the targets was delivered; "-"
-when not reached). Planning ms per event: the median wall time of the steps in which tasks were
-assigned and no push ended (assignment, distance fields and motion; the shared fabric's refresh
-apart); beside it, the median time of one full fabric build of the site, measured in the same run.
+when not reached). Times, over every step (``summary.json``): step ms (the whole step), plan ms
+(everything but the shared fabric's refresh: assignment, distance fields, motion, the pushes) and
+refresh ms, median (and p95), beside one warm full build of the site's fabric measured in the same
+process (``FleetRun.full_build_ms``), and plan / build, their ratio.
 Writes ``experiments/results/NAME.{json,md}`` (``--name``, default fleet) after every run.
 
     python -m experiments.fleet                                   # site128, N = 1, 2, 4, 8
@@ -50,8 +51,8 @@ def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="va
     label = strategy if strategy != "coordinated" or candidates_by == "value" else f"coordinated ({candidates_by})"
     return {"site": name, "rovers": n, "strategy": label, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
             "pushes": s["pushes"], "delivered_per_rover_step": s["delivered_per_rover_step"],
-            "conflicts": s["conflicts"], "plan_ms_median": s["plan_ms_median"], "plan_ms_p95": s["plan_ms_p95"],
-            "plan_events": s["plan_events"],
+            "conflicts": s["conflicts"], "step_ms": s["step_ms"], "plan_ms": s["plan_ms"],
+            "refresh_ms": s["refresh_ms"], "full_build_ms": s["full_build_ms"],
             "idle_fraction_mean": statistics.fmean(s["idle_fraction"]), "stop_reason": s["stop_reason"],
             "wall_s": round(wall, 2)}
 
@@ -60,14 +61,23 @@ def _markdown(rows, builds, meta) -> str:
     t90_one = {(r["site"], r["strategy"]): r["T90"] for r in rows if r["rovers"] == 1}
     lines = [f"# Fleet: T90, speed-up and planning time\n\n{meta}\n",
              "| site | strategy | N | T50 | T90 | S(N) | delivered / rover-step | idle (mean) | conflicts | "
-             "plan ms / event | full build ms | stop |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+             "step ms | plan ms | refresh ms (median, p95) | full build ms | plan / build | stop |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+
+    def ms(d):
+        return "-" if d["median"] is None else f"{d['median']:.1f}"
+
     for r in rows:
         one = t90_one.get((r["site"], r["strategy"]))
         speed = f"{one / r['T90']:.2f}" if one and r["T90"] else "-"
-        plan = "-" if r["plan_ms_median"] is None else f"{r['plan_ms_median']:.1f}"
+        build = r["full_build_ms"] or builds[r["site"]]
+        ratio = "-" if r["plan_ms"]["median"] is None else f"{r['plan_ms']['median'] / build:.2f}"
+        refresh = "-" if r["refresh_ms"]["median"] is None else \
+            f"{r['refresh_ms']['median']:.1f}, {r['refresh_ms']['p95']:.1f}"
         lines.append(f"| {r['site']} | {r['strategy']} | {r['rovers']} | {r['T50'] or '-'} | {r['T90'] or '-'} | "
                      f"{speed} | {r['delivered_per_rover_step']:.3f} | {r['idle_fraction_mean']:.0%} | "
-                     f"{r['conflicts']} | {plan} | {builds[r['site']]:.2f} | {r['stop_reason']} |")
+                     f"{r['conflicts']} | {ms(r['step_ms'])} | {ms(r['plan_ms'])} | {refresh} | {build:.2f} | "
+                     f"{ratio} | {r['stop_reason']} |")
     return "\n".join(lines) + "\n"
 
 

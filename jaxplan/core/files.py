@@ -51,13 +51,14 @@ def _kind(path) -> str:
     return "other"
 
 
-def read_text(path, what: str) -> str:
+def read_text(path, what: str, *, max_bytes: int | None = None) -> str:
     """The UTF-8 text of the user's file ``path``; ``what`` names the kind of file for messages
     (``"a TOML spec file"``).
 
     Raises ``ValueError`` with what is wrong and the fix, without the path (callers prefix their own
     context): a path the system cannot look up, a folder, a missing, unreadable, empty (blank) or
-    non-UTF-8 file.
+    non-UTF-8 file, and with ``max_bytes`` a file longer than that (at most ``max_bytes + 1`` bytes are
+    read, so a huge file or a device never fills the memory).
     """
     try:
         kind = _kind(path)
@@ -69,9 +70,11 @@ def read_text(path, what: str) -> str:
         raise ValueError("no such file; check the path.")
     try:
         with open(path, "rb") as fh:
-            raw = fh.read()
+            raw = fh.read() if max_bytes is None else fh.read(int(max_bytes) + 1)
     except OSError as exc:
         raise ValueError(f"could not be read ({exc.strerror or exc}); check the file's permissions.") from None
+    if max_bytes is not None and len(raw) > max_bytes:
+        raise ValueError(f"is longer than {int(max_bytes):,} bytes, too long for {what}; check the path.")
     if not raw.strip():
         raise ValueError(f"is empty; expected {what}.")
     try:

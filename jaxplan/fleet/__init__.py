@@ -18,7 +18,7 @@ from jaxplan.fleet.physics import (
     within_tolerance,
 )
 from jaxplan.fleet.report import FLEET_OUTPUTS, plot_fleet, summary_of, write_fleet_outputs
-from jaxplan.fleet.run import FleetRun, check_fleet_memory, run_fleet
+from jaxplan.fleet.run import FleetRun, check_fleet_memory, run_fleet, validate_fleet_inputs
 from jaxplan.fleet.state import (
     STOP_REASONS,
     STRATEGIES,
@@ -33,4 +33,4 @@ from jaxplan.fleet.state import (
 __all__ = ["FLEET_OUTPUTS", "FleetConfig", "FleetRecord", "FleetRun", "FleetState", "SITES", "STOP_REASONS",
            "STRATEGIES", "TOLERANCE", "check_concurrent_pushes", "check_first_round", "check_fleet_memory",
            "disjoint_routes", "plot_fleet", "reset", "rollout", "route_footprint", "run_fleet", "site", "step",
-           "summary_of", "within_tolerance", "write_fleet_outputs"]
+           "summary_of", "validate_fleet_inputs", "within_tolerance", "write_fleet_outputs"]

@@ -1,32 +1,45 @@
-"""``run_fleet``: the host driver. The jitted ``step`` in a Python loop, with what needs the host:
-validation, planning times, the pushes' list, the serial invariant check, frames, a progress bar."""
+"""``run_fleet``: the host driver. The jitted ``advance`` in a Python loop, the shared fabric refreshed
+on the host after it (``rebuild_mode``: the selective update, its buffers sized on the host, on large
+CPU grids; the same fabric as ``step``'s), with what needs the host: validation, timing (the step,
+its planning and the refresh apart), the pushes' list, the serial invariant check, frames, a progress
+bar."""
 from __future__ import annotations
 
 import dataclasses
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.core import available_memory_bytes, check_interrupt, grid_jit
 from jaxplan.fleet import footprint
 from jaxplan.fleet.conflicts import conflicts
 from jaxplan.fleet.motion import IDLE
-from jaxplan.fleet.state import STOP_REASONS, FleetConfig, estimate_fleet_bytes, reset, rover_bytes, step
+from jaxplan.fleet.state import STOP_REASONS, FleetConfig, advance, estimate_fleet_bytes, reset, rover_bytes
 from jaxplan.transport import (
     EpisodeParams,
     FabricParams,
     Scene,
+    build_fabric,
     estimate_build_bytes,
+    rebuild_mode,
     require_hard,
+    selective_rebuild,
     validate_episode_params,
     validate_params,
 )
 from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill, validate_spill_params
 
-__all__ = ["MAX_STEPS_LIMIT", "FleetRun", "check_fleet_memory", "run_fleet", "validate_fleet_inputs"]
+__all__ = ["DEFAULT_MAX_PUSHES", "DEFAULT_MAX_STEPS", "MAX_STEPS_LIMIT", "FleetRun", "check_fleet_memory",
+           "run_fleet", "validate_fleet_inputs"]
 
 MAX_STEPS_LIMIT = 1 << 30
+DEFAULT_MAX_STEPS = 5_000
+"""``run_fleet``'s step limit, and ``jaxplan fleet --max-steps``'s default."""
+DEFAULT_MAX_PUSHES = 100_000
+"""``run_fleet``'s push budget (``EpisodeParams.max_pushes``) when no episode is given, and ``jaxplan
+fleet --max-pushes``'s default: a site runs until done rather than until a budget."""
 MODES = ("deliver", "rearrange")
 
 
@@ -41,8 +54,10 @@ class FleetRun:
     was assigned), last_step (the step it was applied), cells [[r, c], ...] (the route), collected,
     delivered, spilled (objects), mode ("deliver" / "rearrange").
     rover_pushes: i32[N]; idle_steps: i32[N] steps each rover had no task.
-    plan_ms: wall ms of each step in which a task was assigned and no push ended (the whole step:
-    assignment, distance fields and motion, without a fabric refresh). conflicts: invariant
+    step_ms, plan_ms, refresh_ms: wall ms of every step: the whole step, everything but the shared
+    fabric's refresh (assignment, distance fields, motion, the pushes applied), and the refresh (0
+    where no push ended). full_build_ms: one warm full build of the initial fabric, ms, in the same
+    process (``build_fabric``; None when the fleet was done at its start). conflicts: invariant
     violations the serial checker
     (``jaxplan.fleet.conflicts``) found in ``pos`` and the reserved footprints (must be 0).
     stop_reason: one of ``STOP_REASONS``; message: a sentence for people.
@@ -75,6 +90,9 @@ class FleetRun:
     kernel_conflicts: int = 0
     dropped: int = 0
     scene_name: str | None = None
+    step_ms: list = dataclasses.field(default_factory=list)
+    refresh_ms: list = dataclasses.field(default_factory=list)
+    full_build_ms: float | None = None
 
 
 def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts,
@@ -185,7 +203,38 @@ def _memory_fix(shape, config: FleetConfig, params, room: int) -> tuple[str, str
 
 
 _reset_jit = grid_jit(reset, static_argnames=("config",))
-_step_jit = grid_jit(step, static_argnames=("config", "evaluator"))
+def _advance_keeping_counts(state, params, spill, episode, config, evaluator):
+    """``(state, record, before)``: ``advance``, and the counts the step started from (the fabric's)."""
+    return (*advance(state, params, spill, episode, config, evaluator), state.scene.obj)
+
+
+# the state is donated: its unchanged leaves (the fabric, the fields, the cached candidates) are not
+# copied each step, which cost more than the step's own work with many rovers
+_advance_jit = grid_jit(_advance_keeping_counts, static_argnames=("config", "evaluator"), donate_argnums=0)
+_build_jit = grid_jit(build_fabric)
+
+
+def _refresh_fabric(state, params: FabricParams, rebuild: str, before):
+    """The state with its fabric brought up to its counts (``before``: the counts it was built for), on
+    the host: ``transport.selective_rebuild`` (its buffers sized on the host, the fastest on large
+    CPU grids) or a full build, as ``rebuild_mode`` picks; the same fabric either way."""
+    if rebuild == "selective":
+        changed = (state.scene.obj != before) & ~state.scene.target_mask
+        fabric = selective_rebuild(state.scene, params, state.fabric, changed)[0]
+    else:
+        fabric = _build_jit(state.scene, params)
+    return state._replace(fabric=jax.block_until_ready(fabric))
+
+
+def _warm_build_ms(scene, params: FabricParams, repeats: int = 3) -> float:
+    """Median wall ms of a full build of ``scene``'s fabric, compiled first."""
+    jax.block_until_ready(_build_jit(scene, params))
+    runs = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(_build_jit(scene, params))
+        runs.append(1e3 * (time.perf_counter() - start))
+    return float(np.median(runs))
 
 
 def _footprint(scene, route, spill, clearance: int):
@@ -221,7 +270,7 @@ def _frame(state, shown) -> dict:
 
 def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: FabricParams | None = None,
               spill: SpillParams | None = None, episode: EpisodeParams | None = None,
-              max_steps: int = 10_000, *, starts=None, record: bool = False, progress: bool = False,
+              max_steps: int = DEFAULT_MAX_STEPS, *, starts=None, record: bool = False, progress: bool = False,
               config: FleetConfig | None = None,
               evaluator: Evaluator = curvature_spill) -> FleetRun:
     """Run a fleet of ``n_rovers`` on ``scene`` with ``strategy`` until it stops (``state`` module
@@ -233,7 +282,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     """
     params = FabricParams() if params is None else params
     spill = SpillParams() if spill is None else spill
-    episode = EpisodeParams() if episode is None else episode
+    episode = EpisodeParams(max_pushes=DEFAULT_MAX_PUSHES) if episode is None else episode
     validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts, config)
     if params.temperature is not None:    # a concrete 0 is the hard fabric
         params = params.replace(temperature=None)
@@ -243,7 +292,8 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     planning = episode.replace(max_pushes=0)
     state = _reset_jit(scene, params, spill, planning, config=config, starts=starts, max_steps=int(max_steps),
                        max_pushes=int(episode.max_pushes))
-    initial_scene = state.scene      # not the whole start state: its fabric and fields would stay alive
+    # not the whole start state (its fabric and fields would stay alive), and a copy: the steps donate theirs
+    initial_scene = jax.tree.map(jnp.copy, state.scene)
     first = jax.device_get(state)
     target = np.asarray(first.scene.target_mask)
     positions = [np.asarray(first.pos)]
@@ -253,13 +303,16 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     initial_mass, initial_outside = float(first.initial_mass), float(first.initial_outside)
     done_at_start = bool(first.done)
     del first                        # the host copy of the start state (fabric, distance fields)
-    plan_ms, pushes, reservations = [], [], []
+    plan_ms, refresh_ms, step_ms, pushes, reservations = [], [], [], [], []
     open_tasks: dict[int, dict] = {}
     kernel_conflicts = dropped = 0
     kernel = config.kernel()
-    run_step = lambda s: _step_jit(s, params, spill, planning, config=kernel, evaluator=evaluator)  # noqa: E731
+    rebuild = rebuild_mode(episode.rebuild, scene.shape)
+    run_step = lambda s: _advance_jit(s, params, spill, planning, kernel, evaluator)  # noqa: E731
+    full_build_ms = None
     if not done_at_start:
-        jax.block_until_ready(run_step(state))        # compile outside the timed steps
+        jax.block_until_ready(run_step(jax.tree.map(jnp.copy, state)))     # compile outside the timed steps
+        full_build_ms = _warm_build_ms(initial_scene, params)
     from tqdm.auto import tqdm
 
     bar = tqdm(total=int(max_steps), desc=f"fleet {strategy} x{n_rovers}", unit="step", leave=False,
@@ -268,17 +321,21 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
         while not bool(state.done):
             check_interrupt()
             start = time.perf_counter()
-            state, rec = run_step(state)
+            state, rec, before = run_step(state)
             rec = jax.device_get(rec)
-            ms = 1e3 * (time.perf_counter() - start)
+            planned = time.perf_counter()
+            if np.asarray(rec.ended).any():
+                state = _refresh_fabric(state, params, rebuild, before)
+            end = time.perf_counter()
+            plan_ms.append(1e3 * (planned - start))
+            refresh_ms.append(1e3 * (end - planned))
+            step_ms.append(1e3 * (end - start))
             t = len(positions)
             positions.append(np.asarray(rec.pos))
             inside.append(float(rec.inside))
             outside.append(float(rec.outside))
             kernel_conflicts += int(rec.conflicts)
             assigned, ended, gone = np.asarray(rec.assigned), np.asarray(rec.ended), np.asarray(rec.dropped)
-            if assigned.any() and not ended.any():
-                plan_ms.append(ms)
             if assigned.any():
                 routes = jax.device_get(state.route)
                 modes = np.asarray(state.mode)
@@ -317,5 +374,6 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
         rover_pushes=np.asarray(final.pushes, np.int32), idle_steps=np.asarray(final.idle_steps, np.int32),
         plan_ms=plan_ms, conflicts=len(conflicts(pos, reservations)), stop_reason=reason,
         message=_message(reason, final, episode, int(max_steps)), frames=frames,
-        kernel_conflicts=kernel_conflicts, dropped=dropped, scene_name=getattr(scene, "name", None))
+        kernel_conflicts=kernel_conflicts, dropped=dropped, scene_name=getattr(scene, "name", None),
+        step_ms=step_ms, refresh_ms=refresh_ms, full_build_ms=full_build_ms)
 

@@ -68,7 +68,8 @@ from jaxplan.transport import (
 from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill
 
 __all__ = ["DEADLOCK", "MAX_STEPS", "NO_REACHABLE", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord",
-           "FleetState", "estimate_fleet_bytes", "fleet_rebuild", "max_rovers", "reset", "rollout", "step"]
+           "FleetState", "advance", "estimate_fleet_bytes", "fleet_rebuild", "max_rovers", "refresh", "reset",
+           "rollout", "step"]
 
 STRATEGIES = ("coordinated", "independent", "partitioned")
 # Stop codes: the episode's (0-6: running, done, done (no source left), budget, no_material,
@@ -503,8 +504,34 @@ def _refresh(scene, params, fabric, before, rebuild: str):
 
 
 def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
+    before = state.scene.obj
+    state, record = _advance(state, params, spill, ep, cfg, evaluator)
+    return refresh(state, params, ep, before), record
+
+
+def refresh(state: FleetState, params: FabricParams, episode: EpisodeParams, before) -> FleetState:
+    """The shared fabric brought up to the state's counts after ``advance``: rebuilt when the counts
+    differ from ``before`` (f32[H, W], the counts it was built for), by ``fleet_rebuild(episode.rebuild)``
+    (the same fabric either way). Pure and jittable."""
+    changed = jnp.any(state.scene.obj != before)
+    fabric = jax.lax.cond(changed, lambda s: _refresh(s, params, state.fabric, before,
+                                                      fleet_rebuild(episode.rebuild)),
+                          lambda s: state.fabric, state.scene)
+    return state._replace(fabric=fabric)
+
+
+def advance(state: FleetState, params: FabricParams, spill: SpillParams, episode: EpisodeParams,
+            config: FleetConfig, evaluator: Evaluator = curvature_spill):
+    """A live state's step without the fabric's refresh: ``(state, FleetRecord)``, whose fabric is still
+    that of the counts before the step. ``step`` is ``advance`` then ``refresh``; a host driver may
+    refresh on its own (``run_fleet`` times the two apart). Pure and jittable; config and evaluator
+    static. The state must not be done."""
+    _check_static(params, episode, config, "advance")
+    return _advance(state, params, spill, episode, config.resolved(state.scene.shape), evaluator)
+
+
+def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
     n = state.pos.shape[0]
-    rebuild = fleet_rebuild(ep.rebuild)
     step_no = state.t + 1
     # 1. assign
     new_route, new_mode, assigned, owner, failure, candidates, attempts, fresh = _assign(
@@ -533,13 +560,12 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
     arrived = (phase == APPROACH) & jnp.all(pos == route.cells[:, 0], -1)
     phase = jnp.where(arrived, PUSH, phase)
     progress = jnp.where(arrived, 0, progress)
-    # 4. apply the pushes that ended, release their footprints, refresh the fabric
+    # 4. apply the pushes that ended, release their footprints (the fabric is refreshed by ``refresh``)
     obj, collected, delivered, spilled = _apply(state.scene, route, ended, spill, evaluator)
     scene = state.scene.with_obj(obj)
     owner = jnp.where((owner >= 0) & ended[jnp.maximum(owner, 0)], -1, owner)
     phase = jnp.where(ended, IDLE, phase)
-    fabric = jax.lax.cond(jnp.any(ended), lambda s: _refresh(s, params, state.fabric, state.scene.obj, rebuild),
-                          lambda s: state.fabric, scene)
+    fabric = state.fabric
     # 5. totals and stop
     t = step_no
     outside = _f32(outside_mass(scene))

@@ -46,7 +46,8 @@ def _fake_run(*, frames=True, plan_ms=(1.0, 3.0), **changes) -> FleetRun:
         scene=scene, final_scene=scene.with_obj(obj * 0.05), n_rovers=2, strategy="coordinated", steps=T, pos=pos,
         delivered=delivered, outside=20.0 - delivered, initial_mass=20.0, initial_outside=20.0, pushes=pushes,
         rover_pushes=np.array([1, 1], np.int32), idle_steps=np.array([3, 1], np.int32), plan_ms=list(plan_ms),
-        conflicts=0, stop_reason="done", message="all delivered", frames=rec if frames else None)
+        conflicts=0, stop_reason="done", message="all delivered", frames=rec if frames else None,
+        step_ms=[p + 1.0 for p in plan_ms], refresh_ms=[1.0] * len(plan_ms), full_build_ms=5.0 if plan_ms else None)
     fields.update(changes)
     return FleetRun(**fields)
 
@@ -58,8 +59,9 @@ def test_summary_numbers():
     assert (s["T50"], s["T90"]) == (5, 6)     # 12 >= 10 first at step 5; 19 >= 18 at step 6
     assert s["pushes_per_rover"] == [1, 1]
     assert s["idle_fraction"] == [0.5, 1 / 6]
-    assert s["plan_events"] == 2
-    assert s["plan_ms_median"] == pytest.approx(2.0) and s["plan_ms_p95"] == pytest.approx(2.9)
+    assert s["plan_ms"]["median"] == pytest.approx(2.0) and s["plan_ms"]["p95"] == pytest.approx(2.9)
+    assert s["step_ms"] == {"median": 3.0, "p95": pytest.approx(3.9)} and s["refresh_ms"]["median"] == 1.0
+    assert s["full_build_ms"] == 5.0
     assert (s["conflicts"], s["stop_reason"], s["message"]) == (0, "done", "all delivered")
     assert s["delivered_per_rover_step"] == pytest.approx(19.0 / 12)
     assert s["scene"] == "tiny" and s["unreachable_mass"] == 0.0
@@ -86,7 +88,8 @@ def test_summary_without_events_or_reaching_t90():
     s = R.summary_of(_fake_run(plan_ms=(), delivered=delivered, outside=22.0 - delivered))
     assert (s["T50"], s["T90"]) == (6, None)
     assert s["delivered"] == 10.0
-    assert s["plan_events"] == 0 and s["plan_ms_median"] is None and s["plan_ms_p95"] is None
+    assert s["plan_ms"] == s["step_ms"] == s["refresh_ms"] == {"median": None, "p95": None}
+    assert s["full_build_ms"] is None
 
 
 def test_a_run_whose_arrays_disagree_is_a_named_error():
@@ -160,6 +163,113 @@ def test_extra_summary_cannot_replace_the_runs_numbers(tmp_path):
         R.write_fleet_outputs(_fake_run(), folder, animate=False, fps=5, extra_summary={"T90": 1})
 
 
+def _panels(fig) -> dict:
+    """fleet.png's panels by name (their gid; the colour bars' axes have none)."""
+    return {ax.get_gid(): ax for ax in fig.axes if ax.get_gid()}
+
+
+def _image_data(ax) -> np.ndarray:
+    """The first image of ``ax`` (the counts or the traffic, drawn first) as f64 with NaN where masked."""
+    return np.ma.filled(np.ma.asarray(ax.get_images()[0].get_array(), np.float64), np.nan)
+
+
+def test_traffic_counts_count_the_moves_into_each_cell():
+    expected = np.zeros((10, 10), np.int64)
+    expected[1, 2:6] = 1          # rover 0 drives right along row 1, then waits at (1, 5)
+    expected[2:6, 1] = 1          # rover 1 drives up column 1, then waits at (5, 1)
+    np.testing.assert_array_equal(R.traffic_counts(_fake_run()), expected)
+    pos = np.zeros((T + 1, 1, 2), np.int32)     # back and forth between (2, 2) and (2, 3), waiting once
+    pos[:, 0] = [[2, 2], [2, 3], [2, 2], [2, 2], [2, 3], [2, 2], [2, 3]]
+    counts = R.traffic_counts(_fake_run(n_rovers=1, pos=pos, rover_pushes=np.zeros(1, np.int32),
+                                        idle_steps=np.zeros(1, np.int32)))
+    assert (counts[2, 2], counts[2, 3], counts.sum()) == (2, 3, 5)
+
+
+def test_plot_fleet_shows_mass_t50_t90_piles_traffic_and_final_counts():
+    import matplotlib.pyplot as plt
+
+    run = _fake_run()
+    fig = R.plot_fleet(run)
+    panels = _panels(fig)
+    assert list(panels) == list(R.FIGURE_PANELS) == ["mass", "start", "traffic", "final"]
+    mass = panels["mass"]
+    assert (mass.get_xlabel(), mass.get_ylabel()) == ("step", "mass (objects)")
+    labels = {t.get_gid(): t.get_text() for t in mass.texts}
+    assert labels == {"T50": "T50 = 5", "T90": "T90 = 6"}          # summary_of's T50 and T90, drawn
+    assert {"T50 = 5 steps (50% delivered)", "T90 = 6 steps (90% delivered)"} <= set(_legend_texts(mass))
+    for name in ("start", "traffic", "final"):
+        ax = panels[name]
+        assert ax.get_title() and ax.get_xlabel() == "x (world units)" and ax.get_ylabel() == "y (world units, up)"
+        assert "target" in _legend_texts(ax)
+    target = np.asarray(run.scene.target_mask)
+    for name, scene in (("start", run.scene), ("final", run.final_scene)):     # counts, targets off the scale
+        np.testing.assert_array_equal(_image_data(panels[name]), np.where(target, np.nan, np.asarray(scene.obj)))
+    traffic = R.traffic_counts(run)
+    np.testing.assert_array_equal(_image_data(panels["traffic"]), np.where(traffic > 0, traffic, np.nan))
+    assert "8 rover moves" in panels["traffic"].get_title()
+    # the rovers: starts on "start", final cells on "final" (cell centres, rows = y)
+    for name, step in (("start", 0), ("final", T)):
+        (dots,) = panels[name].collections[-1:]
+        np.testing.assert_allclose(dots.get_offsets(), run.pos[step][:, ::-1] + 0.5)
+        assert any(label.startswith("rover") for label in _legend_texts(panels[name]))
+    colorbars = [ax.get_ylabel() for ax in fig.axes if not ax.get_gid()]
+    assert sorted(colorbars) == ["objects per cell", "objects per cell", "rover moves into the cell (count)"]
+    plt.close(fig)
+
+
+def test_plot_fleet_says_when_t90_is_not_reached():
+    import matplotlib.pyplot as plt
+
+    delivered = np.array([2, 2, 2, 4, 6, 9, 12], float)   # T50 at step 6, no T90
+    fig = R.plot_fleet(_fake_run(delivered=delivered, outside=22.0 - delivered))
+    mass = _panels(fig)["mass"]
+    assert {t.get_gid(): t.get_text() for t in mass.texts} == {"T50": "T50 = 6"}
+    assert "T90 (90% delivered): not reached in 6 steps" in _legend_texts(mass)
+    plt.close(fig)
+
+
+def _spy_animation(monkeypatch) -> dict:
+    """Record the animated figure's map axes and the scale of the written frames to the figure."""
+    seen = {}
+    real = R.save_animation
+
+    def spy(fig, draw, n, path, *, fps, dpi):
+        seen.update(ax=fig.axes[0], scale=dpi / fig.dpi)
+        real(fig, draw, n, path, fps=fps, dpi=dpi)
+
+    monkeypatch.setattr(R, "save_animation", spy)
+    return seen
+
+
+def _pixel(rgb, ax, cell, scale):
+    x, y = ax.transData.transform((cell[1] + 0.5, cell[0] + 0.5)) * scale
+    return rgb[int(round(rgb.shape[0] - y)), int(round(x)), :3].astype(int)
+
+
+def test_animate_fleet_colours_the_mass(tmp_path, monkeypatch):
+    from matplotlib import colormaps
+    from PIL import Image
+
+    seen = _spy_animation(monkeypatch)
+    run = _fake_run()       # frame k holds the counts times (1 - k / 6); frames 0, 2, 5 are drawn
+    assert R.animate_fleet(run, tmp_path / "fleet.gif", fps=5, max_frames=3, dpi=60) == 3
+    ax, scale = seen["ax"], seen["scale"]
+    assert _legend_texts(ax) == ["rover (index)", "current route (rover's colour)", "target"]
+    cmap = colormaps[R.MASS_CMAP]
+    heavy, empty = (4, 1), (8, 3)       # 4 objects in frame 0 (the scale's top), and a cell never holding any
+    with Image.open(tmp_path / "fleet.gif") as gif:
+        for k, frame in ((0, 0), (2, 5)):
+            gif.seek(k)
+            rgb = np.asarray(gif.convert("RGB"))
+            expected = np.asarray(cmap(4.0 * (1 - frame / T) / 4.0)[:3]) * 255
+            assert np.abs(_pixel(rgb, ax, heavy, scale) - expected).max() <= 12, k
+            assert np.abs(_pixel(rgb, ax, empty, scale) - np.asarray(cmap(0.0)[:3]) * 255).max() <= 12, k
+        gif.seek(0)
+        first = _pixel(np.asarray(gif.convert("RGB")), ax, heavy, scale)
+        gif.seek(2)
+        assert first.sum() < _pixel(np.asarray(gif.convert("RGB")), ax, heavy, scale).sum() - 100   # lighter
+
+
 def test_plot_and_animation_accept_many_rovers(tmp_path):
     n = 12   # beyond the labelled and tab10 range
     pos = np.stack([np.stack([np.full(T + 1, i % 10), np.arange(T + 1) % 10], -1) for i in range(n)], 1)
@@ -206,6 +316,10 @@ def _blocked_layer(ax):
     return [im for im in ax.get_images() if im.get_gid() == "blocked"]
 
 
+def _legend_texts(ax) -> list[str]:
+    return [t.get_text() for t in ax.get_legend().get_texts()]
+
+
 def test_plot_fleet_draws_blocked_cells():
     import io
 
@@ -213,35 +327,31 @@ def test_plot_fleet_draws_blocked_cells():
     from PIL import Image
 
     fig = R.plot_fleet(_blocked_run())
-    right = fig.axes[1]
-    (layer,) = _blocked_layer(right)
+    panels = _panels(fig)
     expected = np.zeros((10, 10), bool)
     expected[_BLOCK] = True
-    np.testing.assert_array_equal(np.asarray(layer.get_array())[..., 3] > 0, expected)
-    assert [t.get_text() for t in right.get_legend().get_texts()] == ["blocked"]
+    for name in ("start", "traffic", "final"):          # every map panel
+        (layer,) = _blocked_layer(panels[name])
+        np.testing.assert_array_equal(np.asarray(layer.get_array())[..., 3] > 0, expected)
+        assert "blocked" in _legend_texts(panels[name])
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=fig.dpi)
-    assert _blocked_pixels_ok(np.asarray(Image.open(buf).convert("RGB")), right)
+    rgb = np.asarray(Image.open(buf).convert("RGB"))
+    assert _blocked_pixels_ok(rgb, panels["final"]) and _blocked_pixels_ok(rgb, panels["start"])
     plt.close(fig)
-    # a scene without blocked cells: no layer, no legend on the map
+    # a scene without blocked cells: no layer, no "blocked" in the maps' legends
     fig = R.plot_fleet(_fake_run())
-    assert not _blocked_layer(fig.axes[1]) and fig.axes[1].get_legend() is None
+    for name in ("start", "traffic", "final"):
+        assert not _blocked_layer(_panels(fig)[name]) and "blocked" not in _legend_texts(_panels(fig)[name])
     plt.close(fig)
 
 
 def test_animate_fleet_draws_blocked_cells(tmp_path, monkeypatch):
     from PIL import Image
 
-    seen = {}
-    real = R.save_animation
-
-    def spy(fig, draw, n, path, *, fps, dpi):
-        seen.update(ax=fig.axes[0], scale=dpi / fig.dpi)
-        real(fig, draw, n, path, fps=fps, dpi=dpi)
-
-    monkeypatch.setattr(R, "save_animation", spy)
+    seen = _spy_animation(monkeypatch)
     assert R.animate_fleet(_blocked_run(), tmp_path / "fleet.gif", fps=5, max_frames=3, dpi=60) == 3
-    assert _blocked_layer(seen["ax"])
+    assert _blocked_layer(seen["ax"]) and _legend_texts(seen["ax"])[-1] == "blocked"
     with Image.open(tmp_path / "fleet.gif") as gif:
         for k in range(gif.n_frames):
             gif.seek(k)
