@@ -50,8 +50,8 @@ from jaxplan.transport import (
 from jaxplan.transport.spillage import evaluate_route
 
 __all__ = ["BLOCKED", "PLAN_CHUNK", "Attempts", "Candidates", "Task", "assign_each", "assign_greedy", "assign_planned",
-           "failure_rank", "footprint_free", "greedy_choice", "no_attempts", "plan_candidates", "plan_task",
-           "rate_sources", "reserve", "rovers_inside", "wanted_candidates"]
+           "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "no_attempts", "plan_candidates",
+           "plan_task", "rate_sources", "reserve", "rovers_inside", "wanted_candidates"]
 
 BLOCKED = 9
 PLAN_CHUNK = 8
@@ -134,12 +134,16 @@ class Candidates(NamedTuple):
     reserved footprints they were planned on stay the same.
 
     tasks: Task[M]; exists: bool[M] the slot holds an occupied source; usable: bool[M] it holds a
-    pushable task.
+    pushable task. What the greedy rounds need of the footprints, computed once when planned, so
+    that an assignment on cached candidates does no whole-grid work: clear: bool[M] the footprint
+    meets no reservation it was planned with; overlap: bool[M, M] two footprints share a cell.
     """
 
     tasks: Task
     exists: jax.Array
     usable: jax.Array
+    clear: jax.Array
+    overlap: jax.Array
 
 
 def rate_sources(fabric, owner, pos, idle, m: int, cell_size, per_rover: int = 2):
@@ -211,7 +215,27 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     tasks = jax.lax.map(lambda x: jax.lax.cond(x[0] < wanted, lambda a: plan_chunk(a), lambda a: empty, x[1]),
                         (starts, args))
     tasks = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:])[:m], tasks)
-    return Candidates(tasks, exists, exists & (tasks.code == RUNNING))
+    usable = exists & (tasks.code == RUNNING)
+    return Candidates(tasks, exists, usable, *footprint_relations(tasks.footprint, usable, owner))
+
+
+def pack_bits(masks):
+    """u32[M, ceil(H W / 32)]: each of M masks (bool[M, H, W]) as 32 cells per word."""
+    m = masks.shape[0]
+    flat = masks.reshape(m, -1)
+    flat = jnp.pad(flat, ((0, 0), (0, -flat.shape[1] % 32))).reshape(m, -1, 32).astype(jnp.uint32)
+    return jnp.sum(flat << jnp.arange(32, dtype=jnp.uint32), -1, dtype=jnp.uint32)
+
+
+def footprint_relations(masks, usable, owner):
+    """``(clear bool[M], overlap bool[M, M])`` of M footprint masks (bool[M, H, W]): whether each meets
+    no cell of ``owner`` (i32[H, W], -1 free), and which pairs share a cell (unusable slots share
+    none), compared 32 cells to a word."""
+    words = pack_bits(masks)
+    reserved = pack_bits((owner >= 0)[None])[0]
+    clear = ~jnp.any((words & reserved[None]) != 0, 1)
+    overlap = jax.vmap(lambda row: jnp.any((words & row[None]) != 0, 1))(words)
+    return clear, overlap & usable[:, None] & usable[None]
 
 
 def assign_greedy(scene, params, ep, spill, fabric, pos, idle, owner, budget, routes, *, candidates: int,
@@ -239,7 +263,8 @@ def assign_planned(planned: Candidates, pos, idle, owner, budget, routes):
     """``assign_greedy`` on candidates already planned (``plan_candidates`` on this fabric and this
     ``owner``); the same results."""
     tasks = planned.tasks
-    choice, owner, count = greedy_choice(pos, idle, owner, budget, planned.usable, tasks)
+    choice, owner, count = greedy_choice(pos, idle, owner, budget, planned.usable, tasks,
+                                         (planned.clear, planned.overlap))
     assigned = choice >= 0
     mine = jax.tree.map(lambda a: a[jnp.maximum(choice, 0)], (tasks.route, tasks.mode))
     route, mode = _keep_rows(assigned, mine, (routes, jnp.zeros(pos.shape[0], jnp.int32)))
@@ -253,16 +278,19 @@ def _keep_rows(mask, new, old):
     return jax.tree.map(lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
 
 
-def greedy_choice(pos, idle, owner, budget, usable, tasks: Task):
+def greedy_choice(pos, idle, owner, budget, usable, tasks: Task, relations):
     """The greedy rounds of ``assign_greedy``: ``(choice i32[N], owner, count i32[])``.
 
     pos: i32[N, 2]; idle: bool[N]; owner: i32[H, W]; budget: i32[] most assignments; usable: bool[M]
     candidates that may be assigned; tasks: Task[M] (its source, predicted, steps and footprint are
-    read). choice[r] is the candidate rover r took (-1 none); owner has their footprints.
+    read); relations: ``(clear, overlap)`` of their footprints (``footprint_relations`` with
+    this ``owner``). choice[r] is the candidate rover r took (-1 none); owner has their footprints.
     Each round assigns the best-scoring free pair (module docstring; ties: lowest rover, then
     candidate); rounds stop when no pair is left. A chosen footprint rules out the candidates it
-    meets, so each round costs one masked reduction over the M footprints.
+    meets (a row of ``overlap``), so a round costs O(N M), and nothing here is whole-grid work but
+    the chosen footprints written into ``owner`` at the end, when there are any.
     """
+    clear, overlap = relations
     n = pos.shape[0]
     m = usable.shape[0]
     inside = jax.vmap(lambda mask: rovers_inside(mask, pos))(tasks.footprint).T             # [N, M]
@@ -271,30 +299,35 @@ def greedy_choice(pos, idle, owner, budget, usable, tasks: Task):
     approach = jnp.max(jnp.abs(pos[:, None, :] - tasks.source[None]), -1)
     score = tasks.predicted[None] / (approach + tasks.steps[None]).astype(jnp.float32)
     pairs = alone & usable[None]
-    clear = ~jnp.any(tasks.footprint & (owner >= 0)[None], (1, 2))
 
     def more(carry):
         return carry[-1]
 
     def round_(carry):
-        owner, idle, unused, clear, choice, count, _ = carry
+        idle, unused, clear, choice, count, _ = carry
         ok = pairs & idle[:, None] & (unused & clear)[None] & (count < budget)
         best = jnp.argmax(jnp.where(ok, score, -jnp.inf).reshape(-1))
         r, c = best // m, best % m
         found = jnp.any(ok)
-        chosen = tasks.footprint[c] & found
-        owner = jnp.where(chosen, r, owner)
-        clear = clear & ~jnp.any(tasks.footprint & chosen[None], (1, 2))
+        clear = clear & ~(overlap[c] & found)
         idle = idle.at[r].set(idle[r] & ~found)
         unused = unused.at[c].set(unused[c] & ~found)
         choice = choice.at[r].set(jnp.where(found, c, choice[r]))
         count = count + found
-        return owner, idle, unused, clear, choice, count, found & jnp.any(idle) & (count < budget)
+        return idle, unused, clear, choice, count, found & jnp.any(idle) & (count < budget)
 
-    start = (owner, idle, jnp.ones(m, bool), clear, jnp.full(n, -1, jnp.int32), jnp.int32(0),
+    start = (idle, jnp.ones(m, bool), clear, jnp.full(n, -1, jnp.int32), jnp.int32(0),
              jnp.any(idle) & (budget > 0))
-    owner, _, _, _, choice, count, _ = jax.lax.while_loop(more, round_, start)
-    return choice, owner, count
+    _, _, _, choice, count, _ = jax.lax.while_loop(more, round_, start)
+
+    def reserve_chosen(owner):
+        def one(r, owner):
+            return jax.lax.cond(choice[r] >= 0, lambda o: jnp.where(tasks.footprint[choice[r]], r, o),
+                                lambda o: o, owner)
+        return jax.lax.fori_loop(0, n, one, owner)
+
+    # only a step that assigned writes footprints into the grid
+    return choice, jax.lax.cond(count > 0, reserve_chosen, lambda o: o, owner), count
 
 
 class Attempts(NamedTuple):

@@ -378,8 +378,9 @@ def _no_candidates(scene, params, ep, spill, fabric, cfg: FleetConfig) -> assign
     none for the others (which do not cache)."""
     m = min(cfg.candidates, scene.shape[0] * scene.shape[1]) if cfg.strategy == "coordinated" else 0
     shapes = jax.eval_shape(lambda: assign.plan_candidates(
-        scene, params, ep, spill, fabric, jnp.full(scene.shape, -1, jnp.int32), candidates=1, cap=cfg.walk_cap,
-        evaluator=curvature_spill, clearance=cfg.clearance))
+        scene, params, ep, spill, fabric, jnp.full(scene.shape, -1, jnp.int32), candidates=max(m, 1),
+        cap=cfg.walk_cap, evaluator=curvature_spill, clearance=cfg.clearance))
+    # every leaf leads with M (overlap is [M, M]); the strategies that do not cache keep 0 slots
     return jax.tree.map(lambda a: jnp.zeros((m,) + a.shape[1:], a.dtype), shapes)
 
 

@@ -200,8 +200,9 @@ def test_greedy_choice_equals_the_serial_greedy(seed, clearance):
     usable = rng.random(M) < 0.8
     owner = np.where(rng.random() < 0.5, _owner_map(rng), -1).astype(np.int32)
     budget = int(rng.integers(0, N + 1))
+    relations = assign.footprint_relations(tasks.footprint, jnp.asarray(usable), jnp.asarray(owner))
     choice, new_owner, count = _greedy(jnp.asarray(pos), jnp.asarray(idle), jnp.asarray(owner), jnp.int32(budget),
-                                       jnp.asarray(usable), tasks)
+                                       jnp.asarray(usable), tasks, relations)
     footprints = [_footprint_set(tasks, c) for c in range(M)]
     reserved = {tuple(p) for p in np.argwhere(owner >= 0).tolist()}
     want = ref.greedy_assign(idle, pos, np.asarray(tasks.source), np.asarray(tasks.steps),
