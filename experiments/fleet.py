@@ -25,21 +25,11 @@ from pathlib import Path
 import jax
 
 from experiments.results_io import write_results
-from jaxplan import FabricParams, build_fabric, random_scene
+from jaxplan import FabricParams, random_scene
 from jaxplan.fleet import STRATEGIES, FleetConfig, run_fleet, site, summary_of
 from jaxplan.transport import EpisodeParams
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
-
-
-def _build_ms(scene, params, repeats: int = 5) -> float:
-    jax.block_until_ready(build_fabric(scene, params))
-    runs = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(build_fabric(scene, params))
-        runs.append(1e3 * (time.perf_counter() - start))
-    return statistics.median(runs)
 
 
 def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="value") -> dict:
@@ -57,7 +47,7 @@ def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="va
             "wall_s": round(wall, 2)}
 
 
-def _markdown(rows, builds, meta) -> str:
+def _markdown(rows, meta) -> str:
     t90_one = {(r["site"], r["strategy"]): r["T90"] for r in rows if r["rovers"] == 1}
     lines = [f"# Fleet: T90, speed-up and planning time\n\n{meta}\n",
              "| site | strategy | N | T50 | T90 | S(N) | delivered / rover-step | idle (mean) | conflicts | "
@@ -70,13 +60,13 @@ def _markdown(rows, builds, meta) -> str:
     for r in rows:
         one = t90_one.get((r["site"], r["strategy"]))
         speed = f"{one / r['T90']:.2f}" if one and r["T90"] else "-"
-        build = r["full_build_ms"] or builds[r["site"]]
-        ratio = "-" if r["plan_ms"]["median"] is None else f"{r['plan_ms']['median'] / build:.2f}"
+        build = r["full_build_ms"]
+        ratio = "-" if r["plan_ms"]["median"] is None or not build else f"{r['plan_ms']['median'] / build:.2f}"
         refresh = "-" if r["refresh_ms"]["median"] is None else \
             f"{r['refresh_ms']['median']:.1f}, {r['refresh_ms']['p95']:.1f}"
         lines.append(f"| {r['site']} | {r['strategy']} | {r['rovers']} | {r['T50'] or '-'} | {r['T90'] or '-'} | "
                      f"{speed} | {r['delivered_per_rover_step']:.3f} | {r['idle_fraction_mean']:.0%} | "
-                     f"{r['conflicts']} | {ms(r['step_ms'])} | {ms(r['plan_ms'])} | {refresh} | {build:.2f} | "
+                     f"{r['conflicts']} | {ms(r['step_ms'])} | {ms(r['plan_ms'])} | {refresh} | {build or 0:.2f} | "
                      f"{ratio} | {r['stop_reason']} |")
     return "\n".join(lines) + "\n"
 
@@ -105,7 +95,6 @@ def main(argv=None) -> None:
     else:
         scenes = {name: site(name) for name in args.sites}
     params, episode = FabricParams(), EpisodeParams(max_pushes=1_000_000, stop_fraction=args.stop_fraction)
-    builds = {name: _build_ms(scene, params) for name, scene in scenes.items()}
     meta = (f"{_dt.datetime.now(_dt.UTC).isoformat(timespec='seconds')}, {platform.platform()}, "
             f"jax {jax.__version__} ({jax.default_backend()}), {platform.processor() or platform.machine()}; "
             f"stop at {args.stop_fraction:.0%} of the mass outside the targets or {args.max_steps} steps.")
@@ -115,8 +104,7 @@ def main(argv=None) -> None:
             for n in args.rovers:
                 rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps, args.candidates_by))
                 # rewritten after every run: an interrupted benchmark keeps the rows it finished
-                write_results(RESULTS_DIR, args.name, {"meta": meta, "full_build_ms": builds, "rows": rows},
-                              _markdown(rows, builds, meta))
+                write_results(RESULTS_DIR, args.name, {"meta": meta, "rows": rows}, _markdown(rows, meta))
 
 
 if __name__ == "__main__":

@@ -3,10 +3,10 @@ reserving its footprint; idle rovers get tasks by a strategy (``coordinated``, `
 ``partitioned``); rovers approach and push one cell per step without colliding.
 
 Modules: ``footprint`` (a task's cells and push path), ``motion`` (distance fields, the one-step
-move), ``assign`` (the strategies), ``state`` (``FleetConfig``, ``FleetState``, ``reset``, ``step``,
-``rollout``), ``run`` (``run_fleet``, the host driver, and ``FleetRun``), ``sites`` (the built-in
-sites ``site128``, ``site256``, ``site512``), ``report`` (a run's summary, files, figure and
-animation), ``physics`` (concurrent pushes in one MuJoCo world).
+move), ``assign`` (the strategies), ``state`` (``FleetConfig``, ``FleetState`` with its ``Rovers`` and
+``Totals``, ``reset``, ``step``, ``rollout``), ``run`` (``run_fleet``, the host driver, and
+``FleetRun``), ``sites`` (the built-in sites ``site128``, ``site256``, ``site512``), ``report`` (a
+run's summary, files, figure and animation), ``physics`` (concurrent pushes in one MuJoCo world).
 """
 from jaxplan.fleet.generators import SITES, site
 from jaxplan.fleet.physics import (
@@ -25,12 +25,14 @@ from jaxplan.fleet.state import (
     FleetConfig,
     FleetRecord,
     FleetState,
+    Rovers,
+    Totals,
     reset,
     rollout,
     step,
 )
 
-__all__ = ["FLEET_OUTPUTS", "FleetConfig", "FleetRecord", "FleetRun", "FleetState", "SITES", "STOP_REASONS",
-           "STRATEGIES", "TOLERANCE", "check_concurrent_pushes", "check_first_round", "check_fleet_memory",
-           "disjoint_routes", "plot_fleet", "reset", "rollout", "route_footprint", "run_fleet", "site", "step",
-           "summary_of", "validate_fleet_inputs", "within_tolerance", "write_fleet_outputs"]
+__all__ = ["FLEET_OUTPUTS", "FleetConfig", "FleetRecord", "FleetRun", "FleetState", "Rovers", "SITES",
+           "STOP_REASONS", "STRATEGIES", "TOLERANCE", "Totals", "check_concurrent_pushes", "check_first_round",
+           "check_fleet_memory", "disjoint_routes", "plot_fleet", "reset", "rollout", "route_footprint", "run_fleet",
+           "site", "step", "summary_of", "validate_fleet_inputs", "within_tolerance", "write_fleet_outputs"]

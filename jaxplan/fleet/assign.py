@@ -169,17 +169,19 @@ def rate_sources(fabric, owner, pos, idle, m: int, cell_size, per_rover: int = 2
 
 
 def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int, cap: int, evaluator,
-                    clearance: int, wanted=None, by_rate=None) -> Candidates:
+                    clearance: int, wanted=None, by_rate=None, previous: Candidates | None = None) -> Candidates:
     """The top ``M = candidates`` sources by the source rule's score among the occupied cells outside
     every footprint (``owner: i32[H, W]``, -1 free); the first ``wanted`` of them (i32[], default M)
     planned as ``Task`` s, the others left empty (``exists`` False). by_rate: optional ``(pos
     i32[N, 2], idle bool[N])``: the candidates are the idle rovers' best sources by rate instead
-    (``rate_sources``).
+    (``rate_sources``). previous: candidates planned on this same fabric (``exists`` False where
+    not): a source planned there keeps its task, which depends on the fabric and the source only,
+    so that only new sources are planned; the result is the same as planning them all.
 
-    The tasks are planned ``PLAN_CHUNK`` at a time, chunks past ``wanted`` skipped, so a few idle
-    rovers cost a few chunks whatever M is. Within a chunk, sources that share a highway anchor share
-    its connector DP: the chunk's distinct anchors are listed and their tables computed one after
-    another, skipping empty slots.
+    The sources to plan are packed and planned ``PLAN_CHUNK`` at a time, chunks past the last one
+    skipped, so a few new sources cost a few chunks whatever M is. Within a chunk, sources that
+    share a highway anchor share its connector DP: the chunk's distinct anchors are listed and
+    their tables computed one after another, skipping empty slots.
     """
     h, w = scene.shape
     m = min(int(candidates), h * w)
@@ -193,8 +195,23 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
         idx, found = rate_sources(fabric, owner, *by_rate, m, scene.cell_size)
     exists = found & (jnp.arange(m) < wanted)
     sources = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
-    anchors = jax.vmap(lambda s: source_anchor(scene, params, fabric, s))(sources)
-    anchors = jnp.where(exists, anchors, -1)
+    if previous is None:
+        kept = jnp.zeros(m, bool)
+        reused = None
+    else:
+        before = jnp.where(previous.exists, previous.tasks.source[:, 0] * w + previous.tasks.source[:, 1], -1)
+        match = (idx[:, None] == before[None]) & exists[:, None]
+        kept = jnp.any(match, 1)
+        reused = jax.tree.map(lambda a: a[jnp.argmax(match, 1)], previous.tasks)
+    need = exists & ~kept
+    # the sources to plan first, in slot order; the rest of the list is padding (slot m)
+    order = jnp.nonzero(need, size=m, fill_value=m)[0]
+    n_need = jnp.sum(need, dtype=jnp.int32)
+    safe = jnp.minimum(order, m - 1)
+    todo = jnp.arange(m) < n_need
+    src = sources[safe]
+    anchors = jax.vmap(lambda s: source_anchor(scene, params, fabric, s))(src)
+    anchors = jnp.where(todo, anchors, -1)
 
     def plan_chunk(args):
         sources, exists, anchors = args
@@ -208,13 +225,18 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     chunk = min(PLAN_CHUNK, m)
     pad = -m % chunk
     args = jax.tree.map(lambda a: jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)).reshape((-1, chunk) + a.shape[1:]),
-                        (sources, exists, anchors))
+                        (src, todo, anchors))
     empty = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
                          jax.eval_shape(plan_chunk, jax.tree.map(lambda a: a[0], args)))
     starts = jnp.arange(args[0].shape[0]) * chunk
-    tasks = jax.lax.map(lambda x: jax.lax.cond(x[0] < wanted, lambda a: plan_chunk(a), lambda a: empty, x[1]),
-                        (starts, args))
-    tasks = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:])[:m], tasks)
+    planned = jax.lax.map(lambda x: jax.lax.cond(x[0] < n_need, lambda a: plan_chunk(a), lambda a: empty, x[1]),
+                          (starts, args))
+    planned = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:])[:m], planned)
+    # back to slot order: slot order[i] gets planned[i]
+    tasks = jax.tree.map(lambda a: jnp.zeros_like(a).at[order].set(a, mode="drop"), planned)
+    if reused is not None:
+        tasks = jax.tree.map(lambda new, old: jnp.where(kept.reshape((-1,) + (1,) * (new.ndim - 1)), old, new),
+                             tasks, reused)
     usable = exists & (tasks.code == RUNNING)
     return Candidates(tasks, exists, usable, *footprint_relations(tasks.footprint, usable, owner))
 

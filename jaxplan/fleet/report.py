@@ -32,7 +32,7 @@ import numpy as np
 
 from jaxplan.core import save_animation
 from jaxplan.fleet.run import FleetRun
-from jaxplan.transport import PALETTE, blocked_handle, blocked_of, cell_edges, draw_blocked, polygon_rings
+from jaxplan.transport import PALETTE, blocked_handle, blocked_of, cell_edges, draw_blocked, finite_max, polygon_rings
 
 __all__ = ["DEFAULT_MAX_FRAMES", "FIGURE_PANELS", "FLEET_OUTPUTS", "MASS_CMAP", "TRAFFIC_CMAP", "TRAJECTORY_CONVENTION",
            "animate_fleet", "frame_steps", "plot_fleet", "pushes_records", "summary_of", "t_fraction",
@@ -201,18 +201,6 @@ def _frame_of(scene):
     return x0, y0, s, extent, centre
 
 
-def _finite_max(arrays) -> float:
-    """The largest finite value over ``arrays`` if > 0, else 1.0 (a colour scale's top that NaN / inf
-    cannot break or stretch)."""
-    top = 0.0
-    for a in arrays:
-        a = np.asarray(a, np.float64)
-        finite = a[np.isfinite(a)]
-        if finite.size:
-            top = max(top, float(finite.max()))
-    return top if top > 0 else 1.0
-
-
 def _finite(values) -> np.ndarray:
     """``values`` as f64 with NaN in place of every non-finite value (left blank, never on a colour scale)."""
     values = np.asarray(values, np.float64)
@@ -360,7 +348,7 @@ def plot_fleet(run: FleetRun):
     pos = np.asarray(run.pos)
     start_obj = np.where(mask, np.nan, np.asarray(scene.obj, np.float64))
     final_obj = np.where(mask, np.nan, np.asarray(run.final_scene.obj, np.float64))
-    vmax = _finite_max([start_obj, final_obj])
+    vmax = finite_max(start_obj, final_obj)
 
     def tint(ax):
         rgba = np.zeros(mask.shape + (4,))
@@ -439,7 +427,7 @@ def animate_fleet(run: FleetRun, path, *, fps: int = 8, max_frames: int = DEFAUL
     def mass(obj):   # counts outside the targets; target cells and non-finite counts left off the scale
         return _finite(np.where(mask, np.nan, np.asarray(obj, np.float64)))
 
-    vmax = _finite_max(mass(frames[i]["obj"]) for i, _ in picks)
+    vmax = finite_max(*(mass(frames[i]["obj"]) for i, _ in picks))
     fig, ax = plt.subplots(figsize=(7.2, 7.0))
     fig.subplots_adjust(left=0.1, right=0.9, top=0.93, bottom=0.16)
     im = ax.imshow(mass(frames[picks[0][0]]["obj"]), origin="lower", extent=extent, cmap=MASS_CMAP, vmin=0,

@@ -245,7 +245,7 @@ _footprint_jit = grid_jit(_footprint, static_argnums=3)
 
 
 def _message(reason: str, state, episode: EpisodeParams, max_steps: int) -> str:
-    outside, initial = float(state.outside), float(state.initial_outside)
+    outside, initial = float(state.totals.outside), float(state.totals.initial_outside)
     return {
         "done": f"{outside:.3g} objects left outside the targets (<= {float(episode.stop_fraction):.3g} of "
                 f"{initial:.3g}) or no source left",
@@ -261,8 +261,8 @@ def _message(reason: str, state, episode: EpisodeParams, max_steps: int) -> str:
 
 
 def _frame(state, shown) -> dict:
-    cells = np.asarray(state.route.cells)
-    n_cells = np.asarray(state.route.n_cells)
+    cells = np.asarray(state.rovers.route.cells)
+    n_cells = np.asarray(state.rovers.route.n_cells)
     return dict(obj=np.asarray(state.scene.obj), heat=np.asarray(state.fabric.heat),
                 highways=np.asarray(state.fabric.highways),
                 routes=[cells[r, :n_cells[r]].copy() if shown[r] else None for r in range(len(shown))])
@@ -296,12 +296,12 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     initial_scene = jax.tree.map(jnp.copy, state.scene)
     first = jax.device_get(state)
     target = np.asarray(first.scene.target_mask)
-    positions = [np.asarray(first.pos)]
+    positions = [np.asarray(first.rovers.pos)]
     inside = [float(np.asarray(first.scene.obj)[target].sum())]
-    outside = [float(first.outside)]
+    outside = [float(first.totals.outside)]
     frames = [_frame(first, np.zeros(n_rovers, bool))] if record else None
-    initial_mass, initial_outside = float(first.initial_mass), float(first.initial_outside)
-    done_at_start = bool(first.done)
+    initial_mass, initial_outside = float(first.totals.initial_mass), float(first.totals.initial_outside)
+    done_at_start = bool(first.totals.done)
     del first                        # the host copy of the start state (fabric, distance fields)
     plan_ms, refresh_ms, step_ms, pushes, reservations = [], [], [], [], []
     open_tasks: dict[int, dict] = {}
@@ -318,7 +318,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     bar = tqdm(total=int(max_steps), desc=f"fleet {strategy} x{n_rovers}", unit="step", leave=False,
                disable=not progress)
     try:
-        while not bool(state.done):
+        while not bool(state.totals.done):
             check_interrupt()
             start = time.perf_counter()
             state, rec, before = run_step(state)
@@ -337,8 +337,8 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
             kernel_conflicts += int(rec.conflicts)
             assigned, ended, gone = np.asarray(rec.assigned), np.asarray(rec.ended), np.asarray(rec.dropped)
             if assigned.any():
-                routes = jax.device_get(state.route)
-                modes = np.asarray(state.mode)
+                routes = jax.device_get(state.rovers.route)
+                modes = np.asarray(state.rovers.mode)
                 for r in np.flatnonzero(assigned):
                     one = jax.tree.map(lambda a, r=r: a[r], routes)
                     cells = np.asarray(one.cells)[: int(one.n_cells)]
@@ -366,12 +366,13 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
         reservations.append((r, task["first_step"], len(positions) - 1, task["footprint"]))
     final = jax.device_get(state)
     pos = np.asarray(positions, np.int32)
-    reason = STOP_REASONS[int(final.stop)]
+    reason = STOP_REASONS[int(final.totals.stop)]
     return FleetRun(
         scene=initial_scene, final_scene=state.scene, n_rovers=n_rovers, strategy=strategy, steps=len(positions) - 1,
         pos=pos, delivered=np.asarray(inside, np.float64), outside=np.asarray(outside, np.float64),
         initial_mass=initial_mass, initial_outside=initial_outside, pushes=pushes,
-        rover_pushes=np.asarray(final.pushes, np.int32), idle_steps=np.asarray(final.idle_steps, np.int32),
+        rover_pushes=np.asarray(final.rovers.pushes, np.int32),
+        idle_steps=np.asarray(final.rovers.idle_steps, np.int32),
         plan_ms=plan_ms, conflicts=len(conflicts(pos, reservations)), stop_reason=reason,
         message=_message(reason, final, episode, int(max_steps)), frames=frames,
         kernel_conflicts=kernel_conflicts, dropped=dropped, scene_name=getattr(scene, "name", None),

@@ -3,7 +3,7 @@
 One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
 
 1. **Assign**: idle rovers get tasks from the current fabric by the strategy (``assign``), while the
-   push budget lasts (tasks started < ``FleetState.max_pushes``, which ``reset`` takes from
+   push budget lasts (tasks started < ``FleetState.totals.max_pushes``, which ``reset`` takes from
    ``EpisodeParams.max_pushes``, so that the compiled step does not depend on the budget, a static
    field of ``EpisodeParams``: ``step`` ignores ``episode.max_pushes``). A rover already on its task's
    start pushes at once, the others approach.
@@ -32,6 +32,12 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    footprint held another rover and no rover moved); nothing moved or pushed for ``stall_steps`` steps ("deadlock",
    or "no_reachable_task" when no task runs: rovers kept dropping unreachable tasks); the step
    limit ("max_steps").
+
+Each step is a function of ``_advance`` (``advance``; ``step`` is ``advance`` then ``refresh``):
+``_assign`` and ``_take_tasks`` (1), ``_fields`` and ``_drop_unreachable`` (2), ``_move`` (3),
+``_apply_pushes`` (4, the rebuild in ``refresh``), ``_stop`` (5); then ``_mark_stale`` and ``_expire``
+mark the fields and cached tasks the step outdated. ``FleetState`` holds the shared scene and fabric,
+the footprints and cached tasks, every rover's row in ``Rovers`` and the scalars in ``Totals``.
 
 A finished state's step is a no-op, so ``rollout`` (``lax.scan``) may run past the end. Counts stay
 multiples of ``execute.QUANTUM``, so the grid's total is exactly conserved by every push.
@@ -65,18 +71,21 @@ from jaxplan.transport import (
     require_hard,
     selective_rebuild,
 )
+from jaxplan.transport import STOP_REASONS as EPISODE_STOP_REASONS
 from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill
 
 __all__ = ["DEADLOCK", "MAX_STEPS", "NO_REACHABLE", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord",
-           "FleetState", "advance", "estimate_fleet_bytes", "fleet_rebuild", "max_rovers", "refresh", "reset",
-           "rollout", "step"]
+           "FleetState", "Rovers", "Totals", "advance", "estimate_fleet_bytes", "fleet_rebuild", "max_rovers",
+           "refresh", "reset", "rollout", "step"]
 
 STRATEGIES = ("coordinated", "independent", "partitioned")
-# Stop codes: the episode's (0-6: running, done, done (no source left), budget, no_material,
-# no_route, walk_cap), then the fleet's own.
-MAX_STEPS, DEADLOCK, NO_REACHABLE = 7, 8, assign.BLOCKED
-STOP_REASONS = ("running", "done", "done", "budget", "no_material", "no_route", "walk_cap", "max_steps",
-                "deadlock", "no_reachable_task")
+# Stop codes (``Totals.stop``, ``FleetRecord.stop`` and ``failure``), indices into STOP_REASONS: the
+# episode's table (``transport.STOP_REASONS``, 0-6: running, done, done (no source left), budget,
+# no_material, no_route, walk_cap), then the fleet's own three, numbered after it.
+STOP_REASONS = EPISODE_STOP_REASONS + ("max_steps", "deadlock", "no_reachable_task")
+MAX_STEPS, DEADLOCK, NO_REACHABLE = range(len(EPISODE_STOP_REASONS), len(STOP_REASONS))
+# an assignment's failure code becomes the fleet's stop code
+assert assign.BLOCKED == NO_REACHABLE, "assign.BLOCKED must be the fleet's no_reachable_task code"
 MAX_ROVERS = 64
 CANDIDATE_RULES = ("value", "rate")
 MAX_CANDIDATES = 64
@@ -106,8 +115,8 @@ class FleetConfig:
     promises it, ``assign.rate_sources``).
 
     ``step`` reads only whether the strategy is "coordinated": independent and partitioned fleets
-    differ in their state (``FleetState.region`` and ``home``, made by ``reset``), so both run the
-    program of ``kernel()``.
+    differ in their state (``FleetState.region`` and ``rovers.home``, made by ``reset``), so both run
+    the program of ``kernel()``.
     """
 
     n_rovers: int
@@ -156,39 +165,23 @@ class FleetConfig:
                              f"{footprint.CLEARANCES} (cells reserved around a route).")
 
 
-class FleetState(NamedTuple):
-    """Everything the fleet carries from one step to the next. A pytree; N rovers, H x W grid, S route slots.
+class Rovers(NamedTuple):
+    """Every rover's own state: a pytree whose every leaf leads with the rover axis N (row i is rover
+    i). H x W grid, S route slots.
 
-    scene: Scene, counts now (multiples of ``execute.QUANTUM``). fabric: Fabric of those counts.
     pos: i32[N, 2] rover cells (row, col). home: i32[N, 2] start cells, where idle rovers park.
     phase: i32[N] (``motion.IDLE``, ``APPROACH``, ``PUSH``).
     route: execute.Route batched (cells i32[N, S, 2], n_cells i32[N], fallback bool[N], end f32[N, 2]),
       each rover's task (stale while idle). mode: i32[N] 0 deliver, 1 rearrange.
     task_step: i32[N] the step its task was assigned in (1 = the first step).
     progress: i32[N] index of the rover's cell on its push path while pushing.
-    owner: i32[H, W] the rover whose footprint holds the cell (-1 none).
-    dist: i32[N, H, W] approach distance fields (``motion.FAR``: cannot reach).
-    region: i32[H, W] partitioned sectors (-1 everywhere for the other strategies).
+    dist: i32[N, H, W] approach distance fields, steps (``motion.FAR``: cannot reach).
     stale: bool[N] the rover's goal changed or cells it may not enter were added since its field was
       computed (step 2 recomputes it if the rover drives).
-    candidates: ``assign.Candidates`` (M slots for ``coordinated``, none otherwise), the tasks the
-      last coordinated assignment planned; fresh: bool[] they were planned on this fabric and this
-      ownership map (no push ended, no task started or was dropped since), so the next assignment
-      reuses them instead of planning again: the same tasks, at the cost of the greedy rounds only.
-    attempts: ``assign.Attempts`` (N rovers for ``independent`` and ``partitioned``, none for
-      ``coordinated``): each rover's last failed attempt, not planned again while fresh and no rover
-      moved through the footprints it tried.
-    pushes: i32[N] pushes applied per rover. started: i32[] tasks started and not dropped.
-    idle_steps: i32[N] steps each rover had no task.
-    t: i32[] steps done. stall: i32[] consecutive steps without a move or push. max_steps: i32[] the
-    step limit. max_pushes: i32[] the push budget (tasks started, dropped ones not counted).
-    delivered, spilled: f32[] objects, all pushes. outside: f32[] objects outside the targets now.
-    initial_mass, initial_outside, stop_at: f32[] (stop_at = stop_fraction * initial_outside).
-    done: bool[]; stop: i32[] (``STOP_REASONS``).
+    pushes: i32[N] pushes applied per rover.
+    idle_steps: i32[N] steps each rover had no task (idle after step 2: no task, or its task dropped).
     """
 
-    scene: Any
-    fabric: Fabric
     pos: jax.Array
     home: jax.Array
     phase: jax.Array
@@ -196,20 +189,30 @@ class FleetState(NamedTuple):
     mode: jax.Array
     task_step: jax.Array
     progress: jax.Array
-    owner: jax.Array
     dist: jax.Array
-    region: jax.Array
     stale: jax.Array
-    candidates: assign.Candidates
-    attempts: assign.Attempts
-    fresh: jax.Array
     pushes: jax.Array
-    started: jax.Array
     idle_steps: jax.Array
+
+
+class Totals(NamedTuple):
+    """The fleet's scalars: its clock, limits, running totals and stop code. A pytree of 0-d leaves.
+
+    t: i32[] steps done. stall: i32[] consecutive steps without a move or push. max_steps: i32[] the
+    step limit. max_pushes: i32[] the push budget (tasks started, dropped ones not counted).
+    started: i32[] tasks started and not dropped.
+    delivered, spilled: f32[] objects, all pushes. outside: f32[] objects outside the targets now.
+    initial_mass: f32[] the grid's total, objects. initial_outside: f32[] objects outside the targets
+    at the start. stop_at: f32[] objects outside at which the fleet is done (stop_fraction *
+    initial_outside).
+    done: bool[]; stop: i32[] (``STOP_REASONS``; ``RUNNING`` = 0 until done).
+    """
+
     t: jax.Array
     stall: jax.Array
     max_steps: jax.Array
     max_pushes: jax.Array
+    started: jax.Array
     delivered: jax.Array
     spilled: jax.Array
     outside: jax.Array
@@ -218,6 +221,37 @@ class FleetState(NamedTuple):
     stop_at: jax.Array
     done: jax.Array
     stop: jax.Array
+
+
+class FleetState(NamedTuple):
+    """Everything the fleet carries from one step to the next. A pytree; N rovers, H x W grid.
+
+    scene: Scene, counts now (multiples of ``execute.QUANTUM``). fabric: Fabric of those counts.
+    rovers: ``Rovers``, each rover's cell, task, phase and distance field.
+    owner: i32[H, W] the rover whose footprint holds the cell (-1 none).
+    region: i32[H, W] partitioned sectors (-1 everywhere for the other strategies).
+    candidates: ``assign.Candidates`` (M slots for ``coordinated``, none otherwise), the tasks the
+      last coordinated assignment planned; fresh: bool[] they were planned on this fabric and this
+      ownership map (no push ended, no task started or was dropped since), so the next assignment
+      reuses them instead of planning again: the same tasks, at the cost of the greedy rounds only.
+      When only the ownership changed, the next planning keeps the tasks of the sources it planned
+      before and plans the new ones; when a push ended, every slot's ``exists`` is cleared (the
+      fabric changed) and all are planned again.
+    attempts: ``assign.Attempts`` (N rovers for ``independent`` and ``partitioned``, none for
+      ``coordinated``): each rover's last failed attempt, not planned again while fresh and no rover
+      moved through the footprints it tried.
+    totals: ``Totals``, the step count, limits, running totals and stop code.
+    """
+
+    scene: Any
+    fabric: Fabric
+    rovers: Rovers
+    owner: jax.Array
+    region: jax.Array
+    candidates: assign.Candidates
+    attempts: assign.Attempts
+    fresh: jax.Array
+    totals: Totals
 
 
 class FleetRecord(NamedTuple):
@@ -355,8 +389,8 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
         default_starts = sectors.spread_starts(no_start, n)
     pos = default_starts if starts is None else _i32(starts).reshape(n, 2)
     s = route_slots(cfg, shape)
-    route = Route(jnp.full((n, s, 2), -1, jnp.int32), jnp.ones(n, jnp.int32), jnp.zeros(n, bool),
-                  jnp.zeros((n, 2), jnp.float32))
+    route = Route(cells=jnp.full((n, s, 2), -1, jnp.int32), n_cells=jnp.ones(n, jnp.int32),
+                  fallback=jnp.zeros(n, bool), end=jnp.zeros((n, 2), jnp.float32))
     outside = _f32(outside_mass(scene))
     stop_at = _f32(_f32(ep.stop_fraction) * outside)
     budget = _i32(ep.max_pushes if max_pushes is None else max_pushes)
@@ -364,13 +398,16 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
                            RUNNING))
     zeros_n = jnp.zeros(n, jnp.int32)
     limit = DEFAULT_MAX_STEPS if max_steps is None else max_steps
-    candidates = _no_candidates(scene, params, ep, spill, fabric, cfg)
-    attempts = assign.no_attempts(0 if cfg.strategy == "coordinated" else n, shape)
-    return FleetState(scene, fabric, pos, pos, zeros_n, route, zeros_n, zeros_n, zeros_n,
-                      jnp.full(shape, -1, jnp.int32), jnp.full((n,) + shape, FAR, jnp.int32), region,
-                      jnp.ones(n, bool), candidates, attempts, jnp.bool_(False), zeros_n, _i32(0), zeros_n,
-                      _i32(0), _i32(0), _i32(limit), budget, _f32(0.0),
-                      _f32(0.0), outside, _f32(jnp.sum(scene.obj)), outside, stop_at, stop != RUNNING, stop)
+    rovers = Rovers(pos=pos, home=pos, phase=zeros_n, route=route, mode=zeros_n, task_step=zeros_n,
+                    progress=zeros_n, dist=jnp.full((n,) + shape, FAR, jnp.int32), stale=jnp.ones(n, bool),
+                    pushes=zeros_n, idle_steps=zeros_n)
+    totals = Totals(t=_i32(0), stall=_i32(0), max_steps=_i32(limit), max_pushes=budget, started=_i32(0),
+                    delivered=_f32(0.0), spilled=_f32(0.0), outside=outside, initial_mass=_f32(jnp.sum(scene.obj)),
+                    initial_outside=outside, stop_at=stop_at, done=stop != RUNNING, stop=stop)
+    return FleetState(scene=scene, fabric=fabric, rovers=rovers, owner=jnp.full(shape, -1, jnp.int32), region=region,
+                      candidates=_no_candidates(scene, params, ep, spill, fabric, cfg),
+                      attempts=assign.no_attempts(0 if cfg.strategy == "coordinated" else n, shape),
+                      fresh=jnp.bool_(False), totals=totals)
 
 
 def _no_candidates(scene, params, ep, spill, fabric, cfg: FleetConfig) -> assign.Candidates:
@@ -385,11 +422,14 @@ def _no_candidates(scene, params, ep, spill, fabric, cfg: FleetConfig) -> assign
 
 
 def _idle_record(state: FleetState) -> FleetRecord:
-    n = state.pos.shape[0]
+    rovers, totals, scene = state.rovers, state.totals, state.scene
+    n = rovers.pos.shape[0]
     f, b = jnp.zeros(n, jnp.float32), jnp.zeros(n, bool)
-    inside = jnp.sum(jnp.where(state.scene.target_mask, state.scene.obj, 0.0))
-    return FleetRecord(state.pos, state.phase, b, b, b, f, f, f, state.delivered, state.outside, _f32(inside),
-                       _f32(jnp.sum(state.scene.obj)), _i32(0), _i32(RUNNING), state.stop, jnp.bool_(False))
+    inside = jnp.sum(jnp.where(scene.target_mask, scene.obj, 0.0))
+    return FleetRecord(pos=rovers.pos, phase=rovers.phase, assigned=b, dropped=b, ended=b, collected=f, delivered=f,
+                       spilled=f, delivered_total=totals.delivered, outside=totals.outside, inside=_f32(inside),
+                       mass=_f32(jnp.sum(scene.obj)), conflicts=_i32(0), failure=_i32(RUNNING), stop=totals.stop,
+                       valid=jnp.bool_(False))
 
 
 def _select_rows(mask, new, old):
@@ -401,8 +441,9 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
     """Step 1: ``(route, mode, assigned bool[N], owner, failure, candidates, attempts, fresh)``
     (``assign.assign_greedy`` on the cached candidates while they are fresh, or ``assign_each``);
     nothing runs when no rover is idle or the budget is spent."""
-    idle = state.phase == IDLE
-    budget = state.max_pushes - state.started
+    rovers = state.rovers
+    idle = rovers.phase == IDLE
+    budget = state.totals.max_pushes - state.totals.started
     scene = state.scene
 
     def run(_):
@@ -410,20 +451,37 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
             planned = jax.lax.cond(state.fresh, lambda _: state.candidates, lambda _: assign.plan_candidates(
                 scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
                 evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates),
-                by_rate=(state.pos, idle) if cfg.candidates_by == "rate" else None), None)
-            return assign.assign_planned(planned, state.pos, idle, state.owner, budget,
-                                         state.route) + (planned, state.attempts, jnp.bool_(True))
-        *out, attempts = assign.assign_each(scene, params, ep, spill, state.fabric, state.pos, idle, state.owner,
-                                            budget, state.route, state.region, state.attempts, state.fresh,
+                by_rate=(rovers.pos, idle) if cfg.candidates_by == "rate" else None, previous=state.candidates),
+                None)
+            return assign.assign_planned(planned, rovers.pos, idle, state.owner, budget,
+                                         rovers.route) + (planned, state.attempts, jnp.bool_(True))
+        *out, attempts = assign.assign_each(scene, params, ep, spill, state.fabric, rovers.pos, idle, state.owner,
+                                            budget, rovers.route, state.region, state.attempts, state.fresh,
                                             retries=cfg.retries, cap=cfg.walk_cap, evaluator=evaluator,
                                             clearance=cfg.clearance)
         return (*out, state.candidates, attempts, jnp.bool_(True))
 
     def skip(_):
-        return (state.route, state.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING), state.candidates,
-                state.attempts, state.fresh)
+        return (rovers.route, rovers.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING),
+                state.candidates, state.attempts, state.fresh)
 
     return jax.lax.cond(jnp.any(idle) & (budget > 0), run, skip, None)
+
+
+def _take_tasks(rovers: Rovers, assigned, route, mode, step_no) -> Rovers:
+    """Step 1's tasks given to the ``assigned: bool[N]`` rovers (``route``, ``mode``: the assignment's,
+    every rover's row): a rover already on its task's start pushes at once, the others approach."""
+    route = _select_rows(assigned, route, rovers.route)
+    at_start = jnp.all(rovers.pos == route.cells[:, 0], -1)
+    return rovers._replace(route=route, phase=jnp.where(assigned, jnp.where(at_start, PUSH, APPROACH), rovers.phase),
+                           mode=jnp.where(assigned, mode, rovers.mode),
+                           task_step=jnp.where(assigned, step_no, rovers.task_step),
+                           progress=jnp.where(assigned, 0, rovers.progress))
+
+
+def _release(owner, rovers):
+    """``owner`` without the footprints of the ``rovers: bool[N]``."""
+    return jnp.where((owner >= 0) & rovers[jnp.maximum(owner, 0)], -1, owner)
 
 
 def _parked(pos, home, phase):
@@ -431,26 +489,36 @@ def _parked(pos, home, phase):
     return (phase == IDLE) & jnp.all(pos == home, -1)
 
 
-def _fields(dist, pos, home, phase, route, owner, stale, blocked):
-    """Step 2: ``(dist i32[N, H, W], computed bool[N])``: the distance fields (module docstring),
-    recomputed for the ``stale: bool[N]`` rovers that drive (``computed``); the other rows kept.
-    blocked: bool[H, W], the scene's blocked cells (never passable, their corners never cut)."""
+def _fields(rovers: Rovers, owner, blocked):
+    """Step 2: ``(rovers, computed bool[N])``: the distance fields (module docstring), recomputed for
+    the stale rovers that drive (``computed``); the other rows kept. blocked: bool[H, W], the scene's
+    blocked cells (never passable, their corners never cut)."""
+    pos, home, phase = rovers.pos, rovers.home, rovers.phase
     n = pos.shape[0]
     h, w = owner.shape
     parked_rover = _parked(pos, home, phase)
     parked = jnp.full(h * w, -1, jnp.int32).at[pos[:, 0] * w + pos[:, 1]].set(
         jnp.where(parked_rover, jnp.arange(n, dtype=jnp.int32), -1)).reshape(h, w)
-    rovers = jnp.arange(n, dtype=jnp.int32)[:, None, None]
-    passable = ((owner[None] < 0) | (owner[None] == rovers)) & ((parked[None] < 0) | (parked[None] == rovers))
+    ids = jnp.arange(n, dtype=jnp.int32)[:, None, None]
+    passable = ((owner[None] < 0) | (owner[None] == ids)) & ((parked[None] < 0) | (parked[None] == ids))
     passable = passable & ~blocked[None]
-    goals = jnp.where((phase == APPROACH)[:, None], route.cells[:, 0], home)
+    goals = jnp.where((phase == APPROACH)[:, None], rovers.route.cells[:, 0], home)
     drives = (phase == APPROACH) | ((phase == IDLE) & ~parked_rover)
-    computed = stale & drives
-    update = lambda corner: motion.update_fields(dist, goals, passable, pos, computed,  # noqa: E731
+    computed = rovers.stale & drives
+    update = lambda corner: motion.update_fields(rovers.dist, goals, passable, pos, computed,  # noqa: E731
                                                  chunk=FIELD_CHUNK, corner=corner)
     # the corner rule's per-direction minimum costs twice the open site's separable one
     fields = jax.lax.cond(jnp.any(blocked), lambda _: update(corner_free(blocked)), lambda _: update(None), None)
-    return fields, computed
+    return rovers._replace(dist=fields), computed
+
+
+def _drop_unreachable(rovers: Rovers, owner):
+    """Step 2's drops: ``(rovers, owner, dropped bool[N])``, the approaching rovers that cannot reach
+    their start on their field idle, their footprints released."""
+    n = rovers.pos.shape[0]
+    here = rovers.dist[jnp.arange(n), rovers.pos[:, 0], rovers.pos[:, 1]]
+    dropped = (rovers.phase == APPROACH) & (here >= FAR)
+    return rovers._replace(phase=jnp.where(dropped, IDLE, rovers.phase)), _release(owner, dropped), dropped
 
 
 def _conflicts(before, after, moved, owner):
@@ -465,8 +533,27 @@ def _conflicts(before, after, moved, owner):
     return _i32(jnp.sum(same) // 2 + jnp.sum(swap) // 2 + jnp.sum(foreign))
 
 
-def _apply(scene, route, ended, spill, evaluator):
-    """Step 4: the ended pushes applied in rover order: ``(obj, collected, delivered, spilled)``, f32[N] each."""
+def _move(rovers: Rovers, owner, blocked):
+    """Step 3: ``(rovers, moved bool[N], ended bool[N], conflicts i32[])``: every rover moved at most
+    one cell (``motion.move_rovers``); ``ended``: pushes that reached their path's last cell; a rover
+    that reached its start pushes from the next step on; ``conflicts`` (``_conflicts``) of the move."""
+    route, progress = rovers.route, rovers.progress
+    push_next = jax.vmap(lambda r, k: footprint.path_cell(r, k))(route, progress + 1)
+    pos, moved = motion.move_rovers(rovers.pos, rovers.phase, rovers.dist, owner, push_next, corner_free(blocked))
+    conflicts = _conflicts(rovers.pos, pos, moved, owner)
+    pushing = rovers.phase == PUSH
+    progress = jnp.where(pushing & moved, progress + 1, progress)
+    ended = pushing & (progress >= jax.vmap(footprint.path_length)(route) - 1)
+    arrived = (rovers.phase == APPROACH) & jnp.all(pos == route.cells[:, 0], -1)
+    rovers = rovers._replace(pos=pos, phase=jnp.where(arrived, PUSH, rovers.phase),
+                             progress=jnp.where(arrived, 0, progress))
+    return rovers, moved, ended, conflicts
+
+
+def _apply_pushes(scene, rovers: Rovers, owner, ended, spill, evaluator):
+    """Step 4: the ``ended`` pushes applied in rover order, on the counts at that moment, their
+    footprints released and their rovers idle: ``(scene, rovers, owner, (collected, delivered,
+    spilled))``, f32[N] objects each (0 for the other rovers). The fabric is left as it is."""
     n = ended.shape[0]
     zeros = jnp.zeros(n, jnp.float32)
 
@@ -475,14 +562,56 @@ def _apply(scene, route, ended, spill, evaluator):
 
         def push(carry):
             obj, collected, delivered, spilled = carry
-            mine = jax.tree.map(lambda a: a[r], route)
+            mine = jax.tree.map(lambda a: a[r], rovers.route)
             new_obj, result = execute_push(scene.with_obj(obj), mine, spill, evaluator)
             return (new_obj, collected.at[r].set(result.collected), delivered.at[r].set(result.delivered),
                     spilled.at[r].set(result.spilled))
 
         return jax.lax.cond(ended[r], push, lambda c: c, carry)
 
-    return jax.lax.fori_loop(0, n, one, (scene.obj, zeros, zeros, zeros))
+    obj, *applied = jax.lax.fori_loop(0, n, one, (scene.obj, zeros, zeros, zeros))
+    rovers = rovers._replace(phase=jnp.where(ended, IDLE, rovers.phase), pushes=rovers.pushes + ended)
+    return scene.with_obj(obj), rovers, _release(owner, ended), tuple(applied)
+
+
+def _stop(totals: Totals, scene, phase, assigned, dropped, moved, ended, applied, failure, stall_steps: int) -> Totals:
+    """Step 5: the totals after the step and its stop code (module docstring, first that holds).
+    phase: i32[N] after the step; assigned, dropped, moved, ended: bool[N] what it did; applied:
+    ``(collected, delivered, spilled)`` f32[N] of its pushes; failure: i32[] the assignment's."""
+    t = totals.t + 1
+    outside = _f32(outside_mass(scene))
+    started = totals.started + jnp.sum(assigned) - jnp.sum(dropped)
+    has_task = jnp.any(phase != IDLE)
+    progressed = jnp.any(moved) | jnp.any(ended)
+    stall = jnp.where(progressed, 0, jnp.where(has_task | jnp.any(dropped), totals.stall + 1, totals.stall))
+    # all idle and nothing assigned: the next step is this one again, unless rovers are driving home
+    # out of the way of the tasks their cells blocked
+    stuck = ~has_task & ~jnp.any(assigned) & (failure != RUNNING) & ((failure != NO_REACHABLE) | ~jnp.any(moved))
+    stop = _i32(jnp.select(
+        [outside <= totals.stop_at, ~has_task & (started >= totals.max_pushes), stuck, stall >= stall_steps,
+         t >= totals.max_steps],
+        [DONE, BUDGET, failure, jnp.where(has_task, DEADLOCK, NO_REACHABLE), MAX_STEPS], RUNNING))
+    _, delivered, spilled = applied
+    return totals._replace(t=t, stall=_i32(stall), started=started, delivered=totals.delivered + jnp.sum(delivered),
+                           spilled=totals.spilled + jnp.sum(spilled), outside=outside, done=stop != RUNNING,
+                           stop=stop)
+
+
+def _mark_stale(rovers: Rovers, before, computed, dropped, ended) -> Rovers:
+    """The rovers' fields outdated by the step (``before``: i32[N, 2] their cells before it): a field
+    stays stale until the rover drives and gets a new one (``computed``); a new goal (a push ended, a
+    task dropped) or a newly parked obstacle makes it stale."""
+    parked_now = _parked(rovers.pos, rovers.home, rovers.phase)
+    newly_parked = jnp.any(parked_now & ~_parked(before, rovers.home, rovers.phase))
+    return rovers._replace(stale=(rovers.stale & ~computed) | ended | dropped | newly_parked)
+
+
+def _expire(candidates, fresh, assigned, dropped, ended):
+    """``(candidates, fresh)`` after the step: no longer fresh once a task started or was dropped or a
+    push ended. A task depends on the fabric and its source only: the next planning keeps the cached
+    ones (``plan_candidates``'s previous) until a push ends and the fabric changes."""
+    fresh = fresh & ~(jnp.any(assigned) | jnp.any(dropped) | jnp.any(ended))
+    return candidates._replace(exists=candidates.exists & ~jnp.any(ended)), fresh
 
 
 def fleet_rebuild(rebuild: str) -> str:
@@ -532,70 +661,34 @@ def advance(state: FleetState, params: FabricParams, spill: SpillParams, episode
 
 
 def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
-    n = state.pos.shape[0]
-    step_no = state.t + 1
+    blocked = state.scene.blocked
     # 1. assign
-    new_route, new_mode, assigned, owner, failure, candidates, attempts, fresh = _assign(
+    route, mode, assigned, owner, failure, candidates, attempts, fresh = _assign(
         state, params, spill, ep, cfg, evaluator)
-    route = _select_rows(assigned, new_route, state.route)
-    at_start = jnp.all(state.pos == route.cells[:, 0], -1)
-    phase = jnp.where(assigned, jnp.where(at_start, PUSH, APPROACH), state.phase)
-    mode = jnp.where(assigned, new_mode, state.mode)
-    task_step = jnp.where(assigned, step_no, state.task_step)
-    progress = jnp.where(assigned, 0, state.progress)
+    rovers = _take_tasks(state.rovers, assigned, route, mode, state.totals.t + 1)
     # 2. distance fields, unreachable starts dropped
-    stale = state.stale | assigned | jnp.any(assigned)      # a new goal, or new footprints in the way
-    dist, computed = _fields(state.dist, state.pos, state.home, phase, route, owner, stale, state.scene.blocked)
-    here = dist[jnp.arange(n), state.pos[:, 0], state.pos[:, 1]]
-    dropped = (phase == APPROACH) & (here >= FAR)
-    owner = jnp.where((owner >= 0) & dropped[jnp.maximum(owner, 0)], -1, owner)
-    phase = jnp.where(dropped, IDLE, phase)
-    idle_now = phase == IDLE
+    rovers = rovers._replace(stale=rovers.stale | assigned | jnp.any(assigned))  # a new goal, new footprints
+    rovers, computed = _fields(rovers, owner, blocked)
+    rovers, owner, dropped = _drop_unreachable(rovers, owner)
+    rovers = rovers._replace(idle_steps=rovers.idle_steps + (rovers.phase == IDLE))
     # 3. move
-    push_next = jax.vmap(lambda r, k: footprint.path_cell(r, k))(route, progress + 1)
-    pos, moved = motion.move_rovers(state.pos, phase, dist, owner, push_next, corner_free(state.scene.blocked))
-    conflicts = _conflicts(state.pos, pos, moved, owner)
-    pushing = phase == PUSH
-    progress = jnp.where(pushing & moved, progress + 1, progress)
-    ended = pushing & (progress >= jax.vmap(footprint.path_length)(route) - 1)
-    arrived = (phase == APPROACH) & jnp.all(pos == route.cells[:, 0], -1)
-    phase = jnp.where(arrived, PUSH, phase)
-    progress = jnp.where(arrived, 0, progress)
+    rovers, moved, ended, conflicts = _move(rovers, owner, blocked)
     # 4. apply the pushes that ended, release their footprints (the fabric is refreshed by ``refresh``)
-    obj, collected, delivered, spilled = _apply(state.scene, route, ended, spill, evaluator)
-    scene = state.scene.with_obj(obj)
-    owner = jnp.where((owner >= 0) & ended[jnp.maximum(owner, 0)], -1, owner)
-    phase = jnp.where(ended, IDLE, phase)
-    fabric = state.fabric
+    scene, rovers, owner, applied = _apply_pushes(state.scene, rovers, owner, ended, spill, evaluator)
     # 5. totals and stop
-    t = step_no
-    outside = _f32(outside_mass(scene))
-    total_delivered = state.delivered + jnp.sum(delivered)
-    started = state.started + jnp.sum(assigned) - jnp.sum(dropped)
-    has_task = jnp.any(phase != IDLE)
-    progressed = jnp.any(moved) | jnp.any(ended)
-    stall = jnp.where(progressed, 0, jnp.where(has_task | jnp.any(dropped), state.stall + 1, state.stall))
-    # all idle and nothing assigned: the next step is this one again, unless rovers are driving home
-    # out of the way of the tasks their cells blocked
-    stuck = ~has_task & ~jnp.any(assigned) & (failure != RUNNING) & ((failure != NO_REACHABLE) | ~jnp.any(moved))
-    parked_now = _parked(pos, state.home, phase)
-    stop = _i32(jnp.select(
-        [outside <= state.stop_at, ~has_task & (started >= state.max_pushes), stuck, stall >= cfg.stall_steps,
-         t >= state.max_steps],
-        [DONE, BUDGET, failure, jnp.where(has_task, DEADLOCK, NO_REACHABLE), MAX_STEPS], RUNNING))
-    newly_parked = jnp.any(parked_now & ~_parked(state.pos, state.home, phase))
-    # a field stays stale until the rover drives and gets a new one; a new goal or a parked obstacle
-    # makes it stale
-    stale = (stale & ~computed) | ended | dropped | newly_parked
-    fresh = fresh & ~(jnp.any(assigned) | jnp.any(dropped) | jnp.any(ended))
-    new = FleetState(scene, fabric, pos, state.home, phase, route, mode, task_step, progress, owner, dist,
-                     state.region, stale, candidates, attempts, fresh, state.pushes + ended, started,
-                     state.idle_steps + idle_now, t, _i32(stall), state.max_steps, state.max_pushes, total_delivered,
-                     state.spilled + jnp.sum(spilled), outside, state.initial_mass, state.initial_outside,
-                     state.stop_at, stop != RUNNING, stop)
-    inside = jnp.sum(jnp.where(scene.target_mask, obj, 0.0))
-    record = FleetRecord(pos, phase, assigned, dropped, ended, collected, delivered, spilled, total_delivered,
-                         outside, _f32(inside), _f32(jnp.sum(obj)), conflicts, _i32(failure), stop, jnp.bool_(True))
+    totals = _stop(state.totals, scene, rovers.phase, assigned, dropped, moved, ended, applied, failure,
+                   cfg.stall_steps)
+    # what the step outdated for the next: stale fields, the cached candidates
+    rovers = _mark_stale(rovers, state.rovers.pos, computed, dropped, ended)
+    candidates, fresh = _expire(candidates, fresh, assigned, dropped, ended)
+    new = state._replace(scene=scene, rovers=rovers, owner=owner, candidates=candidates, attempts=attempts,
+                         fresh=fresh, totals=totals)
+    collected, delivered, spilled = applied
+    record = FleetRecord(pos=rovers.pos, phase=rovers.phase, assigned=assigned, dropped=dropped, ended=ended,
+                         collected=collected, delivered=delivered, spilled=spilled, delivered_total=totals.delivered,
+                         outside=totals.outside, inside=_f32(jnp.sum(jnp.where(scene.target_mask, scene.obj, 0.0))),
+                         mass=_f32(jnp.sum(scene.obj)), conflicts=conflicts, failure=_i32(failure), stop=totals.stop,
+                         valid=jnp.bool_(True))
     return new, record
 
 
@@ -603,11 +696,11 @@ def step(state: FleetState, params: FabricParams, spill: SpillParams, episode: E
          config: FleetConfig, evaluator: Evaluator = curvature_spill):
     """One step of the fleet (module docstring): ``(state, FleetRecord)``. Pure, one jittable program;
     config and evaluator are static. A done state is returned as it is, with an invalid record. The
-    push budget is ``state.max_pushes`` (``episode.max_pushes`` is not read); ``episode.rebuild``
+    push budget is ``state.totals.max_pushes`` (``episode.max_pushes`` is not read); ``episode.rebuild``
     picks the fabric's refresh (step 4)."""
     _check_static(params, episode, config, "step")
     cfg = config.resolved(state.scene.shape)
-    return jax.lax.cond(state.done, lambda s: (s, _idle_record(s)),
+    return jax.lax.cond(state.totals.done, lambda s: (s, _idle_record(s)),
                         lambda s: _live(s, params, spill, episode, cfg, evaluator), state)
 
 

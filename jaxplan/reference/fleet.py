@@ -19,8 +19,14 @@ FAR = 2 ** 30          # as jaxplan.fleet.motion.FAR
 IDLE, APPROACH, PUSH = 0, 1, 2
 
 
-def distance_field(goal, passable, stop_at=None) -> np.ndarray:
+def _cuts_corner(blocked, r, c, dr, dc) -> bool:
+    """Whether the step (dr, dc) from (r, c) passes between a blocked cell and another (docs/fleet.md)."""
+    return blocked is not None and bool(dr and dc and (blocked[r + dr, c] or blocked[r, c + dc]))
+
+
+def distance_field(goal, passable, stop_at=None, blocked=None) -> np.ndarray:
     """i64[H, W]: 8-connected steps to ``goal`` (row, col) through ``passable`` cells; FAR elsewhere.
+    blocked: optional bool[H, W]; no step cuts a blocked cell's corner.
 
     With ``stop_at``: every cell farther from ``goal`` than ``stop_at`` is left FAR (nothing changes
     where ``stop_at`` cannot reach the goal). The queue holds cells in order of distance, so the
@@ -42,19 +48,21 @@ def distance_field(goal, passable, stop_at=None) -> np.ndarray:
             break
         for dr, dc in DIRS:
             q = (r + dr, c + dc)
-            if 0 <= q[0] < h and 0 <= q[1] < w and passable[q] and d[q] == FAR:
+            if 0 <= q[0] < h and 0 <= q[1] < w and passable[q] and d[q] == FAR and \
+                    not _cuts_corner(blocked, r, c, dr, dc):
                 d[q] = d[r, c] + 1
                 queue.append(q)
     return d
 
 
-def distance_field_to(goal, passable, stop_at) -> np.ndarray:
+def distance_field_to(goal, passable, stop_at, blocked=None) -> np.ndarray:
     """``distance_field`` stopped at ``stop_at`` (the serial twin of ``motion.distance_field_to``)."""
-    return distance_field(goal, passable, stop_at)
+    return distance_field(goal, passable, stop_at, blocked)
 
 
-def move_rovers(pos, phase, dist, owner, push_next):
-    """``(pos i64[N, 2], moved bool[N])`` after one step of the move rule (``jaxplan.fleet.motion``)."""
+def move_rovers(pos, phase, dist, owner, push_next, blocked=None):
+    """``(pos i64[N, 2], moved bool[N])`` after one step of the move rule (``jaxplan.fleet.motion``);
+    blocked: optional bool[H, W], whose corners no approach step cuts."""
     pos = [tuple(int(v) for v in p) for p in np.asarray(pos)]
     owner = np.asarray(owner)
     h, w = owner.shape
@@ -69,7 +77,7 @@ def move_rovers(pos, phase, dist, owner, push_next):
             best = dist[r][here]
             for dr, dc in DIRS:
                 q = (here[0] + dr, here[1] + dc)
-                if free(q) and dist[r][q] < best:
+                if free(q) and dist[r][q] < best and not _cuts_corner(blocked, here[0], here[1], dr, dc):
                     to, best = q, dist[r][q]
         elif phase[r] == PUSH:
             q = tuple(int(v) for v in push_next[r])

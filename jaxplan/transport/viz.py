@@ -133,7 +133,7 @@ def polygon_rings(target):
     return rings
 
 
-def _finite_max(*arrays) -> float:
+def finite_max(*arrays) -> float:
     """The largest finite value of ``arrays`` if it is > 0, else 1.0: a colour scale's top that NaN
     or inf (e.g. ``scene.dist`` on blocked and cut-off cells) can neither break nor stretch."""
     top = 0.0
@@ -203,7 +203,7 @@ def plot_fabric(scene, fabric, connectors=None, ax=None, path_sources=None):
 
     # Heatmap background (non-finite values left blank; they never set the colour scale).
     heat = np.where(np.isfinite(heat), heat, np.nan)
-    vmax = _finite_max(heat)
+    vmax = finite_max(heat)
     im = ax.imshow(heat, origin="lower", extent=extent, cmap="hot", vmin=0.0, vmax=vmax,
                    interpolation="nearest", zorder=0)
     cbar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
@@ -421,7 +421,7 @@ def animate_episode(scene, episode, path, *, fps: int = 4, dpi: int = 90, progre
     ys = y0 + (np.arange(h) + 0.5) * s
     cx, cy = np.meshgrid(xs, ys)
     target_mask = np.asarray(scene.target_mask, bool)
-    vmax = _finite_max(*(f["heat"] for f in frames))
+    vmax = finite_max(*(f["heat"] for f in frames))
     stride = _stride(h, w)
     centre = lambda cells: np.stack([x0 + (cells[:, 1] + 0.5) * s, y0 + (cells[:, 0] + 0.5) * s], -1)  # noqa: E731
 

@@ -58,6 +58,18 @@ def test_random_fleets_keep_every_invariant(n, strategy, candidates_by, seed, la
     assert np.all(run.idle_steps <= t)
 
 
+def test_the_fleet_stop_codes_extend_the_episodes():
+    """The fleet's stop table is the episode's with three codes after it; an assignment's failure
+    code for taken footprints is the fleet's "no_reachable_task"."""
+    from jaxplan import transport
+    from jaxplan.fleet import assign, state
+
+    assert STOP_REASONS[:len(transport.STOP_REASONS)] == transport.STOP_REASONS
+    assert STOP_REASONS[len(transport.STOP_REASONS):] == ("max_steps", "deadlock", "no_reachable_task")
+    assert (state.MAX_STEPS, state.DEADLOCK, state.NO_REACHABLE, assign.BLOCKED) == (7, 8, 9, 9)
+    assert STOP_REASONS[assign.BLOCKED] == "no_reachable_task"
+
+
 @pytest.fixture(scope="module")
 def traced_run():
     """Twelve steps of a jitted step that may be traced only once, with their states."""
@@ -68,7 +80,7 @@ def traced_run():
     jitted = jax.jit(chex.assert_max_traces(step, n=1), static_argnames=("config", "evaluator"))
     state = reset(scene, PARAMS, SPILL, ep, config, max_steps=500)
     states, records = [state], []
-    while not bool(state.done):
+    while not bool(state.totals.done):
         state, rec = jitted(state, PARAMS, SPILL, ep, config=config)
         states.append(state)
         records.append(rec)
@@ -78,7 +90,7 @@ def traced_run():
 
 def test_step_traces_once_and_a_done_state_stays_as_it_is(traced_run):
     final, after, idle = traced_run["states"][-1], traced_run["after"], traced_run["idle"]
-    assert STOP_REASONS[int(final.stop)] == "budget" and len(traced_run["records"]) > 3
+    assert STOP_REASONS[int(final.totals.stop)] == "budget" and len(traced_run["records"]) > 3
     chex.assert_trees_all_equal(final, after)
     assert not bool(idle.valid) and not np.any(np.asarray(idle.ended))
 
@@ -88,9 +100,9 @@ def test_the_step_without_jit_equals_the_jitted_step(traced_run):
     and applies no push, run op by op (the whole step without jit takes minutes)."""
     states, records, ep = traced_run["states"], traced_run["records"], traced_run["ep"]
     busy = [t for t in range(len(records) - 1)
-            if (np.all(np.asarray(states[t].phase) != IDLE) or int(states[t].started) >= ep.max_pushes)
-            and not np.any(np.asarray(states[t].stale)) and not np.any(np.asarray(records[t].ended))
-            and np.any(np.asarray(records[t].pos != states[t].pos))]
+            if (np.all(np.asarray(states[t].rovers.phase) != IDLE) or int(states[t].totals.started) >= ep.max_pushes)
+            and not np.any(np.asarray(states[t].rovers.stale)) and not np.any(np.asarray(records[t].ended))
+            and np.any(np.asarray(records[t].pos != states[t].rovers.pos))]
     assert busy
     t = busy[0]
     with jax.disable_jit():
@@ -111,7 +123,7 @@ def test_rollout_scans_the_same_steps(traced_run):
         np.testing.assert_allclose(np.asarray(getattr(scanned, name))[:len(records)], getattr(stepped, name),
                                    rtol=1e-6)
     assert not np.any(np.asarray(scanned.valid)[len(records):])
-    np.testing.assert_array_equal(np.asarray(final.pos), np.asarray(states[-1].pos))
+    np.testing.assert_array_equal(np.asarray(final.rovers.pos), np.asarray(states[-1].rovers.pos))
     np.testing.assert_allclose(np.asarray(final.scene.obj), np.asarray(states[-1].scene.obj), atol=1e-6)
 
 
@@ -125,14 +137,16 @@ def test_what_is_not_planned_again_changes_nothing(traced_run, strategy):
     kept = planned = reset(site(3, SITES[2], "two_targets"), PARAMS, SPILL, ep, config, max_steps=400,
                            max_pushes=40)
     reused = 0
-    while not bool(kept.done):
-        idle = np.any(np.asarray(kept.phase) == IDLE) and int(kept.started) < int(kept.max_pushes)
+    while not bool(kept.totals.done):
+        idle = np.any(np.asarray(kept.rovers.phase) == IDLE) and int(kept.totals.started) < int(kept.totals.max_pushes)
         recorded = strategy == "coordinated" or bool(np.any(np.asarray(kept.attempts.valid)))
         reused += int(idle and bool(kept.fresh) and recorded)
         kept, _ = jitted(kept, PARAMS, SPILL, ep, config=config)
         planned, _ = jitted(planned._replace(fresh=np.bool_(False)), PARAMS, SPILL, ep, config=config)
-        for name in ("pos", "phase", "owner", "route", "pushes", "stop"):
-            chex.assert_trees_all_equal(getattr(kept, name), getattr(planned, name))
+        for name in ("pos", "phase", "route", "pushes"):
+            chex.assert_trees_all_equal(getattr(kept.rovers, name), getattr(planned.rovers, name))
+        chex.assert_trees_all_equal(kept.owner, planned.owner)
+        chex.assert_trees_all_equal(kept.totals.stop, planned.totals.stop)
         np.testing.assert_array_equal(np.asarray(kept.scene.obj), np.asarray(planned.scene.obj))
     assert reused > 0
 
@@ -163,6 +177,23 @@ def test_candidates_share_connectors_and_plan_only_what_is_wanted():
         chex.assert_trees_all_equal(jax.tree.map(lambda a: a[:3], getattr(part.tasks, name)),
                                     jax.tree.map(lambda a: a[:3], getattr(full.tasks, name)))
     assert np.array_equal(np.asarray(part.exists), exists & (np.arange(m) < 3))
+    # a footprint reserved: planning again with the previous candidates keeps their sources' tasks and
+    # plans only the new ones, and gives what planning them all gives
+    taken = np.asarray(full.tasks.footprint[0])
+    reserved = np.where(taken, 0, owner).astype(np.int32)
+    again = jax.jit(lambda previous: assign.plan_candidates(
+        scene, PARAMS, ep, SPILL, fabric, reserved, candidates=m, cap=cap, evaluator=spillage.curvature_spill,
+        clearance=0, previous=previous))
+    fresh, kept = again(None), again(full)
+    now = np.asarray(fresh.exists)
+    assert np.array_equal(np.asarray(kept.exists), now) and now.sum() > 3
+    assert set(map(tuple, np.asarray(fresh.tasks.source)[now].tolist())) & \
+        set(map(tuple, np.asarray(full.tasks.source)[exists].tolist()))          # some sources are kept
+    for name in ("source", "route", "mode", "code", "predicted", "steps", "footprint"):
+        chex.assert_trees_all_equal(jax.tree.map(lambda a: a[now], getattr(kept.tasks, name)),
+                                    jax.tree.map(lambda a: a[now], getattr(fresh.tasks, name)))
+    for name in ("usable", "clear", "overlap"):
+        np.testing.assert_array_equal(np.asarray(getattr(kept, name)), np.asarray(getattr(fresh, name)))
 
 
 def test_the_selective_refresh_gives_the_full_refresh_run():

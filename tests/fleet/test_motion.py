@@ -15,7 +15,7 @@ from jaxplan.fleet import assign, footprint, motion
 from jaxplan.fleet.conflicts import conflicts
 from jaxplan.reference import fleet as ref
 from jaxplan.reference.visibility import DIRS
-from jaxplan.transport import execute
+from jaxplan.transport import corner_free, execute
 
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 SHAPE = (10, 12)
@@ -54,6 +54,20 @@ def test_distance_fields_equal_breadth_first_search(seed, density):
     got = np.asarray(_fields(jnp.asarray(goals), jnp.asarray(passable)))
     for r in range(N):
         np.testing.assert_array_equal(got[r], ref.distance_field(goals[r], passable[r]))
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2 ** 31 - 1), density=st.sampled_from((0.1, 0.25)))
+def test_fields_around_blocked_cells_cut_no_corner(seed, density):
+    rng = np.random.default_rng(seed)
+    blocked = rng.random(SHAPE) < density
+    goal, stop = _distinct_cells(rng, 2)
+    blocked[goal[0], goal[1]] = blocked[stop[0], stop[1]] = False
+    corner = corner_free(jnp.asarray(blocked))
+    got = np.asarray(jax.jit(motion.distance_field)(jnp.asarray(goal), jnp.asarray(~blocked), corner))
+    np.testing.assert_array_equal(got, ref.distance_field(goal, ~blocked, blocked=blocked))
+    got_to = np.asarray(_field_to(jnp.asarray(goal), jnp.asarray(~blocked), jnp.asarray(stop), corner))
+    np.testing.assert_array_equal(got_to, ref.distance_field_to(goal, ~blocked, stop, blocked))
 
 
 def _field_case(rng, density):
@@ -147,8 +161,14 @@ def test_one_step_equals_the_serial_move_rule(seed):
     dist = np.stack([ref.distance_field(goals[r], (owner < 0) | (owner == r)) for r in range(N)]).astype(np.int32)
     step = rng.integers(-1, 2, (N, 2))
     push_next = np.clip(pos + step, 0, np.asarray(SHAPE) - 1).astype(np.int32)
-    got_pos, got_moved = _move(*(jnp.asarray(a) for a in (pos, phase, dist, owner, push_next)))
-    want_pos, want_moved = ref.move_rovers(pos, phase, dist, owner, push_next)
+    blocked = (rng.random(SHAPE) < 0.15) & (owner < 0) if rng.random() < 0.5 else None
+    if blocked is not None:
+        blocked[pos[:, 0], pos[:, 1]] = False
+        dist = np.stack([ref.distance_field(goals[r], ((owner < 0) | (owner == r)) & ~blocked, blocked=blocked)
+                         for r in range(N)]).astype(np.int32)
+    corner = None if blocked is None else corner_free(jnp.asarray(blocked))
+    got_pos, got_moved = _move(*(jnp.asarray(a) for a in (pos, phase, dist, owner, push_next)), corner)
+    want_pos, want_moved = ref.move_rovers(pos, phase, dist, owner, push_next, blocked)
     np.testing.assert_array_equal(np.asarray(got_pos), want_pos)
     np.testing.assert_array_equal(np.asarray(got_moved), want_moved)
     after = np.asarray(got_pos)

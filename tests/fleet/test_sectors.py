@@ -52,7 +52,7 @@ def test_more_sector_columns_than_grid_columns_is_not_a_crash():
     """The defect: 31 partitioned rovers on the 25 x 25 default scene (a prime n, one band of 31
     columns) ended in a TypeError, shapes (30, 2) vs (31, 2)."""
     state = reset(builtin_scene("default"), config=FleetConfig(31, "partitioned"), max_steps=5)
-    pos = np.asarray(state.pos)
+    pos = np.asarray(state.rovers.pos)
     assert pos.shape == (31, 2) and len({tuple(c) for c in pos}) == 31
 
 
