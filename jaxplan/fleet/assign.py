@@ -54,10 +54,10 @@ __all__ = ["BLOCKED", "PLAN_CHUNK", "Attempts", "Candidates", "Task", "assign_ea
            "plan_task", "rate_sources", "reserve", "rovers_inside", "wanted_candidates"]
 
 BLOCKED = 9
-PLAN_CHUNK = 8
-"""Candidates planned together (one ``vmap``) by ``plan_candidates``."""
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
 stop code "no_reachable_task" when nothing else runs)."""
+PLAN_CHUNK = 8
+"""Candidates planned together (one ``vmap``) by ``plan_candidates``."""
 
 
 class Task(NamedTuple):
@@ -178,10 +178,10 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     not): a source planned there keeps its task, which depends on the fabric and the source only,
     so that only new sources are planned; the result is the same as planning them all.
 
-    The sources to plan are packed and planned ``PLAN_CHUNK`` at a time, chunks past the last one
-    skipped, so a few new sources cost a few chunks whatever M is. Within a chunk, sources that
-    share a highway anchor share its connector DP: the chunk's distinct anchors are listed and
-    their tables computed one after another, skipping empty slots.
+    The sources to plan are packed, grouped by highway anchor, and planned ``PLAN_CHUNK`` at a time,
+    chunks past the last one skipped, so a few new sources cost a few chunks whatever M is. Within
+    a chunk, sources that share a highway anchor share its connector DP: the chunk's distinct
+    anchors are listed and their tables computed one after another, skipping empty slots.
     """
     h, w = scene.shape
     m = min(int(candidates), h * w)
@@ -212,6 +212,10 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     src = sources[safe]
     anchors = jax.vmap(lambda s: source_anchor(scene, params, fabric, s))(src)
     anchors = jnp.where(todo, anchors, -1)
+    # sources that share an anchor planned side by side: each chunk computes the connector DP of
+    # its distinct anchors, so grouping them computes each anchor's about once, not once a chunk
+    group = jnp.argsort(jnp.where(todo, anchors, h * w), stable=True)
+    order, src, todo, anchors = order[group], src[group], todo[group], anchors[group]
 
     def plan_chunk(args):
         sources, exists, anchors = args

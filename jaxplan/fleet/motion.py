@@ -201,5 +201,15 @@ def move_rovers(pos, phase, dist, owner, push_next, corner=None):
         held = held.at[to[0] * w + to[1]].set(r)
         return pos.at[r].set(to), held, moved.at[r].set(go)
 
-    pos, _, moved = jax.lax.fori_loop(0, n, one, (pos, held, jnp.zeros(n, bool)))
+    # a rover at its goal (field 0) or at the end of its push path keeps its cell whatever the others
+    # do: the loop visits the others only, in index order, so a step costs what the moving rovers do
+    at_goal = dist[jnp.arange(n), pos[:, 0], pos[:, 1]] == 0
+    may_move = jnp.where(phase == PUSH, jnp.any(push_next != pos, -1), ~at_goal)
+    order = jnp.nonzero(may_move, size=n, fill_value=0)[0]
+    count = jnp.sum(may_move, dtype=jnp.int32)
+
+    def visit(i, carry):
+        return one(order[i], carry)
+
+    pos, _, moved = jax.lax.fori_loop(0, count, visit, (pos, held, jnp.zeros(n, bool)))
     return pos, moved

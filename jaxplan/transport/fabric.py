@@ -403,10 +403,12 @@ def walk_table(table: Table, source, rank, max_steps: int, detour=None) -> Paths
     ``max_steps`` grid steps; a ``Paths`` row without the batch axis (cells ``i32[max_steps + 1, 2]``).
     detour: optional i32[H, W] (``Scene.detour``): a fallback from a cell with a detour drives the
     detour's steps, listed as the path's cells, up to the first cell without one, and goes straight
-    from there. Traceable: ``extract_paths`` is its batched, jitted form."""
+    from there. Traceable: ``extract_paths`` is its batched, jitted form. The walk stops when the
+    path ends, so it costs the path's steps, not ``max_steps`` (batched, the longest path's).
+    """
     dirs = jnp.asarray(lattice.DIRS_ARRAY)
 
-    def step(carry, _):
+    def step(carry):
         rc, rk, done, fell_back = carry
         d = table.next_dir[rc[0], rc[1], rk]
         falls = fell_back | (d == lattice.FALLBACK)          # on the fallback leg: detour steps, then straight
@@ -420,10 +422,18 @@ def walk_table(table: Table, source, rank, max_steps: int, detour=None) -> Paths
         return (new_rc, jnp.where(moves, jnp.maximum(nxt_rk, 0), rk), done, fell_back), \
             jnp.where(moves, new_rc, -1)
 
+    def more(carry):
+        return (carry[0] < max_steps) & ~carry[1][2]
+
+    def body(carry):
+        i, walk, cells = carry
+        walk, visited = step(walk)
+        return i + 1, walk, cells.at[i + 1].set(visited)
+
     start = (source.astype(jnp.int32), rank.astype(jnp.int32), jnp.bool_(False), jnp.bool_(False))
-    (_, _, done, fell_back), visited = jax.lax.scan(step, start, None, length=max_steps)
-    cells = jnp.concatenate([source[None].astype(jnp.int32), visited], 0)
-    n = 1 + jnp.sum(visited[:, 0] >= 0)
+    cells = jnp.full((max_steps + 1, 2), -1, jnp.int32).at[0].set(source.astype(jnp.int32))
+    _, (_, _, done, fell_back), cells = jax.lax.while_loop(more, body, (jnp.int32(0), start, cells))
+    n = jnp.sum(cells[:, 0] >= 0)
     r, c = source[0], source[1]
     return Paths(cells, n, table.raw[r, c, rank], table.length[r, c, rank], fell_back, done)
 
