@@ -18,7 +18,7 @@ from jaxplan.cli.common import (
 from jaxplan.cli.transport import add_spill_options, spill_dict, spill_params
 
 STRATEGIES = ("coordinated", "independent", "partitioned")
-MAX_ROVERS = 64
+MAX_ROVERS = 1024
 MAX_STEPS = 1_000_000   # the step counter is an int32 in the compiled step; a million steps take hours
 # --starts: a JSON list of 64 [row, col] pairs takes about 1 kB; anything much longer is the wrong file
 MAX_STARTS_BYTES = 64 * 1024

@@ -86,7 +86,7 @@ STOP_REASONS = EPISODE_STOP_REASONS + ("max_steps", "deadlock", "no_reachable_ta
 MAX_STEPS, DEADLOCK, NO_REACHABLE = range(len(EPISODE_STOP_REASONS), len(STOP_REASONS))
 # an assignment's failure code becomes the fleet's stop code
 assert assign.BLOCKED == NO_REACHABLE, "assign.BLOCKED must be the fleet's no_reachable_task code"
-MAX_ROVERS = 64
+MAX_ROVERS = 1024
 CANDIDATE_RULES = ("value", "rate")
 MAX_CANDIDATES = 64
 # Stale rovers whose distance fields are computed together: a chunk runs as many rounds as its
@@ -96,7 +96,7 @@ DEFAULT_MAX_STEPS = 100_000
 
 
 def max_rovers() -> int:
-    """The most rovers a fleet may have (64)."""
+    """The most rovers a fleet may have (1024)."""
     return MAX_ROVERS
 
 
@@ -104,7 +104,7 @@ def max_rovers() -> int:
 class FleetConfig:
     """Static fleet settings (part of the jit cache key).
 
-    n_rovers: N, an int in [1, 64]. strategy: one of ``STRATEGIES``. candidates: M sources planned
+    n_rovers: N, an int in [1, 1024]. strategy: one of ``STRATEGIES``. candidates: M sources planned
     per coordinated assignment (None: 2 N, at least 8 and at most 64). walk_cap: static walk length of a plan (None:
     ``episode.default_walk_cap``); routes have S = 2 (walk_cap + 1) slots. stall_steps: steps without
     any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an

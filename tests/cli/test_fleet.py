@@ -121,8 +121,8 @@ def test_fleet_names_an_unnamed_scene_file_by_its_path_and_counts_the_unreachabl
 
 
 @pytest.mark.parametrize("argv, starts", [
-    (["--rovers", "0"], "error: --rovers: must be an int in [1, 64]"),
-    (["--rovers", "65"], "error: --rovers: must be an int in [1, 64]"),
+    (["--rovers", "0"], "error: --rovers: must be an int in [1, 1024]"),
+    (["--rovers", "1025"], "error: --rovers: must be an int in [1, 1024]"),
     (["--strategy", "swarm"], "error: --strategy: invalid choice"),
     (["--max-steps", "0"], "error: --max-steps: must be an int in [1, 1000000]"),
     (["--scene", "site999"], "error: --scene: 'site999' is neither a built-in scene"),

@@ -36,7 +36,7 @@ def _with_count(value) -> np.ndarray:
 
 @pytest.mark.parametrize("kwargs, field", [
     (dict(n_rovers=0), "FleetConfig.n_rovers"),
-    (dict(n_rovers=65), "FleetConfig.n_rovers"),
+    (dict(n_rovers=1025), "FleetConfig.n_rovers"),
     (dict(n_rovers=True), "FleetConfig.n_rovers"),
     (dict(strategy="auction"), "FleetConfig.strategy"),
     (dict(max_steps=0), "max_steps"),
