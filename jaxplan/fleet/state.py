@@ -556,20 +556,18 @@ def _apply_pushes(scene, rovers: Rovers, owner, ended, spill, evaluator):
     spilled))``, f32[N] objects each (0 for the other rovers). The fabric is left as it is."""
     n = ended.shape[0]
     zeros = jnp.zeros(n, jnp.float32)
+    # the loop visits the rovers whose push ended only, in rover order
+    order = jnp.nonzero(ended, size=n, fill_value=0)[0]
 
-    def one(r, carry):
+    def one(i, carry):
         obj, collected, delivered, spilled = carry
+        r = order[i]
+        mine = jax.tree.map(lambda a: a[r], rovers.route)
+        new_obj, result = execute_push(scene.with_obj(obj), mine, spill, evaluator)
+        return (new_obj, collected.at[r].set(result.collected), delivered.at[r].set(result.delivered),
+                spilled.at[r].set(result.spilled))
 
-        def push(carry):
-            obj, collected, delivered, spilled = carry
-            mine = jax.tree.map(lambda a: a[r], rovers.route)
-            new_obj, result = execute_push(scene.with_obj(obj), mine, spill, evaluator)
-            return (new_obj, collected.at[r].set(result.collected), delivered.at[r].set(result.delivered),
-                    spilled.at[r].set(result.spilled))
-
-        return jax.lax.cond(ended[r], push, lambda c: c, carry)
-
-    obj, *applied = jax.lax.fori_loop(0, n, one, (scene.obj, zeros, zeros, zeros))
+    obj, *applied = jax.lax.fori_loop(0, jnp.sum(ended, dtype=jnp.int32), one, (scene.obj, zeros, zeros, zeros))
     rovers = rovers._replace(phase=jnp.where(ended, IDLE, rovers.phase), pushes=rovers.pushes + ended)
     return scene.with_obj(obj), rovers, _release(owner, ended), tuple(applied)
 
