@@ -14,7 +14,10 @@ stands in a footprint when the mask is set at its cell.
   ``approach`` is the Chebyshev distance from the rover to the route's start, a lower bound of the
   steps it drives (detours around footprints only add). Greedy, because with footprint conflicts the
   choice is no linear assignment problem, and each round is one vectorised argmax over all pairs:
-  the pair an auction's first round would settle first.
+  the pair an auction's first round would settle first. The candidates' footprint relations (free
+  of reservations, pairwise overlaps) are computed once when they are planned, so the rounds do no
+  whole-grid work; a planning after the reservations changed keeps the tasks of the sources it
+  planned before.
 - ``independent`` and ``partitioned`` (``assign_each``): the single-rover rule, rover by rover in
   index order: the source ``choose_source`` picks among the occupied cells outside every footprint
   (and, partitioned, inside the rover's sector), planned with ``plan_for_source``. If that plan

@@ -23,6 +23,7 @@ from jaxplan.transport import (
     Scene,
     builtin_scene,
     random_scene,
+    site_from_map,
     validate_params,
 )
 from jaxplan.transport.spillage import SpillParams, validate_spill_params
@@ -49,7 +50,7 @@ REFUSED = {
 # the spill model's fields, all read by the route metrics (top_delivered)
 SPILL_TRACED = tuple(p[0].name for p, _ in jax.tree_util.tree_flatten_with_path(SpillParams())[0])
 SPILL_STATIC = tuple(f.name for f in dataclasses.fields(SpillParams) if f.name not in SPILL_TRACED)
-_TOP_KEYS = ("scenes", "random_scenes", "fabric", "spill", "static", "metrics")
+_TOP_KEYS = ("scenes", "site_seed", "random_scenes", "fabric", "spill", "static", "metrics")
 
 METRICS = {
     "occupied_cells": "non-target cells with obj > 0",
@@ -122,6 +123,15 @@ def _values(key: str, raw) -> tuple:
     return tuple(out)
 
 
+def _site_seed(spec: dict) -> int:
+    """The seed that places targets and piles on the spec's ``.map`` sites (``site_seed``, default 0)."""
+    seed = spec.get("site_seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 32:
+        _fail("site_seed", f"expected an int in [0, 2^32) (the seed of the .map sites' targets and piles); "
+              f"got {_short(seed)}.")
+    return seed
+
+
 def _scenes(spec: dict, base: Path | None) -> tuple:
     out = []
     names = spec.get("scenes", [])
@@ -147,11 +157,12 @@ def _scenes(spec: dict, base: Path | None) -> tuple:
                   f"scene ({', '.join(BUILTIN_SCENES)}).")
         if kind == "missing":
             _fail("scenes", f"{name!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) nor an existing "
-                  ".npz/.json scene file.")
-        try:
-            out.append((name, Scene.load(path)))
-        except ValueError as exc:  # Scene.load names the file and what is wrong with it
+                  ".npz/.json scene file or .map site.")
+        try:   # both name the file and what is wrong with it
+            scene = site_from_map(path, _site_seed(spec)) if path.suffix.lower() == ".map" else Scene.load(path)
+        except ValueError as exc:
             _fail("scenes", str(exc))
+        out.append((name, scene))
     rnd = spec.get("random_scenes")
     if rnd is not None:
         if not isinstance(rnd, dict):

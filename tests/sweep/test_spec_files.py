@@ -102,3 +102,23 @@ def test_deeply_nested_toml_is_one_named_error(tmp_path):
     path.write_text("scenes = " + "[" * 5000 + "]" * 5000 + "\n")
     with pytest.raises(ValueError, match="nested too deeply"):
         sweep.load_spec(path)
+
+
+def test_a_map_site_in_a_spec_is_placed_by_its_site_seed(tmp_path):
+    from pathlib import Path
+
+    import numpy as np
+
+    from jaxplan.transport import site_from_map
+
+    map_file = Path(__file__).resolve().parents[1] / "data" / "yard16.map"
+    spec = sweep.load_spec({"scenes": [str(map_file)], "site_seed": 3})
+    ((name, scene),) = spec.scenes
+    want = site_from_map(map_file, 3)
+    assert name == str(map_file) and bool(np.asarray(scene.blocked).any())
+    np.testing.assert_array_equal(np.asarray(scene.obj), np.asarray(want.obj))
+    with pytest.raises(ValueError, match=r"sweep spec: site_seed: expected an int in \[0, 2\^32\)"):
+        sweep.load_spec({"scenes": [str(map_file)], "site_seed": -1})
+    (tmp_path / "bad.map").write_text("type octile\nheight 1\nwidth 2\nmap\n.#\n")
+    with pytest.raises(ValueError, match=r"sweep spec: scenes: Map file .*bad.map"):
+        sweep.load_spec({"scenes": [str(tmp_path / "bad.map")]})

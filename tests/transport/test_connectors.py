@@ -29,7 +29,7 @@ def test_anchors_and_connectors_equal_reference(scene, theta, lam, tau_h):
     _check_against_reference(scene, theta, lam, tau_h)
 
 
-@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scene=scenes(max_side=16, integer_counts=False, blocked=True), theta=st.sampled_from((45.0, 60.0, 90.0)),
        lam=st.sampled_from((0.0, 0.5, 2.0)), tau_h=st.sampled_from((0.3, 0.6)))
 def test_anchors_and_connectors_around_blocked_cells_equal_reference(scene, theta, lam, tau_h):

@@ -21,7 +21,7 @@ from tests._scenes import ANGLES, has_borderline_step, reference_of, scenes
 from tests.transport.test_fabric import _tables_equal
 from tests.transport.test_rebuild import assert_same_fabric
 
-SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 def _straight_geometry(scene):
