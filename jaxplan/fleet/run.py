@@ -211,7 +211,6 @@ def _advance_keeping_counts(state, params, spill, episode, config, evaluator):
 # the state is donated: its unchanged leaves (the fabric, the fields, the cached candidates) are not
 # copied each step, which cost more than the step's own work with many rovers
 _advance_jit = grid_jit(_advance_keeping_counts, static_argnames=("config", "evaluator"), donate_argnums=0)
-_build_jit = grid_jit(build_fabric)
 
 
 def _refresh_fabric(state, params: FabricParams, rebuild: str, before):
@@ -222,17 +221,17 @@ def _refresh_fabric(state, params: FabricParams, rebuild: str, before):
         changed = (state.scene.obj != before) & ~state.scene.target_mask
         fabric = selective_rebuild(state.scene, params, state.fabric, changed)[0]
     else:
-        fabric = _build_jit(state.scene, params)
+        fabric = build_fabric(state.scene, params)
     return state._replace(fabric=jax.block_until_ready(fabric))
 
 
 def _warm_build_ms(scene, params: FabricParams, repeats: int = 3) -> float:
     """Median wall ms of a full build of ``scene``'s fabric, compiled first."""
-    jax.block_until_ready(_build_jit(scene, params))
+    jax.block_until_ready(build_fabric(scene, params))
     runs = []
     for _ in range(repeats):
         start = time.perf_counter()
-        jax.block_until_ready(_build_jit(scene, params))
+        jax.block_until_ready(build_fabric(scene, params))
         runs.append(1e3 * (time.perf_counter() - start))
     return float(np.median(runs))
 
