@@ -28,7 +28,7 @@ _PHYSICS_ROWS = 16
 
 
 def _fleet_scene(spec: str, site_seed=None):
-    """A built-in fleet site (site128, site256, site512), a built-in scene, a scene file or a .map site."""
+    """A built-in fleet site (site128, site256, site512, site1024), a built-in scene, a scene file or a .map site."""
     from jaxplan.fleet import SITES, site
 
     return site(spec) if spec in SITES and site_seed is None else load_scene(spec, site_seed)
@@ -232,7 +232,7 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                "  echo '[[0, 0], [24, 0]]' > starts.json   # [row, col] per rover; row 0 is the bottom row\n"
                "  jaxplan fleet --scene default --rovers 2 --starts starts.json --out out/f2_starts")
     p.add_argument("--scene", required=True, metavar="NAME_OR_FILE",
-                   help=scene_help + "; or a fleet site: site128, site256, site512" + MAP_SCENE_HELP)
+                   help=scene_help + "; or a fleet site: site128, site256, site512, site1024" + MAP_SCENE_HELP)
     add_site_seed_option(p)
     p.add_argument("--rovers", type=ranged(int, 1, MAX_ROVERS, why="the fleet's arrays are sized for it"),
                    default=4, metavar="N", help=f"number of rovers, an int in [1, {MAX_ROVERS}]; default 4")

@@ -40,21 +40,21 @@ from jaxplan.transport import (
     SPLINE_CHUNK,
     WALK_CAP,
     Route,
-    anchor_connector,
     choose_source,
+    connector_walk,
     plan_code,
     plan_for_source,
     plan_with_connector,
-    slot_anchors,
-    source_anchor,
+    source_anchors,
     waypoint_pickup,
     waypoints,
 )
 from jaxplan.transport.spillage import evaluate_route
 
 __all__ = ["BLOCKED", "PLAN_CHUNK", "Attempts", "Candidates", "Task", "assign_each", "assign_greedy", "assign_planned",
-           "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "no_attempts", "plan_candidates",
-           "plan_task", "rate_sources", "reserve", "rovers_inside", "wanted_candidates"]
+           "bits_at", "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "no_attempts",
+           "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve", "rovers_inside", "unpack_bits",
+           "wanted_candidates"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
@@ -84,8 +84,8 @@ class Task(NamedTuple):
 def plan_task(scene, params, ep, spill, fabric, source, has_source, cap: int, evaluator, clearance: int,
               connector=None) -> Task:
     """The ``Task`` of pushing from ``source: i32[2]`` (``has_source``: it is a candidate at all);
-    cap, evaluator, clearance: static. connector: optional ``(anchor i32[], Table)``, the source's
-    anchor and its connector table when already computed (``plan_candidates``)."""
+    cap, evaluator, clearance: static. connector: optional ``(anchor i32[], Paths)``, the source's
+    anchor and its connector path when already computed (``plan_candidates``)."""
     if connector is None:
         plan = plan_for_source(scene, params, ep, spill, fabric, source, cap, evaluator)
     else:
@@ -136,10 +136,12 @@ class Candidates(NamedTuple):
     """The coordinated strategy's planned candidates (M of them), valid while the fabric and the
     reserved footprints they were planned on stay the same.
 
-    tasks: Task[M]; exists: bool[M] the slot holds an occupied source; usable: bool[M] it holds a
-    pushable task. What the greedy rounds need of the footprints, computed once when planned, so
-    that an assignment on cached candidates does no whole-grid work: clear: bool[M] the footprint
-    meets no reservation it was planned with; overlap: bool[M, M] two footprints share a cell.
+    tasks: Task[M], whose ``footprint`` holds each mask packed 32 cells to a word (``pack_bits``:
+    u32[M, ceil(H W / 32)], an eighth of the bytes, copied and compared word by word); exists:
+    bool[M] the slot holds an occupied source; usable: bool[M] it holds a pushable task. What the
+    greedy rounds need of the footprints, computed once when planned, so that an assignment on
+    cached candidates does no whole-grid work: clear: bool[M] the footprint meets no reservation it
+    was planned with; overlap: bool[M, M] two footprints share a cell.
     """
 
     tasks: Task
@@ -181,10 +183,11 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     not): a source planned there keeps its task, which depends on the fabric and the source only,
     so that only new sources are planned; the result is the same as planning them all.
 
-    The sources to plan are packed, grouped by highway anchor, and planned ``PLAN_CHUNK`` at a time,
-    chunks past the last one skipped, so a few new sources cost a few chunks whatever M is. Within
-    a chunk, sources that share a highway anchor share its connector DP: the chunk's distinct
-    anchors are listed and their tables computed one after another, skipping empty slots.
+    The sources to plan are packed and planned ``PLAN_CHUNK`` at a time, chunks past the last one
+    skipped, so a few new sources cost a few chunks whatever M is. The sources are grouped by
+    highway anchor first; within a chunk, the sources sharing an anchor share its connector DP, run on
+    a window around the anchor when that holds them (``transport.connector_walk``), and the rest of
+    each plan is vmapped.
     """
     h, w = scene.shape
     m = min(int(candidates), h * w)
@@ -213,21 +216,19 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     safe = jnp.minimum(order, m - 1)
     todo = jnp.arange(m) < n_need
     src = sources[safe]
-    anchors = jax.vmap(lambda s: source_anchor(scene, params, fabric, s))(src)
-    anchors = jnp.where(todo, anchors, -1)
-    # sources that share an anchor planned side by side: each chunk computes the connector DP of
-    # its distinct anchors, so grouping them computes each anchor's about once, not once a chunk
+    anchors = jnp.where(todo, source_anchors(scene, params, fabric, src), -1)
+    # sources that share an anchor planned side by side: each chunk computes the connector DP of its
+    # distinct anchors, so grouping them computes each anchor's about once, not once a chunk
     group = jnp.argsort(jnp.where(todo, anchors, h * w), stable=True)
     order, src, todo, anchors = order[group], src[group], todo[group], anchors[group]
 
     def plan_chunk(args):
         sources, exists, anchors = args
-        distinct = slot_anchors(anchors, anchors.shape[0])
-        tables = jax.lax.map(lambda a: anchor_connector(scene, params, fabric, a), distinct)
-        slot = jnp.argmax(distinct[None] == anchors[:, None], -1)
-        return jax.vmap(lambda s, e, a, k: plan_task(
-            scene, params, ep, spill, fabric, s, e, cap, evaluator, clearance,
-            connector=(a, jax.tree.map(lambda t: t[k], tables))))(sources, exists, anchors, slot)
+        conns = connector_walk(scene, params, fabric, sources, anchors, cap)
+        tasks = jax.vmap(lambda s, e, a, c: plan_task(
+            scene, params, ep, spill, fabric, s, e, cap, evaluator, clearance, connector=(a, c)))(
+            sources, exists, anchors, conns)
+        return tasks._replace(footprint=pack_bits(tasks.footprint))
 
     chunk = min(PLAN_CHUNK, m)
     pad = -m % chunk
@@ -249,18 +250,29 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
 
 
 def pack_bits(masks):
-    """u32[M, ceil(H W / 32)]: each of M masks (bool[M, H, W]) as 32 cells per word."""
+    """u32[M, ceil(H W / 32)]: each of M masks (bool[M, H, W]) as 32 cells per word, cell ``i`` (flat,
+    row-major) in bit ``i % 32`` of word ``i // 32``."""
     m = masks.shape[0]
     flat = masks.reshape(m, -1)
     flat = jnp.pad(flat, ((0, 0), (0, -flat.shape[1] % 32))).reshape(m, -1, 32).astype(jnp.uint32)
     return jnp.sum(flat << jnp.arange(32, dtype=jnp.uint32), -1, dtype=jnp.uint32)
 
 
-def footprint_relations(masks, usable, owner):
-    """``(clear bool[M], overlap bool[M, M])`` of M footprint masks (bool[M, H, W]): whether each meets
-    no cell of ``owner`` (i32[H, W], -1 free), and which pairs share a cell (unusable slots share
-    none), compared 32 cells to a word."""
-    words = pack_bits(masks)
+def unpack_bits(words, shape):
+    """bool[H, W]: the mask of one row of ``pack_bits`` (``words``: u32[ceil(H W / 32)])."""
+    bits = (words[:, None] >> jnp.arange(32, dtype=jnp.uint32)) & 1
+    return bits.reshape(-1)[:shape[0] * shape[1]].reshape(shape).astype(bool)
+
+
+def bits_at(words, flat):
+    """bool[...]: the bits of the cells ``flat: i32[...]`` (row-major indices) in one packed mask."""
+    return ((words[flat // 32] >> (flat % 32).astype(jnp.uint32)) & 1).astype(bool)
+
+
+def footprint_relations(words, usable, owner):
+    """``(clear bool[M], overlap bool[M, M])`` of M packed footprint masks (u32[M, ceil(H W / 32)],
+    ``pack_bits``): whether each meets no cell of ``owner`` (i32[H, W], -1 free), and which pairs
+    share a cell (unusable slots share none), compared 32 cells to a word."""
     reserved = pack_bits((owner >= 0)[None])[0]
     clear = ~jnp.any((words & reserved[None]) != 0, 1)
     overlap = jax.vmap(lambda row: jnp.any((words & row[None]) != 0, 1))(words)
@@ -312,17 +324,18 @@ def greedy_choice(pos, idle, owner, budget, usable, tasks: Task, relations):
 
     pos: i32[N, 2]; idle: bool[N]; owner: i32[H, W]; budget: i32[] most assignments; usable: bool[M]
     candidates that may be assigned; tasks: Task[M] (its source, predicted, steps and footprint are
-    read); relations: ``(clear, overlap)`` of their footprints (``footprint_relations`` with
-    this ``owner``). choice[r] is the candidate rover r took (-1 none); owner has their footprints.
-    Each round assigns the best-scoring free pair (module docstring; ties: lowest rover, then
-    candidate); rounds stop when no pair is left. A chosen footprint rules out the candidates it
-    meets (a row of ``overlap``), so a round costs O(N M), and nothing here is whole-grid work but
-    the chosen footprints written into ``owner`` at the end, when there are any.
+    read; the footprints packed, ``Candidates``); relations: ``(clear, overlap)`` of their footprints
+    (``footprint_relations`` with this ``owner``). choice[r] is the candidate rover r took (-1 none);
+    owner has their footprints. Each round assigns the best-scoring free pair (module docstring; ties:
+    lowest rover, then candidate); rounds stop when no pair is left. A chosen footprint rules out the
+    candidates it meets (a row of ``overlap``), so a round costs O(N M), and nothing here is whole-grid
+    work but the chosen footprints written into ``owner`` at the end, when there are any.
     """
     clear, overlap = relations
     n = pos.shape[0]
     m = usable.shape[0]
-    inside = jax.vmap(lambda mask: rovers_inside(mask, pos))(tasks.footprint).T             # [N, M]
+    h, w = owner.shape
+    inside = jax.vmap(lambda words: bits_at(words, pos[:, 0] * w + pos[:, 1]))(tasks.footprint).T   # [N, M]
     crowd = jnp.sum(inside, 0)
     alone = (crowd == 0)[None] | ((crowd == 1)[None] & inside)
     approach = jnp.max(jnp.abs(pos[:, None, :] - tasks.source[None]), -1)
@@ -351,8 +364,8 @@ def greedy_choice(pos, idle, owner, budget, usable, tasks: Task, relations):
 
     def reserve_chosen(owner):
         def one(r, owner):
-            return jax.lax.cond(choice[r] >= 0, lambda o: jnp.where(tasks.footprint[choice[r]], r, o),
-                                lambda o: o, owner)
+            mine = lambda o: jnp.where(unpack_bits(tasks.footprint[choice[r]], (h, w)), r, o)  # noqa: E731
+            return jax.lax.cond(choice[r] >= 0, mine, lambda o: o, owner)
         return jax.lax.fori_loop(0, n, one, owner)
 
     # only a step that assigned writes footprints into the grid

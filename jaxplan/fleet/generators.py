@@ -7,12 +7,15 @@ with many piles; target cells hold no counts (what lies there is already deliver
 
 - ``site128``: 128 x 128 cells, 2 targets (circles of radius 7 in opposite corners), 32 piles;
 - ``site256``: 256 x 256 cells, 3 targets (circles of radius 10 and 9, a 20 x 16 box), 128 piles;
-- ``site512``: 512 x 512 cells, 4 targets (circles of radius 14, 12, 12, a 32 x 26 box), 512 piles.
+- ``site512``: 512 x 512 cells, 4 targets (circles of radius 14, 12, 12, a 32 x 26 box), 512 piles;
+- ``site1024``: 1024 x 1024 cells, 8 targets (six circles of radius 12 to 18, two boxes), 2048
+  piles, and 12 buildings (blocked rectangles, ``_BUILDINGS_1024``; 2.9% of the cells): halls,
+  a long wall and a row of sheds. Piles do not reach into buildings.
 
 Cell size 1, origin (0, 0); the exact shapes are the ``_targets_*`` functions below. One pile per
 512 cells keeps the material density the same on every site (about 1 object per 4 cells, 1 cell in
 8 occupied): a site four times larger holds about four times the mass (site128: 4182 objects,
-site256: 15252, site512: 65867).
+site256: 15252, site512: 65867, site1024: about 4 times site512's).
 """
 from __future__ import annotations
 
@@ -49,11 +52,33 @@ def _targets_512():
                          circle((130.5, 110.5), 12.0), box(360.0, 90.0, 392.0, 116.0)])
 
 
-# name -> (side, targets builder, seed)
+def _targets_1024():
+    return MultiPolygon([circle((200.5, 820.5), 16.0), circle((820.5, 830.5), 14.0), circle((250.5, 220.5), 14.0),
+                         circle((512.5, 520.5), 18.0), circle((110.5, 500.5), 12.0), circle((640.5, 120.5), 12.0),
+                         box(740.0, 180.0, 780.0, 212.0), box(900.0, 480.0, 932.0, 512.0)])
+
+
+# (row, col, rows, cols) of site1024's buildings: halls, a long wall with open ends, a row of sheds
+_BUILDINGS_1024 = (
+    (300, 380, 60, 90), (600, 300, 100, 40), (650, 600, 40, 160), (380, 700, 40, 100), (150, 450, 80, 70),
+    (820, 420, 80, 60), (450, 150, 20, 180), (880, 620, 60, 80), (250, 860, 50, 80), (700, 880, 60, 40),
+    (940, 120, 30, 30), (940, 200, 30, 30),
+)
+
+
+def _buildings(side: int, rects) -> np.ndarray:
+    blocked = np.zeros((side, side), bool)
+    for r, c, rows, cols in rects:
+        blocked[r:r + rows, c:c + cols] = True
+    return blocked
+
+
+# name -> (side, targets builder, seed, buildings)
 _LAYOUTS = {
-    "site128": (128, _targets_128, 128_2026),
-    "site256": (256, _targets_256, 256_2026),
-    "site512": (512, _targets_512, 512_2026),
+    "site128": (128, _targets_128, 128_2026, ()),
+    "site256": (256, _targets_256, 256_2026, ()),
+    "site512": (512, _targets_512, 512_2026, ()),
+    "site1024": (1024, _targets_1024, 1024_2026, _BUILDINGS_1024),
 }
 SITES: tuple[str, ...] = tuple(_LAYOUTS)
 
@@ -89,15 +114,18 @@ def _check_name(name) -> None:
 def build_site(name: str) -> Scene:
     """Build the fleet site ``name`` afresh (no cache; :func:`site` is the cached one).
 
-    About a second on 2 CPU cores for ``site512`` once the geometry kernel is compiled.
+    About a second on 2 CPU cores for ``site512`` once the geometry kernel is compiled, a few for
+    ``site1024``.
     """
     _check_name(name)
-    side, targets, seed = _LAYOUTS[name]
+    side, targets, seed, rects = _LAYOUTS[name]
     target = targets()
     obj = _pile_counts(side, np.random.default_rng(seed))
-    scene = Scene.from_arrays(np.zeros_like(obj), target, name=name)
+    blocked = _buildings(side, rects) if rects else None
+    scene = Scene.from_arrays(np.zeros_like(obj), target, name=name, blocked=blocked)
     # material on a target cell is already delivered: the site starts with none there
-    return scene.with_obj(np.where(np.asarray(scene.target_mask), 0.0, obj))
+    empty = np.asarray(scene.target_mask) | np.asarray(scene.blocked)
+    return scene.with_obj(np.where(empty, 0.0, obj))
 
 
 @functools.cache

@@ -7,15 +7,16 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    ``EpisodeParams.max_pushes``, so that the compiled step does not depend on the budget, a static
    field of ``EpisodeParams``: ``step`` ignores ``episode.max_pushes``). A rover already on its task's
    start pushes at once, the others approach.
-2. **Distance fields**: a rover that drives (approaching, or idle and not parked at home) gets a new
-   field when its goal changed (a task assigned; its push ended or its task was dropped, sending it
-   home) or when cells it may not enter were added (a footprint reserved, an idle rover parked at
-   home); cells released keep every field usable, if no longer shortest. Only those rovers' fields
-   are recomputed (``motion.update_fields``, stopped once the rover's own cell is reached): an
-   approaching rover's to its task's start, an idle rover's to its home cell (its start cell), over
-   the cells outside other rovers' footprints and off the cells of other idle rovers parked at
-   home. An approaching rover that cannot reach its start drops its task (footprint released, not
-   counted against the budget) and idles.
+2. **Distance fields**: a rover that drives (approaching its task's start, or idle and driving back
+   to its home cell, its start cell) goes by the Chebyshev distance to its goal, which no other
+   rover's reservation outdates (``motion.approach_distance``). Only a rover that waited
+   ``motion.PATIENCE`` steps in a row gets a breadth-first field of its own in a slot of the
+   ``FieldPool`` (``motion.update_fields``, stopped once the rover's own cell is reached), over the
+   cells outside other rovers' footprints and off the cells of other idle rovers parked at home; it
+   keeps the slot while it drives to that goal (a later wait recomputes it), and gives it back when
+   its goal changes. When every slot is held the rover waits on. An approaching rover whose field
+   says it cannot reach its start drops its task (footprint released, not counted against the
+   budget) and idles.
 3. **Move**: every rover moves at most one cell, in index order (``motion.move_rovers``): rovers not
    pushing down their field, pushing rovers one cell along the push path. Idle rovers thus drive
    home, out of the way of tasks their cells would block. A rover that reaches its start pushes
@@ -35,8 +36,8 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
 
 Each step is a function of ``_advance`` (``advance``; ``step`` is ``advance`` then ``refresh``):
 ``_assign`` and ``_take_tasks`` (1), ``_fields`` and ``_drop_unreachable`` (2), ``_move`` (3),
-``_apply_pushes`` (4, the rebuild in ``refresh``), ``_stop`` (5); then ``_mark_stale`` and ``_expire``
-mark the fields and cached tasks the step outdated. ``FleetState`` holds the shared scene and fabric,
+``_apply_pushes`` (4, the rebuild in ``refresh``), ``_stop`` (5); then ``_expire`` marks the cached
+tasks the step outdated. ``FleetState`` holds the shared scene and fabric,
 the footprints and cached tasks, every rover's row in ``Rovers`` and the scalars in ``Totals``.
 
 A finished state's step is a no-op, so ``rollout`` (``lax.scan``) may run past the end. Counts stay
@@ -89,10 +90,18 @@ assert assign.BLOCKED == NO_REACHABLE, "assign.BLOCKED must be the fleet's no_re
 MAX_ROVERS = 1024
 CANDIDATE_RULES = ("value", "rate")
 MAX_CANDIDATES = 64
-# Stale rovers whose distance fields are computed together: a chunk runs as many rounds as its
-# farthest rover needs, so small chunks waste little when one or two rovers are stale.
+# Stuck rovers whose distance fields are computed together: a chunk runs as many rounds as its
+# farthest rover needs, so small chunks waste little when one or two rovers are stuck.
 FIELD_CHUNK = 4
+# Slots of the field pool: the most rovers driving on fields of their own at once (the others drive by
+# the Chebyshev distance, and a stuck rover waits for a free slot).
+FIELD_SLOTS = 32
 DEFAULT_MAX_STEPS = 100_000
+
+
+def field_slots(n_rovers: int) -> int:
+    """R: slots of a fleet's ``FieldPool``, min(N, ``FIELD_SLOTS``)."""
+    return min(n_rovers, FIELD_SLOTS)
 
 
 def max_rovers() -> int:
@@ -175,9 +184,8 @@ class Rovers(NamedTuple):
       each rover's task (stale while idle). mode: i32[N] 0 deliver, 1 rearrange.
     task_step: i32[N] the step its task was assigned in (1 = the first step).
     progress: i32[N] index of the rover's cell on its push path while pushing.
-    dist: i32[N, H, W] approach distance fields, steps (``motion.FAR``: cannot reach).
-    stale: bool[N] the rover's goal changed or cells it may not enter were added since its field was
-      computed (step 2 recomputes it if the rover drives).
+    slot: i32[N] the rover's slot in the state's ``FieldPool`` (-1: it drives by the Chebyshev
+      distance). wait: i32[N] steps in a row it drove nowhere while it wanted to.
     pushes: i32[N] pushes applied per rover.
     idle_steps: i32[N] steps each rover had no task (idle after step 2: no task, or its task dropped).
     """
@@ -189,8 +197,8 @@ class Rovers(NamedTuple):
     mode: jax.Array
     task_step: jax.Array
     progress: jax.Array
-    dist: jax.Array
-    stale: jax.Array
+    slot: jax.Array
+    wait: jax.Array
     pushes: jax.Array
     idle_steps: jax.Array
 
@@ -227,7 +235,8 @@ class FleetState(NamedTuple):
     """Everything the fleet carries from one step to the next. A pytree; N rovers, H x W grid.
 
     scene: Scene, counts now (multiples of ``execute.QUANTUM``). fabric: Fabric of those counts.
-    rovers: ``Rovers``, each rover's cell, task, phase and distance field.
+    rovers: ``Rovers``, each rover's cell, task, phase and field slot.
+    fields: ``motion.FieldPool``, R = min(N, ``FIELD_SLOTS``) distance fields of stuck rovers.
     owner: i32[H, W] the rover whose footprint holds the cell (-1 none).
     region: i32[H, W] partitioned sectors (-1 everywhere for the other strategies).
     candidates: ``assign.Candidates`` (M slots for ``coordinated``, none otherwise), the tasks the
@@ -246,6 +255,7 @@ class FleetState(NamedTuple):
     scene: Any
     fabric: Fabric
     rovers: Rovers
+    fields: motion.FieldPool
     owner: jax.Array
     region: jax.Array
     candidates: assign.Candidates
@@ -322,8 +332,8 @@ FIELD_TEMP_BYTES_PER_CELL = 4
 def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) -> int:
     """Bytes of the fleet's own arrays on an ``(H, W)`` grid, beyond the shared fabric: the state's
     per-rover grids and routes, counted twice (a step's input state and its output state are alive
-    together), plus the step's temporaries. Per cell: every rover's distance field (``dist`` i32,
-    4 B) twice and its update's temporaries (``FIELD_TEMP_BYTES_PER_CELL``); for independent and
+    together), plus the step's temporaries. Per cell: each of the R field slots (``field_slots``,
+    i32, 4 B) twice and its update's temporaries (``FIELD_TEMP_BYTES_PER_CELL``); for independent and
     partitioned fleets the tried footprints (``Attempts.tried`` bool, 1 B) twice; for the coordinated
     strategy the M cached candidates' footprint masks (bool) twice and, with ``candidates_by="rate"``,
     each rover's distance and rate grids (8 B). Per route slot (S = ``route_slots``): N (+ M) routes
@@ -334,7 +344,7 @@ def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) 
     h, w = (int(v) for v in shape)
     n = cfg.n_rovers
     m = min(cfg.candidates, h * w) if cfg.strategy == "coordinated" else 0
-    per_cell = n * (2 * 4 + FIELD_TEMP_BYTES_PER_CELL) + 2 * m
+    per_cell = field_slots(n) * (2 * 4 + FIELD_TEMP_BYTES_PER_CELL) + 2 * m
     per_slot = 2 * (n + m) * 8
     if cfg.strategy != "coordinated":
         per_cell += 2 * n
@@ -348,10 +358,10 @@ def estimate_fleet_bytes(shape, config: FleetConfig, params: FabricParams | None
     """Estimated peak memory, bytes, that a fleet run on an ``(H, W)`` grid adds to the process:
     ``transport.estimate_build_bytes(shape, params)`` (compiling and building the shared fabric; its
     run term already holds two copies of the fabric, the step's input and output) plus
-    ``rover_bytes(shape, config, params)`` (the rovers' distance fields, footprint masks, routes and
-    planned candidates; the fields grow as N x H x W). ``run_fleet`` refuses a fleet whose estimate
-    exceeds the memory available. Frames kept with ``record=True`` come on top: 9 B per cell per step
-    (obj, heat, highways)."""
+    ``rover_bytes(shape, config, params)`` (the pool's distance fields, footprint masks, routes and
+    planned candidates; the fields grow as min(N, FIELD_SLOTS) x H x W). ``run_fleet`` refuses a
+    fleet whose estimate exceeds the memory available. Frames kept with ``record=True`` come on top:
+    9 B per cell per step (obj, heat, highways)."""
     return estimate_build_bytes(shape, params) + rover_bytes(shape, config, params)
 
 
@@ -399,12 +409,13 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
     zeros_n = jnp.zeros(n, jnp.int32)
     limit = DEFAULT_MAX_STEPS if max_steps is None else max_steps
     rovers = Rovers(pos=pos, home=pos, phase=zeros_n, route=route, mode=zeros_n, task_step=zeros_n,
-                    progress=zeros_n, dist=jnp.full((n,) + shape, FAR, jnp.int32), stale=jnp.ones(n, bool),
-                    pushes=zeros_n, idle_steps=zeros_n)
+                    progress=zeros_n, slot=jnp.full(n, -1, jnp.int32), wait=zeros_n, pushes=zeros_n,
+                    idle_steps=zeros_n)
     totals = Totals(t=_i32(0), stall=_i32(0), max_steps=_i32(limit), max_pushes=budget, started=_i32(0),
                     delivered=_f32(0.0), spilled=_f32(0.0), outside=outside, initial_mass=_f32(jnp.sum(scene.obj)),
                     initial_outside=outside, stop_at=stop_at, done=stop != RUNNING, stop=stop)
-    return FleetState(scene=scene, fabric=fabric, rovers=rovers, owner=jnp.full(shape, -1, jnp.int32), region=region,
+    return FleetState(scene=scene, fabric=fabric, rovers=rovers, fields=motion.empty_pool(field_slots(n), shape),
+                      owner=jnp.full(shape, -1, jnp.int32), region=region,
                       candidates=_no_candidates(scene, params, ep, spill, fabric, cfg),
                       attempts=assign.no_attempts(0 if cfg.strategy == "coordinated" else n, shape),
                       fresh=jnp.bool_(False), totals=totals)
@@ -489,36 +500,62 @@ def _parked(pos, home, phase):
     return (phase == IDLE) & jnp.all(pos == home, -1)
 
 
-def _fields(rovers: Rovers, owner, blocked):
-    """Step 2: ``(rovers, computed bool[N])``: the distance fields (module docstring), recomputed for
-    the stale rovers that drive (``computed``); the other rows kept. blocked: bool[H, W], the scene's
-    blocked cells (never passable, their corners never cut)."""
-    pos, home, phase = rovers.pos, rovers.home, rovers.phase
-    n = pos.shape[0]
+def _goals(rovers: Rovers):
+    """i32[N, 2]: where each rover drives: its task's start while approaching, else its home cell."""
+    return jnp.where((rovers.phase == APPROACH)[:, None], rovers.route.cells[:, 0], rovers.home)
+
+
+def _drives(rovers: Rovers):
+    """bool[N]: rovers that drive toward a goal: approaching, or idle and not parked at home."""
+    return (rovers.phase == APPROACH) | ((rovers.phase == IDLE) & ~_parked(rovers.pos, rovers.home, rovers.phase))
+
+
+def _fields(rovers: Rovers, pool: motion.FieldPool, owner, blocked):
+    """Step 2: ``(rovers, pool, computed bool[N])`` (module docstring): a slot stays with its rover
+    while the rover drives to the goal it was computed for; a rover that waited ``motion.PATIENCE``
+    steps gets its field (re)computed in its slot, or in a free one (in rover order; none left: it
+    waits on). blocked: bool[H, W], the scene's blocked cells (never passable, their corners never
+    cut)."""
+    pos = rovers.pos
+    n, r_slots = pos.shape[0], pool.rover.shape[0]
     h, w = owner.shape
-    parked_rover = _parked(pos, home, phase)
+    ids = jnp.arange(n, dtype=jnp.int32)
+    goals, drives = _goals(rovers), _drives(rovers)
+    slot = rovers.slot
+    keep = (slot >= 0) & drives & jnp.all(pool.goal[jnp.maximum(slot, 0)] == goals, -1)
+    slot = jnp.where(keep, slot, -1)
+    holder = jnp.full(r_slots, -1, jnp.int32).at[jnp.where(keep, slot, r_slots)].set(ids, mode="drop")
+    need = drives & (rovers.wait >= motion.PATIENCE)
+    want = need & (slot < 0)
+    free = jnp.nonzero(holder < 0, size=r_slots, fill_value=0)[0]
+    rank = jnp.cumsum(want) - 1
+    slot = jnp.where(want & (rank < jnp.sum(holder < 0)), free[jnp.clip(rank, 0, r_slots - 1)], slot)
+    computed = need & (slot >= 0)
+    into = jnp.where(computed, slot, r_slots)
+    holder = holder.at[into].set(ids, mode="drop")
+    goal = pool.goal.at[into].set(goals, mode="drop")
+    stale = jnp.zeros(r_slots, bool).at[into].set(True, mode="drop")
     parked = jnp.full(h * w, -1, jnp.int32).at[pos[:, 0] * w + pos[:, 1]].set(
-        jnp.where(parked_rover, jnp.arange(n, dtype=jnp.int32), -1)).reshape(h, w)
-    ids = jnp.arange(n, dtype=jnp.int32)[:, None, None]
-    passable = ((owner[None] < 0) | (owner[None] == ids)) & ((parked[None] < 0) | (parked[None] == ids))
-    passable = passable & ~blocked[None]
-    goals = jnp.where((phase == APPROACH)[:, None], rovers.route.cells[:, 0], home)
-    drives = (phase == APPROACH) | ((phase == IDLE) & ~parked_rover)
-    computed = rovers.stale & drives
-    update = lambda corner: motion.update_fields(rovers.dist, goals, passable, pos, computed,  # noqa: E731
-                                                 chunk=FIELD_CHUNK, corner=corner)
-    # the corner rule's per-direction minimum costs twice the open site's separable one
-    fields = jax.lax.cond(jnp.any(blocked), lambda _: update(corner_free(blocked)), lambda _: update(None), None)
-    return rovers._replace(dist=fields), computed
+        jnp.where(_parked(pos, rovers.home, rovers.phase), ids, -1)).reshape(h, w)
+
+    def passable(s):
+        rover = holder[s]
+        return ((owner < 0) | (owner == rover)) & ((parked < 0) | (parked == rover)) & ~blocked
+
+    dist = motion.update_fields(pool.dist, goal, passable, pos[jnp.maximum(holder, 0)], stale, chunk=FIELD_CHUNK,
+                                corner=corner_free(blocked), use_corner=jnp.any(blocked))
+    rovers = rovers._replace(slot=slot, wait=jnp.where(computed, 0, rovers.wait))
+    return rovers, motion.FieldPool(dist, goal, holder), computed
 
 
-def _drop_unreachable(rovers: Rovers, owner):
-    """Step 2's drops: ``(rovers, owner, dropped bool[N])``, the approaching rovers that cannot reach
-    their start on their field idle, their footprints released."""
-    n = rovers.pos.shape[0]
-    here = rovers.dist[jnp.arange(n), rovers.pos[:, 0], rovers.pos[:, 1]]
-    dropped = (rovers.phase == APPROACH) & (here >= FAR)
-    return rovers._replace(phase=jnp.where(dropped, IDLE, rovers.phase)), _release(owner, dropped), dropped
+def _drop_unreachable(rovers: Rovers, pool: motion.FieldPool, owner):
+    """Step 2's drops: ``(rovers, owner, dropped bool[N])``, the approaching rovers whose field says
+    they cannot reach their start idle, their footprints and field slots released."""
+    slot, pos = rovers.slot, rovers.pos
+    here = pool.dist[jnp.maximum(slot, 0), pos[:, 0], pos[:, 1]]
+    dropped = (rovers.phase == APPROACH) & (slot >= 0) & (here >= FAR)
+    rovers = rovers._replace(phase=jnp.where(dropped, IDLE, rovers.phase), slot=jnp.where(dropped, -1, slot))
+    return rovers, _release(owner, dropped), dropped
 
 
 def _conflicts(before, after, moved, owner):
@@ -533,13 +570,18 @@ def _conflicts(before, after, moved, owner):
     return _i32(jnp.sum(same) // 2 + jnp.sum(swap) // 2 + jnp.sum(foreign))
 
 
-def _move(rovers: Rovers, owner, blocked):
+def _move(rovers: Rovers, pool: motion.FieldPool, owner, blocked):
     """Step 3: ``(rovers, moved bool[N], ended bool[N], conflicts i32[])``: every rover moved at most
     one cell (``motion.move_rovers``); ``ended``: pushes that reached their path's last cell; a rover
-    that reached its start pushes from the next step on; ``conflicts`` (``_conflicts``) of the move."""
+    that reached its start pushes from the next step on; ``conflicts`` (``_conflicts``) of the move.
+    A driving rover that did not move and is not at its goal counts one more step of waiting."""
     route, progress = rovers.route, rovers.progress
+    goals = _goals(rovers)
     push_next = jax.vmap(lambda r, k: footprint.path_cell(r, k))(route, progress + 1)
-    pos, moved = motion.move_rovers(rovers.pos, rovers.phase, rovers.dist, owner, push_next, corner_free(blocked))
+    pos, moved = motion.move_rovers(rovers.pos, rovers.phase, goals, rovers.slot, pool.dist, owner, push_next,
+                                    blocked, corner_free(blocked))
+    waited = _drives(rovers) & ~moved & jnp.any(rovers.pos != goals, -1)
+    rovers = rovers._replace(wait=jnp.where(waited, rovers.wait + 1, 0))
     conflicts = _conflicts(rovers.pos, pos, moved, owner)
     pushing = rovers.phase == PUSH
     progress = jnp.where(pushing & moved, progress + 1, progress)
@@ -593,15 +635,6 @@ def _stop(totals: Totals, scene, phase, assigned, dropped, moved, ended, applied
     return totals._replace(t=t, stall=_i32(stall), started=started, delivered=totals.delivered + jnp.sum(delivered),
                            spilled=totals.spilled + jnp.sum(spilled), outside=outside, done=stop != RUNNING,
                            stop=stop)
-
-
-def _mark_stale(rovers: Rovers, before, computed, dropped, ended) -> Rovers:
-    """The rovers' fields outdated by the step (``before``: i32[N, 2] their cells before it): a field
-    stays stale until the rover drives and gets a new one (``computed``); a new goal (a push ended, a
-    task dropped) or a newly parked obstacle makes it stale."""
-    parked_now = _parked(rovers.pos, rovers.home, rovers.phase)
-    newly_parked = jnp.any(parked_now & ~_parked(before, rovers.home, rovers.phase))
-    return rovers._replace(stale=(rovers.stale & ~computed) | ended | dropped | newly_parked)
 
 
 def _expire(candidates, fresh, assigned, dropped, ended):
@@ -665,22 +698,20 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
         state, params, spill, ep, cfg, evaluator)
     rovers = _take_tasks(state.rovers, assigned, route, mode, state.totals.t + 1)
     # 2. distance fields, unreachable starts dropped
-    rovers = rovers._replace(stale=rovers.stale | assigned | jnp.any(assigned))  # a new goal, new footprints
-    rovers, computed = _fields(rovers, owner, blocked)
-    rovers, owner, dropped = _drop_unreachable(rovers, owner)
+    rovers, fields, _ = _fields(rovers, state.fields, owner, blocked)
+    rovers, owner, dropped = _drop_unreachable(rovers, fields, owner)
     rovers = rovers._replace(idle_steps=rovers.idle_steps + (rovers.phase == IDLE))
     # 3. move
-    rovers, moved, ended, conflicts = _move(rovers, owner, blocked)
+    rovers, moved, ended, conflicts = _move(rovers, fields, owner, blocked)
     # 4. apply the pushes that ended, release their footprints (the fabric is refreshed by ``refresh``)
     scene, rovers, owner, applied = _apply_pushes(state.scene, rovers, owner, ended, spill, evaluator)
     # 5. totals and stop
     totals = _stop(state.totals, scene, rovers.phase, assigned, dropped, moved, ended, applied, failure,
                    cfg.stall_steps)
-    # what the step outdated for the next: stale fields, the cached candidates
-    rovers = _mark_stale(rovers, state.rovers.pos, computed, dropped, ended)
+    # what the step outdated for the next: the cached candidates
     candidates, fresh = _expire(candidates, fresh, assigned, dropped, ended)
-    new = state._replace(scene=scene, rovers=rovers, owner=owner, candidates=candidates, attempts=attempts,
-                         fresh=fresh, totals=totals)
+    new = state._replace(scene=scene, rovers=rovers, fields=fields, owner=owner, candidates=candidates,
+                         attempts=attempts, fresh=fresh, totals=totals)
     collected, delivered, spilled = applied
     record = FleetRecord(pos=rovers.pos, phase=rovers.phase, assigned=assigned, dropped=dropped, ended=ended,
                          collected=collected, delivered=delivered, spilled=spilled, delivered_total=totals.delivered,

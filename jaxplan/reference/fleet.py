@@ -61,8 +61,9 @@ def distance_field_to(goal, passable, stop_at, blocked=None) -> np.ndarray:
 
 
 def move_rovers(pos, phase, dist, owner, push_next, blocked=None):
-    """``(pos i64[N, 2], moved bool[N])`` after one step of the move rule (``jaxplan.fleet.motion``);
-    blocked: optional bool[H, W], whose corners no approach step cuts."""
+    """``(pos i64[N, 2], moved bool[N])`` after one step of the move rule (``jaxplan.fleet.motion``):
+    dist[r] is rover r's distance grid (its pool field, or the Chebyshev distance to its goal);
+    blocked: optional bool[H, W], cells no rover enters and whose corners no approach step cuts."""
     pos = [tuple(int(v) for v in p) for p in np.asarray(pos)]
     owner = np.asarray(owner)
     h, w = owner.shape
@@ -71,7 +72,7 @@ def move_rovers(pos, phase, dist, owner, push_next, blocked=None):
     for r, here in enumerate(pos):
         def free(q, r=r):
             inside = 0 <= q[0] < h and 0 <= q[1] < w
-            return inside and owner[q] in (-1, r) and q not in held
+            return inside and owner[q] in (-1, r) and q not in held and (blocked is None or not blocked[q])
         to = here
         if phase[r] != PUSH:
             best = dist[r][here]

@@ -68,11 +68,13 @@ from jaxplan.transport.plan import (
     Plan,
     anchor_connector,
     choose_source,
+    connector_walk,
     plan_episode_tick,
     plan_for_source,
     plan_tick,
     plan_with_connector,
     source_anchor,
+    source_anchors,
 )
 from jaxplan.transport.rebuild import Affected, refresh_connectors, selective_rebuild
 from jaxplan.transport.run import Episode, run_episode
@@ -99,12 +101,12 @@ __all__ = ["Affected", "BUDGET", "BUILTIN_SCENES", "CLEARED", "Connectors", "DEF
            "SELECTIVE_MIN_CELLS", "SPLINE_CHUNK", "STOP_REASONS", "Scene", "Selection", "SoftFabric", "SpillParams",
            "StepRecord", "Table", "WALK_CAP", "act", "anchor_connector", "animate_episode", "blocked_handle",
            "blocked_of", "box", "build_fabric", "builtin_scene", "cell_edges", "check_build_memory", "choose_source",
-           "circle", "corner_free", "count_table_hops", "default_walk_cap", "detour_hops", "draw_blocked",
-           "estimate_build_bytes", "execute_jit", "execute_push", "extract_paths", "fabric_of", "finite_max",
-           "highways", "jump_clear", "obstacle_geometry", "outside_mass", "plan_code", "plan_connectors",
+           "circle", "connector_walk", "corner_free", "count_table_hops", "default_walk_cap", "detour_hops",
+           "draw_blocked", "estimate_build_bytes", "execute_jit", "execute_push", "extract_paths", "fabric_of",
+           "finite_max", "highways", "jump_clear", "obstacle_geometry", "outside_mass", "plan_code", "plan_connectors",
            "plan_episode_tick", "plan_for_source", "plan_tick", "plan_with_connector", "plot_episode", "plot_fabric",
            "polygon_rings", "quantize", "random_scene", "read_movingai_map", "rebuild_mode", "refresh_connectors",
            "require_hard", "reselect", "reselect_jit", "reset", "rollout_scenes_jit", "route_from_path",
            "routes_from_paths", "run_episode", "select_routes", "selective_rebuild", "site_from_map", "slot_anchors",
-           "source_anchor", "spill_cells", "stack_scenes", "step", "validate_episode_params", "validate_params",
-           "waypoint_pickup", "waypoints"]
+           "source_anchor", "source_anchors", "spill_cells", "stack_scenes", "step", "validate_episode_params",
+           "validate_params", "waypoint_pickup", "waypoints"]

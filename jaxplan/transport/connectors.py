@@ -1,16 +1,22 @@
 """Highway anchors (Eq. 12) and connectors to them (Section 3.4, Algorithm 4), for all roots at once."""
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from jaxplan.core import grid_jit, lattice
-from jaxplan.transport.fabric import Fabric, Table, continuation_dp
+from jaxplan.transport.fabric import Fabric, Paths, Table, continuation_dp, walk_table
 from jaxplan.transport.params import FabricParams, validate_params
 
 _ANCHOR_BATCH = 8   # connector DPs evaluated together by vmap
+CONNECTOR_WINDOW = 64
+"""Side, cells, of the smallest window around an anchor that a connector's DP runs on
+(``connector_walks``); the next ones double it."""
+ANCHOR_LIST = 8192
+"""Anchor candidates ``anchors_for`` scores as a list (more: cell by cell over the grid)."""
 
 
 class Connectors(NamedTuple):
@@ -102,6 +108,132 @@ def connector_table(scene, fabric: Fabric, params: FabricParams, anchor_flat):
     """The K=1 connector ``Table`` of every cell toward one anchor (flat index; Section 3.4)."""
     centers = lattice.cell_centers(fabric.occupied.shape, scene.cell_size, scene.origin)
     return _connector_table(scene, fabric, params, anchor_flat, centers)
+
+
+def anchors_for(heat, highways, occupied, centers, anchor_lambda, roots, max_candidates: int = ANCHOR_LIST):
+    """``i32[M]``: ``anchor_for`` of each of the roots ``roots: i32[M, 2]``, the same anchors. When the
+    candidates (occupied highway cells) fit in a list of ``max_candidates`` (static; in row-major
+    order, so ties still go to the lowest index) every root is scored against the list, O(M x list);
+    otherwise one root at a time over the grid."""
+    h, w = heat.shape
+    candidate = (highways & occupied).reshape(-1)
+    size = min(h * w, int(max_candidates))
+
+    def listed(_):
+        index = jnp.nonzero(candidate, size=size, fill_value=h * w)[0]
+        valid = index < h * w
+        safe = jnp.minimum(index, h * w - 1)
+        cand_heat = jnp.where(valid, heat.reshape(-1)[safe], -jnp.inf)
+        cand_centers = centers.reshape(-1, 2)[safe]
+
+        def one(root):
+            d = jnp.linalg.norm(cand_centers - centers[root[0], root[1]], axis=-1)
+            best = safe[jnp.argmax(jnp.where(valid, cand_heat - anchor_lambda * d, -jnp.inf))]
+            is_root = occupied[root[0], root[1]] & ~highways[root[0], root[1]]
+            return jnp.where(is_root & jnp.any(valid), best, -1).astype(jnp.int32)
+
+        return jax.vmap(one)(roots)
+
+    def each(_):
+        return jax.lax.map(lambda r: anchor_for(heat, highways, occupied, centers, anchor_lambda, r), roots)
+
+    if size == h * w:
+        return listed(None)
+    return jax.lax.cond(jnp.sum(candidate) <= size, listed, each, None)
+
+
+def window_levels(shape, smallest: int = CONNECTOR_WINDOW) -> tuple[int, ...]:
+    """The window sides ``connector_walks`` may run a DP on for a grid of ``shape``: ``smallest``,
+    twice that, ... while smaller than the grid's shorter side (none on a small grid)."""
+    sizes, size = [], int(smallest)
+    while size < min(shape):
+        sizes.append(size)
+        size *= 2
+    return tuple(sizes)
+
+
+def _window_start(anchor, side: int, size: int):
+    """First row (or column) of the ``size`` cells around ``anchor`` kept inside ``[0, side)``."""
+    return jnp.clip(anchor - size // 2, 0, side - size)
+
+
+def _walks_on(scene, fabric: Fabric, params: FabricParams, sources, mine, anchor_flat, max_steps: int,
+              size: tuple[int, int] | None) -> Paths:
+    """``Paths[B]``: the connector walks of ``sources`` (i32[B, 2]; rows where ``mine`` is False walk
+    from the anchor itself) toward one anchor, its DP on the ``size`` window around the anchor, or
+    on the whole grid (``size`` None)."""
+    h, w = fabric.occupied.shape
+    ar, ac = anchor_flat // w, anchor_flat % w
+    if size is None:
+        table, offset = connector_table(scene, fabric, params, anchor_flat), jnp.zeros(2, jnp.int32)
+    else:
+        sh, sw = size
+        r0, c0 = _window_start(ar, h, sh), _window_start(ac, w, sw)
+
+        def cut(a):
+            return jax.lax.dynamic_slice(a, (r0, c0) + (0,) * (a.ndim - 2), (sh, sw) + a.shape[2:])
+
+        centers = cut(lattice.cell_centers((h, w), scene.cell_size, scene.origin))
+        goal, dist, unit = anchor_frame(centers, (ar - r0) * sw + (ac - c0))
+        table, _, _, _ = continuation_dp(
+            cut(scene.obj), cut(fabric.occupied) & ~goal, goal, dist, unit, params.theta_tol_deg, scene.cell_size,
+            monotone=params.monotone, k=1, max_hops=params.resolved_max_hops((h, w)), blocked=cut(scene.blocked))
+        offset = jnp.stack([r0, c0]).astype(jnp.int32)
+    starts = jnp.where(mine[:, None], sources, jnp.stack([ar, ac]).astype(jnp.int32)) - offset
+    paths = jax.vmap(lambda s: walk_table(table, s, jnp.int32(0), max_steps))(starts)
+    return paths._replace(cells=jnp.where(paths.cells >= 0, paths.cells + offset, -1))
+
+
+def connector_walks(scene, fabric: Fabric, params: FabricParams, sources, anchors, max_steps: int,
+                    levels: tuple[int, ...] | None = None) -> Paths:
+    """``Paths[B]``: each source's connector path to its anchor, ``walk_table(connector_table(scene,
+    fabric, params, anchors[i]), sources[i], 0, max_steps)``, the same paths.
+
+    sources: i32[B, 2]; anchors: i32[B] flat indices (-1: no anchor, an empty connector). Sources
+    that share an anchor share its DP. With the monotone rule every successor is strictly nearer the
+    anchor, so a source's walk and every cell the DP reads for it lie in the disc of radius
+    d(source, h*) around h* (their corner cells one cell beyond): each distinct anchor's DP runs on
+    the smallest window of ``levels`` (static; default ``window_levels``) around it that holds the
+    discs of all its sources, and on the whole grid when none does (or without the monotone rule).
+    The anchors run one after another (``lax.map``), so a window's DP costs its own cells only.
+    """
+    h, w = fabric.occupied.shape
+    levels = window_levels((h, w)) if levels is None else tuple(s for s in levels if s < max(h, w))
+    if not params.monotone:
+        levels = ()
+    b = anchors.shape[0]
+    sources = jnp.asarray(sources, jnp.int32)
+    distinct = slot_anchors(anchors, b)
+    reach = jnp.ceil(jnp.sqrt(jnp.sum(((sources - jnp.stack([anchors // w, anchors % w], -1)) * 1.0) ** 2, -1)))
+    reach = reach.astype(jnp.int32) + 1
+    sizes = [(min(s, h), min(s, w)) for s in levels]
+
+    def one_anchor(anchor):
+        safe = jnp.maximum(anchor, 0)
+        mine = (anchors == anchor) & (anchor >= 0)
+        here = jnp.stack([safe // w, safe % w])
+        lo = jnp.maximum(here - reach[:, None], 0)
+        hi = jnp.minimum(here + reach[:, None], jnp.asarray([h - 1, w - 1]))
+        fits = [jnp.all(~mine[:, None] | ((lo >= start) & (hi < start + jnp.asarray(size))))
+                for size in sizes
+                for start in [jnp.stack([_window_start(here[0], h, size[0]), _window_start(here[1], w, size[1])])]]
+        # the first level that holds every disc; the whole grid when none does; 0 for no anchor
+        level = jnp.argmax(jnp.asarray(fits + [True]))
+        case = jnp.where(anchor < 0, 0, 1 + level)
+        branches = [functools.partial(_walks_on, scene, fabric, params, sources, mine, safe, max_steps, size)
+                    for size in sizes + [None]]
+        empty = lambda: jax.tree.map(jnp.zeros_like, jax.eval_shape(branches[-1]))  # noqa: E731
+        return jax.lax.switch(case, [empty] + branches)
+
+    walks = jax.lax.map(one_anchor, distinct)                                   # [B anchors, B sources]
+    slot = jnp.argmax(distinct[None] == anchors[:, None], -1)
+    mine = jax.tree.map(lambda a: a[slot, jnp.arange(b)], walks)
+    # a source without an anchor: its cell alone, nothing collected
+    none = anchors < 0
+    cells = jnp.full_like(mine.cells, -1).at[:, 0].set(sources)
+    return Paths(jnp.where(none[:, None, None], cells, mine.cells), jnp.where(none, 1, mine.n_cells),
+                 jnp.where(none, -jnp.inf, mine.raw), jnp.where(none, jnp.inf, mine.length),
+                 jnp.where(none, False, mine.fallback), jnp.where(none, True, mine.complete))
 
 
 def _norm_and_unit(delta):

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 
 from jaxplan.core import grid_jit, lattice
 from jaxplan.transport import connectors, execute, obstacles, selection, spillage
-from jaxplan.transport.fabric import Fabric, Table, walk_table
+from jaxplan.transport.fabric import Fabric, Paths, Table, walk_table
 from jaxplan.transport.params import FabricParams
 
 if TYPE_CHECKING:   # the parameters live with the episode, which imports this module
@@ -98,11 +98,14 @@ def plan_for_source(scene, params: FabricParams, ep: EpisodeParams, spill: spill
                     source, max_steps: int, evaluator: spillage.Evaluator = spillage.curvature_spill) -> Plan:
     """The mode and the route of one push from a given ``source: i32[2]`` (steps 2-4 of the module
     docstring). ``Plan.has_source`` says whether the source is an occupied cell. max_steps,
-    evaluator: static, as in ``plan_tick``. Pure and jittable; ``vmap`` it over sources."""
+    evaluator: static, as in ``plan_tick``. Pure and jittable. To plan many sources, compute their
+    anchors and connectors together (``source_anchors``, ``connector_walk``: sources sharing an
+    anchor share its DP) and ``vmap`` ``plan_with_connector``; a ``vmap`` of this function runs every
+    connector DP on the whole grid."""
     source = jnp.asarray(source, jnp.int32)
     anchor = source_anchor(scene, params, fabric, source)
-    return plan_with_connector(scene, params, ep, spill, fabric, source, anchor,
-                               anchor_connector(scene, params, fabric, anchor), max_steps, evaluator)
+    conn = jax.tree.map(lambda a: a[0], connector_walk(scene, params, fabric, source[None], anchor[None], max_steps))
+    return plan_with_connector(scene, params, ep, spill, fabric, source, anchor, conn, max_steps, evaluator)
 
 
 def source_anchor(scene, params: FabricParams, fabric: Fabric, source):
@@ -110,6 +113,21 @@ def source_anchor(scene, params: FabricParams, fabric: Fabric, source):
     centers = lattice.cell_centers(scene.shape, scene.cell_size, scene.origin)
     return connectors.anchor_for(fabric.heat, fabric.highways, fabric.occupied, centers, params.anchor_lambda,
                                  jnp.asarray(source, jnp.int32))
+
+
+def source_anchors(scene, params: FabricParams, fabric: Fabric, sources):
+    """i32[B]: ``source_anchor`` of each of ``sources: i32[B, 2]`` (``connectors.anchors_for``)."""
+    centers = lattice.cell_centers(scene.shape, scene.cell_size, scene.origin)
+    return connectors.anchors_for(fabric.heat, fabric.highways, fabric.occupied, centers, params.anchor_lambda,
+                                  jnp.asarray(sources, jnp.int32))
+
+
+def connector_walk(scene, params: FabricParams, fabric: Fabric, sources, anchors, max_steps: int) -> Paths:
+    """``Paths[B]``: the connector paths from ``sources: i32[B, 2]`` to their anchors (flat, -1 none):
+    the walks of ``anchor_connector``'s tables, each distinct anchor's DP run once, on a window
+    around it when that holds its sources' reach (``connectors.connector_walks``). Not for ``vmap``
+    (the window is chosen by a switch, which ``vmap`` would run whole): pass the batch."""
+    return connectors.connector_walks(scene, fabric, params, sources, anchors, max_steps)
 
 
 def anchor_connector(scene, params: FabricParams, fabric: Fabric, anchor) -> Table:
@@ -128,10 +146,11 @@ def anchor_connector(scene, params: FabricParams, fabric: Fabric, anchor) -> Tab
 
 
 def plan_with_connector(scene, params: FabricParams, ep: EpisodeParams, spill: spillage.SpillParams,
-                        fabric: Fabric, source, anchor, ctable: Table, max_steps: int,
+                        fabric: Fabric, source, anchor, conn: Paths, max_steps: int,
                         evaluator: spillage.Evaluator = spillage.curvature_spill) -> Plan:
-    """``plan_for_source`` with the source's anchor (``source_anchor``) and its connector table
-    (``anchor_connector``) given, so that sources sharing an anchor share one connector DP."""
+    """``plan_for_source`` with the source's anchor (``source_anchor``) and its connector path
+    (``connector_walk``) given, so that a batch of sources computes their connectors one by one
+    (each on its own window) and plans the rest vmapped."""
     h, w = scene.shape
     source = jnp.asarray(source, jnp.int32)
     has_source = fabric.occupied[source[0], source[1]]
@@ -141,7 +160,6 @@ def plan_with_connector(scene, params: FabricParams, ep: EpisodeParams, spill: s
     direct = walk_table(fabric.table, source, entry, max_steps, scene.detour)
     safe_anchor = jnp.maximum(anchor, 0)
     anchor_rc = jnp.stack([safe_anchor // w, safe_anchor % w]).astype(jnp.int32)
-    conn = walk_table(ctable, source, jnp.int32(0), max_steps)
     anchor_entry = fabric.selected[anchor_rc[0], anchor_rc[1]]
     tail = walk_table(fabric.table, anchor_rc, anchor_entry, max_steps, scene.detour)
     # a connector that enters h* lists it last; the tail starts at h*, so drop the duplicate

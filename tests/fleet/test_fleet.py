@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from jaxplan import FabricParams, SpillParams
 from jaxplan.fleet import STOP_REASONS, STRATEGIES, FleetConfig, reset, rollout, run_fleet, step
-from jaxplan.fleet.motion import IDLE
+from jaxplan.fleet.motion import IDLE, PATIENCE
 from jaxplan.transport.episode import EpisodeParams
 from tests.fleet._sites import LAYOUTS, site
 
@@ -96,12 +96,12 @@ def test_step_traces_once_and_a_done_state_stays_as_it_is(traced_run):
 
 
 def test_the_step_without_jit_equals_the_jitted_step(traced_run):
-    """On a step that plans nothing (every rover busy, or the budget spent), keeps its distance fields
+    """On a step that plans nothing (every rover busy, or the budget spent), computes no distance field
     and applies no push, run op by op (the whole step without jit takes minutes)."""
     states, records, ep = traced_run["states"], traced_run["records"], traced_run["ep"]
     busy = [t for t in range(len(records) - 1)
             if (np.all(np.asarray(states[t].rovers.phase) != IDLE) or int(states[t].totals.started) >= ep.max_pushes)
-            and not np.any(np.asarray(states[t].rovers.stale)) and not np.any(np.asarray(records[t].ended))
+            and np.all(np.asarray(states[t].rovers.wait) < PATIENCE) and not np.any(np.asarray(records[t].ended))
             and np.any(np.asarray(records[t].pos != states[t].rovers.pos))]
     assert busy
     t = busy[0]
@@ -151,9 +151,18 @@ def test_what_is_not_planned_again_changes_nothing(traced_run, strategy):
     assert reused > 0
 
 
-def test_candidates_share_connectors_and_plan_only_what_is_wanted():
-    """``plan_candidates`` (chunked, one connector DP per distinct anchor of a chunk) gives each source
-    the task ``plan_task`` plans alone; with ``wanted`` = k only the first k slots are planned."""
+def _same_tasks(name, got, want):
+    """The same tasks: equal routes, modes, codes, steps and footprints; the predicted mass, summed by
+    XLA in another batch, within a unit in its last place or two."""
+    if name == "predicted":
+        chex.assert_trees_all_close(got, want, rtol=1e-6)
+    else:
+        chex.assert_trees_all_equal(got, want)
+
+
+def test_candidates_equal_tasks_planned_alone_and_plan_only_what_is_wanted():
+    """``plan_candidates`` (chunked, each source's connector DP on its anchor's window) gives each
+    source the task ``plan_task`` plans alone; with ``wanted`` = k only the first k slots are planned."""
     from jaxplan import build_fabric
     from jaxplan.fleet import assign
     from jaxplan.transport import execute, spillage
@@ -169,17 +178,18 @@ def test_candidates_share_connectors_and_plan_only_what_is_wanted():
     full, part = plan(jnp.int32(m)), plan(jnp.int32(3))
     alone = jax.jit(jax.vmap(lambda s: assign.plan_task(scene, PARAMS, ep, SPILL, fabric, s, True, cap,
                                                          spillage.curvature_spill, 0)))(full.tasks.source)
+    alone = alone._replace(footprint=assign.pack_bits(alone.footprint))      # candidates keep them packed
     exists = np.asarray(full.exists)
     assert exists.sum() > 3 and len(set(map(tuple, np.asarray(full.tasks.source)[exists].tolist()))) == exists.sum()
     for name in ("route", "mode", "code", "predicted", "steps", "footprint"):
-        chex.assert_trees_all_equal(jax.tree.map(lambda a: a[exists], getattr(full.tasks, name)),
-                                    jax.tree.map(lambda a: a[exists], getattr(alone, name)))
-        chex.assert_trees_all_equal(jax.tree.map(lambda a: a[:3], getattr(part.tasks, name)),
-                                    jax.tree.map(lambda a: a[:3], getattr(full.tasks, name)))
+        _same_tasks(name, jax.tree.map(lambda a: a[exists], getattr(full.tasks, name)),
+                    jax.tree.map(lambda a: a[exists], getattr(alone, name)))
+        _same_tasks(name, jax.tree.map(lambda a: a[:3], getattr(part.tasks, name)),
+                    jax.tree.map(lambda a: a[:3], getattr(full.tasks, name)))
     assert np.array_equal(np.asarray(part.exists), exists & (np.arange(m) < 3))
     # a footprint reserved: planning again with the previous candidates keeps their sources' tasks and
     # plans only the new ones, and gives what planning them all gives
-    taken = np.asarray(full.tasks.footprint[0])
+    taken = np.asarray(assign.unpack_bits(full.tasks.footprint[0], scene.shape))
     reserved = np.where(taken, 0, owner).astype(np.int32)
     again = jax.jit(lambda previous: assign.plan_candidates(
         scene, PARAMS, ep, SPILL, fabric, reserved, candidates=m, cap=cap, evaluator=spillage.curvature_spill,
@@ -190,8 +200,8 @@ def test_candidates_share_connectors_and_plan_only_what_is_wanted():
     assert set(map(tuple, np.asarray(fresh.tasks.source)[now].tolist())) & \
         set(map(tuple, np.asarray(full.tasks.source)[exists].tolist()))          # some sources are kept
     for name in ("source", "route", "mode", "code", "predicted", "steps", "footprint"):
-        chex.assert_trees_all_equal(jax.tree.map(lambda a: a[now], getattr(kept.tasks, name)),
-                                    jax.tree.map(lambda a: a[now], getattr(fresh.tasks, name)))
+        _same_tasks(name, jax.tree.map(lambda a: a[now], getattr(kept.tasks, name)),
+                    jax.tree.map(lambda a: a[now], getattr(fresh.tasks, name)))
     for name in ("usable", "clear", "overlap"):
         np.testing.assert_array_equal(np.asarray(getattr(kept, name)), np.asarray(getattr(fresh, name)))
 

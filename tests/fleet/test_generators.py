@@ -1,4 +1,5 @@
-"""The built-in fleet sites: deterministic, the documented sizes, two to four targets, material to move."""
+"""The built-in fleet sites: deterministic, the documented sizes, two to eight targets, material to move,
+buildings on site1024 that hold no material and cut no free cell off."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,14 +8,14 @@ import pytest
 from jaxplan.fleet import SITES, site
 from jaxplan.fleet.generators import MAX_COUNT, build_site
 
-EXPECTED = {"site128": (128, 2), "site256": (256, 3), "site512": (512, 4)}
+EXPECTED = {"site128": (128, 2), "site256": (256, 3), "site512": (512, 4), "site1024": (1024, 8)}
 
 
 def _arrays(scene):
     return {k: np.asarray(getattr(scene, k)) for k in ("obj", "target_mask", "dist", "tvec")}
 
 
-def test_sites_are_the_documented_three():
+def test_sites_are_the_documented_four():
     assert SITES == tuple(EXPECTED)
 
 
@@ -35,7 +36,7 @@ def test_site_shape_targets_and_mass(name):
     assert scene.shape == (side, side)
     assert scene.name == name
     polygons = list(scene.target.geoms)
-    assert 2 <= len(polygons) == n_targets <= 4
+    assert 2 <= len(polygons) == n_targets <= 8
     mask = np.asarray(scene.target_mask)
     for i, poly in enumerate(polygons):
         # every target covers cells of its own, apart from the others
@@ -46,6 +47,10 @@ def test_site_shape_targets_and_mass(name):
     obj = np.asarray(scene.obj)
     assert np.all(obj == np.rint(obj)) and obj.min() == 0 and obj.max() <= MAX_COUNT
     assert not obj[mask].any(), "material on a target cell"
+    blocked = np.asarray(scene.blocked)
+    assert blocked.any() == (name == "site1024")
+    assert not obj[blocked].any() and not (blocked & mask).any()
+    assert not np.asarray(scene.cut_off).any(), "a free cell cut off from every target"
     assert obj[~mask].sum() > 0
     # material spread over the site: every quarter of the grid holds some
     half = side // 2
@@ -55,5 +60,5 @@ def test_site_shape_targets_and_mass(name):
 
 
 def test_an_unknown_site_is_a_named_error():
-    with pytest.raises(ValueError, match="site128, site256, site512"):
+    with pytest.raises(ValueError, match="site128, site256, site512, site1024"):
         site("site64")

@@ -4,10 +4,12 @@ the prioritised one-step move, the greedy choice."""
 from __future__ import annotations
 
 import collections
+import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -27,6 +29,11 @@ _fields = jax.jit(motion.distance_fields)
 _field_to = jax.jit(motion.distance_field_to)
 _update = jax.jit(motion.update_fields, static_argnames="chunk")
 _move = jax.jit(motion.move_rovers)
+
+
+@functools.partial(jax.jit, static_argnames="chunk")
+def _update_by_function(dist, goals, passable, pos, stale, chunk):
+    return motion.update_fields(dist, goals, lambda row: passable[row], pos, stale, chunk=chunk)
 
 
 def _distinct_cells(rng, n):
@@ -109,9 +116,11 @@ def test_early_stopped_field_is_exact_up_to_the_stop_cell(seed, density):
 
 @SETTINGS
 @given(seed=st.integers(0, 2 ** 31 - 1), density=st.sampled_from((0.5, 0.7, 0.9, 1.0)),
-       stale_kind=st.sampled_from(("some", "all", "none")), chunk=st.sampled_from((2, 8)))
-def test_update_fields_recomputes_the_stale_rows_only(seed, density, stale_kind, chunk):
-    """N = 5 rovers: chunk 2 runs up to three chunks (the last one filled up), chunk 8 one."""
+       stale_kind=st.sampled_from(("some", "all", "none")), chunk=st.sampled_from((2, 8)),
+       by_function=st.booleans())
+def test_update_fields_recomputes_the_stale_rows_only(seed, density, stale_kind, chunk, by_function):
+    """N = 5 rovers: chunk 2 runs up to three chunks (the last one filled up), chunk 8 one; the
+    passable masks given as an array or as a function of the row."""
     rng = np.random.default_rng(seed)
     cases = [_field_case(rng, density) for _ in range(N)]
     passable = np.stack([c[0] for c in cases])
@@ -119,7 +128,12 @@ def test_update_fields_recomputes_the_stale_rows_only(seed, density, stale_kind,
     pos = np.stack([c[2] for c in cases]).astype(np.int32)
     stale = {"some": rng.random(N) < 0.5, "all": np.ones(N, bool), "none": np.zeros(N, bool)}[stale_kind]
     dist = rng.integers(0, motion.FAR + 1, (N,) + SHAPE, dtype=np.int32)    # old rows: anything
-    got = np.asarray(_update(*(jnp.asarray(a) for a in (dist, goals, passable, pos, stale)), chunk=chunk))
+    args = [jnp.asarray(a) for a in (dist, goals, passable, pos, stale)]
+    if by_function:
+        got = _update_by_function(*args, chunk=chunk)
+    else:
+        got = _update(*args, chunk=chunk)
+    got = np.asarray(got)
     for r in range(N):
         if stale[r]:
             _assert_exact_up_to_stop(got[r], goals[r], passable[r], pos[r])
@@ -150,30 +164,48 @@ def test_strictly_decreasing_walk_in_the_early_stopped_field_reaches_the_goal(se
         assert here == (int(goal[0]), int(goal[1])) and steps == d_stop
 
 
+def _chebyshev(goal):
+    rows, cols = np.indices(SHAPE)
+    return np.maximum(np.abs(rows - goal[0]), np.abs(cols - goal[1]))
+
+
 @SETTINGS
 @given(seed=st.integers(0, 2 ** 31 - 1))
 def test_one_step_equals_the_serial_move_rule(seed):
+    """Rovers with a pool field (a breadth-first field over their passable cells) and rovers driving
+    by the Chebyshev distance, around footprints and, half the time, blocked cells."""
     rng = np.random.default_rng(seed)
     pos = _distinct_cells(rng, N)
     phase = rng.integers(0, 3, N).astype(np.int32)
     owner = _owner_map(rng)
     goals = _distinct_cells(rng, N)
-    dist = np.stack([ref.distance_field(goals[r], (owner < 0) | (owner == r)) for r in range(N)]).astype(np.int32)
     step = rng.integers(-1, 2, (N, 2))
     push_next = np.clip(pos + step, 0, np.asarray(SHAPE) - 1).astype(np.int32)
     blocked = (rng.random(SHAPE) < 0.15) & (owner < 0) if rng.random() < 0.5 else None
+    free = np.ones(SHAPE, bool)
     if blocked is not None:
         blocked[pos[:, 0], pos[:, 1]] = False
-        dist = np.stack([ref.distance_field(goals[r], ((owner < 0) | (owner == r)) & ~blocked, blocked=blocked)
-                         for r in range(N)]).astype(np.int32)
+        free = ~blocked
+    slots = 3
+    slot = np.full(N, -1, np.int32)
+    holders = rng.choice(N, rng.integers(0, slots + 1), replace=False)
+    slot[holders] = np.arange(len(holders))
+    pool = np.full((slots,) + SHAPE, motion.FAR, np.int32)
+    for r in range(N):
+        if slot[r] >= 0:
+            pool[slot[r]] = ref.distance_field(goals[r], ((owner < 0) | (owner == r)) & free, blocked=blocked)
+    dist = np.stack([pool[slot[r]] if slot[r] >= 0 else _chebyshev(goals[r]) for r in range(N)]).astype(np.int32)
     corner = None if blocked is None else corner_free(jnp.asarray(blocked))
-    got_pos, got_moved = _move(*(jnp.asarray(a) for a in (pos, phase, dist, owner, push_next)), corner)
+    got_pos, got_moved = _move(*(jnp.asarray(a) for a in (pos, phase, goals, slot, pool, owner, push_next)),
+                               None if blocked is None else jnp.asarray(blocked), corner)
     want_pos, want_moved = ref.move_rovers(pos, phase, dist, owner, push_next, blocked)
     np.testing.assert_array_equal(np.asarray(got_pos), want_pos)
     np.testing.assert_array_equal(np.asarray(got_moved), want_moved)
     after = np.asarray(got_pos)
     assert len({tuple(p) for p in after.tolist()}) == N                    # never two in one cell
     assert not conflicts(np.stack([pos, after]), [])                   # nor a swap or a jump
+    if blocked is not None:
+        assert not blocked[after[:, 0], after[:, 1]].any()
 
 
 def _tasks(rng, clearance):
@@ -210,6 +242,19 @@ def _footprint_set(task, c):
 _greedy = jax.jit(assign.greedy_choice)
 
 
+@pytest.mark.parametrize("shape", [(10, 12), (7, 5), (4, 8)])
+def test_packed_masks_unpack_to_themselves(shape):
+    """32 cells a word, the last word padded: unpacked and read cell by cell, the same masks."""
+    rng = np.random.default_rng(shape[0])
+    masks = rng.random((3,) + shape) < 0.4
+    words = assign.pack_bits(jnp.asarray(masks))
+    assert words.shape == (3, -(-shape[0] * shape[1] // 32)) and words.dtype == jnp.uint32
+    flat = jnp.arange(shape[0] * shape[1])
+    for k in range(3):
+        np.testing.assert_array_equal(np.asarray(assign.unpack_bits(words[k], shape)), masks[k])
+        np.testing.assert_array_equal(np.asarray(assign.bits_at(words[k], flat)), masks[k].reshape(-1))
+
+
 @SETTINGS
 @given(seed=st.integers(0, 2 ** 31 - 1), clearance=st.sampled_from(footprint.CLEARANCES))
 def test_greedy_choice_equals_the_serial_greedy(seed, clearance):
@@ -220,9 +265,10 @@ def test_greedy_choice_equals_the_serial_greedy(seed, clearance):
     usable = rng.random(M) < 0.8
     owner = np.where(rng.random() < 0.5, _owner_map(rng), -1).astype(np.int32)
     budget = int(rng.integers(0, N + 1))
-    relations = assign.footprint_relations(tasks.footprint, jnp.asarray(usable), jnp.asarray(owner))
+    packed = tasks._replace(footprint=assign.pack_bits(tasks.footprint))       # as the candidates hold them
+    relations = assign.footprint_relations(packed.footprint, jnp.asarray(usable), jnp.asarray(owner))
     choice, new_owner, count = _greedy(jnp.asarray(pos), jnp.asarray(idle), jnp.asarray(owner), jnp.int32(budget),
-                                       jnp.asarray(usable), tasks, relations)
+                                       jnp.asarray(usable), packed, relations)
     footprints = [_footprint_set(tasks, c) for c in range(M)]
     reserved = {tuple(p) for p in np.argwhere(owner >= 0).tolist()}
     want = ref.greedy_assign(idle, pos, np.asarray(tasks.source), np.asarray(tasks.steps),

@@ -1,12 +1,20 @@
 """Anchors (Eq. 12) and connectors (Algorithm 4) against the serial reference."""
 from __future__ import annotations
 
+import functools
+
+import jax
+import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from jaxplan import FabricParams, build_fabric, builtin_scene, plan_connectors
-from tests._scenes import has_borderline_step, reference_of, scenes
+from jaxplan import FabricParams, Scene, build_fabric, builtin_scene, circle, plan_connectors
+from jaxplan.core import lattice
+from jaxplan.transport.connectors import anchor_for, anchors_for, connector_table, connector_walks
+from jaxplan.transport.fabric import walk_table
+from tests._scenes import has_borderline_step, random_blocked, reference_of, scenes
 
 
 def _anchor_near_tie(ref, cell_size, anchor_lambda, rel=1e-5) -> bool:
@@ -92,3 +100,76 @@ def test_candidate_buffer_gives_the_same_anchors_as_scoring_every_cell():
     assert conn.candidate_count(fabric) <= size < scene.shape[0] * scene.shape[1]
     np.testing.assert_array_equal(np.asarray(conn.choose_anchors(*args, max_candidates=size)),
                                   np.asarray(conn.choose_anchors(*args)))
+
+
+WINDOW_SHAPE = (22, 26)
+LEVELS = (8, 16)
+PARAMS = FabricParams()
+
+
+def _window_scene(seed: int, blocked: bool):
+    rng = np.random.default_rng(seed)
+    obj = np.where(rng.random(WINDOW_SHAPE) < 0.6, np.round(rng.uniform(0.5, 5.0, WINDOW_SHAPE), 3), 0.0)
+    target = circle((3.5, 3.5), 2.0)
+    mask = random_blocked(WINDOW_SHAPE, rng) if blocked else np.zeros(WINDOW_SHAPE, bool)
+    mask &= ~np.asarray(Scene.from_arrays(obj.astype(np.float32), target).target_mask)
+    return Scene.from_arrays(np.where(mask, 0.0, obj).astype(np.float32), target, blocked=mask), rng
+
+
+@functools.cache
+def _walks():
+    cap = 2 * (WINDOW_SHAPE[0] + WINDOW_SHAPE[1])
+    windowed = jax.jit(lambda scene, fabric, sources, anchors: connector_walks(
+        scene, fabric, PARAMS, sources, anchors, cap, levels=LEVELS))
+    whole = jax.jit(jax.vmap(lambda scene, fabric, source, anchor: walk_table(
+        connector_table(scene, fabric, PARAMS, anchor), source, jnp.int32(0), cap), in_axes=(None, None, 0, 0)))
+    return windowed, whole
+
+
+@pytest.mark.parametrize("blocked", [False, True])
+def test_connectors_on_their_anchors_windows_are_the_whole_grids(blocked):
+    """Eight sources at a time, some sharing an anchor: near it (their DP on an 8 x 8 or 16 x 16
+    window around it), far from it (the whole grid), or without one: the same walks, cell by cell,
+    with the same collected mass and length. An anchor need not be a highway cell: any cell may end
+    a connector."""
+    windowed, whole = _walks()
+    for seed in range(4):
+        scene, rng = _window_scene(seed, blocked)
+        fabric = build_fabric(scene, PARAMS)
+        occupied = np.argwhere(np.asarray(fabric.occupied))
+        free = np.argwhere(~np.asarray(scene.blocked))
+        sources = occupied[rng.choice(len(occupied), 8, replace=False)]
+        anchors = []
+        for k, source in enumerate(sources):
+            if k in (1, 4):    # share the previous source's anchor
+                anchors.append(anchors[-1])
+                continue
+            reach = (2, 2, 6, 40)[k % 4]     # 8 x 8, 8 x 8, 16 x 16, the whole grid
+            cells = free[np.max(np.abs(free - source), 1) <= reach]
+            anchor = cells[rng.integers(len(cells))]
+            anchors.append(int(anchor[0] * WINDOW_SHAPE[1] + anchor[1]))
+        anchors[7] = -1
+        anchors = jnp.asarray(anchors, jnp.int32)
+        got = windowed(scene, fabric, jnp.asarray(sources, jnp.int32), anchors)
+        want = whole(scene, fabric, jnp.asarray(sources, jnp.int32), jnp.maximum(anchors, 0))
+        has = np.asarray(anchors) >= 0
+        for name in got._fields:
+            np.testing.assert_array_equal(np.asarray(getattr(got, name))[has], np.asarray(getattr(want, name))[has],
+                                          err_msg=f"seed {seed}: {name}")
+        assert int(got.n_cells[7]) == 1 and not np.isfinite(float(got.raw[7]))   # no anchor: no connector
+        np.testing.assert_array_equal(np.asarray(got.cells[7, 0]), sources[7])
+
+
+def test_anchors_of_many_roots_equal_one_at_a_time():
+    """``anchors_for`` scoring a list of the candidates, or (a list too short) the grid root by root:
+    the anchors ``anchor_for`` gives each root."""
+    scene, rng = _window_scene(5, False)
+    fabric = build_fabric(scene, PARAMS)
+    centers = lattice.cell_centers(scene.shape, scene.cell_size, scene.origin)
+    roots = jnp.asarray(np.argwhere(np.ones(WINDOW_SHAPE, bool))[rng.choice(WINDOW_SHAPE[0] * WINDOW_SHAPE[1], 40)],
+                        jnp.int32)
+    one = jax.vmap(lambda r: anchor_for(fabric.heat, fabric.highways, fabric.occupied, centers, 0.5, r))(roots)
+    assert int(jnp.sum(fabric.highways & fabric.occupied)) > 4 and bool(jnp.any(one >= 0))
+    for size in (4, 64, WINDOW_SHAPE[0] * WINDOW_SHAPE[1]):
+        many = anchors_for(fabric.heat, fabric.highways, fabric.occupied, centers, 0.5, roots, max_candidates=size)
+        np.testing.assert_array_equal(np.asarray(many), np.asarray(one), err_msg=f"list of {size}")
