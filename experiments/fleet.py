@@ -32,13 +32,13 @@ from jaxplan.transport import EpisodeParams
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 
-def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="value") -> dict:
+def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="rate") -> dict:
     start = time.perf_counter()
     config = FleetConfig(n, strategy, candidates_by=candidates_by)
     run = run_fleet(scene, n, strategy, params, episode=episode, max_steps=max_steps, progress=True, config=config)
     wall = time.perf_counter() - start
     s = summary_of(run)
-    label = strategy if strategy != "coordinated" or candidates_by == "value" else f"coordinated ({candidates_by})"
+    label = strategy if strategy != "coordinated" else f"coordinated ({candidates_by})"
     return {"site": name, "rovers": n, "strategy": label, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
             "pushes": s["pushes"], "delivered_per_rover_step": s["delivered_per_rover_step"],
             "conflicts": s["conflicts"], "step_ms": s["step_ms"], "plan_ms": s["plan_ms"],
@@ -80,8 +80,8 @@ def main(argv=None) -> None:
     parser.add_argument("--sites", nargs="+", default=["site128"], help="built-in fleet sites; default site128")
     parser.add_argument("--rovers", nargs="+", type=int, default=[1, 2, 4, 8], help="fleet sizes; default 1 2 4 8")
     parser.add_argument("--strategies", nargs="+", default=list(STRATEGIES), choices=STRATEGIES)
-    parser.add_argument("--candidates-by", choices=("value", "rate"), default="value",
-                        help="the coordinated strategy's candidates (FleetConfig.candidates_by); default value")
+    parser.add_argument("--candidates-by", choices=("value", "rate"), default="rate",
+                        help="the coordinated strategy's candidates (FleetConfig.candidates_by); default rate")
     parser.add_argument("--max-steps", type=int, default=20_000, help="step limit per run; default 20000")
     parser.add_argument("--stop-fraction", type=float, default=0.02,
                         help="stop once this fraction of the mass that started outside the targets is left; "

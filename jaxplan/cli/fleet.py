@@ -256,9 +256,9 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                         "route; >= 0, 'inf' never; default 0.1")
     add_theta_option(p)
     add_spill_options(p)
-    p.add_argument("--candidates", choices=("value", "rate"), default="value",
-                   help="coordinated candidates: the top sources by J (value), or each idle rover's best "
-                        "sources by J over its approach and route length (rate); default value")
+    p.add_argument("--candidates", choices=("value", "rate"), default="rate",
+                   help="coordinated candidates: each idle rover's best sources by J over its approach and "
+                        "route length (rate), or the top sources by J (value); default rate")
     p.add_argument("--clearance", type=int, choices=(0, 1, 2), default=0,
                    help="cells a task reserves: 0 the cells its push changes, 1 one more cell around its "
                         "route, 2 the rover's body (no rover-rover contact in physics); default 0")

@@ -51,16 +51,18 @@ from jaxplan.transport import (
 )
 from jaxplan.transport.spillage import evaluate_route
 
-__all__ = ["BLOCKED", "PLAN_CHUNK", "Attempts", "Candidates", "Task", "assign_each", "assign_greedy", "assign_planned",
-           "bits_at", "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "no_attempts",
-           "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve", "rovers_inside", "unpack_bits",
-           "wanted_candidates"]
+__all__ = ["BLOCKED", "PLAN_CHUNK", "RATE_CHUNK", "Attempts", "Candidates", "Task", "assign_each", "assign_greedy",
+           "assign_planned", "bits_at", "failure_rank", "footprint_free", "footprint_relations", "greedy_choice",
+           "no_attempts", "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve", "rovers_inside",
+           "unpack_bits", "wanted_candidates"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
 stop code "no_reachable_task" when nothing else runs)."""
 PLAN_CHUNK = 8
 """Candidates planned together (one ``vmap``) by ``plan_candidates``."""
+RATE_CHUNK = 8
+"""Rovers whose rates ``rate_sources`` scores together."""
 
 
 class Task(NamedTuple):
@@ -155,13 +157,20 @@ def rate_sources(fabric, owner, pos, idle, m: int, cell_size, per_rover: int = 2
     """``(flat i32[m], ok bool[m])``: each idle rover's ``per_rover`` best sources by the rate the
     fabric promises it, ``J / (Chebyshev distance from the rover + route length in cells + 1)``,
     among occupied cells outside every footprint; rank by rank (every idle rover's best, then every
-    second best, ...), each cell once, the first m kept."""
+    second best, ...), each cell once, the first m kept. The rovers are scored ``RATE_CHUNK`` at a
+    time, so the grids alive at once do not grow with N."""
     h, w = owner.shape
     rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
-    far = jnp.maximum(jnp.abs(rows[None] - pos[:, 0, None, None]), jnp.abs(cols[None] - pos[:, 1, None, None]))
-    rate = fabric.value[None] / (far + fabric.length[None] / cell_size + 1.0)
-    allowed = (fabric.occupied & (owner < 0))[None] & idle[:, None, None]
-    best, flat = jax.lax.top_k(jnp.where(allowed, rate, -jnp.inf).reshape(pos.shape[0], -1), per_rover)
+    allowed = fabric.occupied & (owner < 0)
+    cells_long = fabric.length / cell_size
+
+    def best_of(rover):
+        here, may = rover
+        far = jnp.maximum(jnp.abs(rows - here[0]), jnp.abs(cols - here[1]))
+        rate = jnp.where(allowed & may, fabric.value / (far + cells_long + 1.0), -jnp.inf)
+        return jax.lax.top_k(rate.reshape(-1), per_rover)
+
+    best, flat = jax.lax.map(best_of, (pos, idle), batch_size=min(RATE_CHUNK, pos.shape[0]))
     best, flat = best.T.reshape(-1), flat.T.reshape(-1).astype(jnp.int32)       # rank-major
     k = flat.shape[0]
     earlier = jnp.tril(flat[:, None] == flat[None], -1)
@@ -177,7 +186,7 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
                     clearance: int, wanted=None, by_rate=None, previous: Candidates | None = None) -> Candidates:
     """The top ``M = candidates`` sources by the source rule's score among the occupied cells outside
     every footprint (``owner: i32[H, W]``, -1 free); the first ``wanted`` of them (i32[], default M)
-    planned as ``Task`` s, the others left empty (``exists`` False). by_rate: optional ``(pos
+    planned as ``Task`` s, the others left empty (``exists`` False). by_rate: optional ``(cells
     i32[N, 2], idle bool[N])``: the candidates are the idle rovers' best sources by rate instead
     (``rate_sources``). previous: candidates planned on this same fabric (``exists`` False where
     not): a source planned there keeps its task, which depends on the fabric and the source only,

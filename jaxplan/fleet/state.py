@@ -119,9 +119,10 @@ class FleetConfig:
     any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an
     independent or partitioned rover tries per step when footprints are taken. clearance: cells
     reserved around a route beyond the cells its push changes: 0 (default), 1 or 2, the rover's body
-    (``footprint``). candidates_by: the coordinated strategy's candidates, "value" (the top sources
-    by the source rule) or "rate" (each idle rover's two best sources by the rate the fabric
-    promises it, ``assign.rate_sources``).
+    (``footprint``). candidates_by: the coordinated strategy's candidates, "rate" (default: each
+    idle rover's two best sources by the rate the fabric promises it, ``assign.rate_sources``; it
+    reached T90 sooner than "value" at every fleet size from 4 to 64 measured on site128 and
+    site256, docs/benchmarks.md) or "value" (the top sources by the source rule).
 
     ``step`` reads only whether the strategy is "coordinated": independent and partitioned fleets
     differ in their state (``FleetState.region`` and ``rovers.home``, made by ``reset``), so both run
@@ -135,7 +136,7 @@ class FleetConfig:
     stall_steps: int | None = None
     retries: int = 3
     clearance: int = 0
-    candidates_by: str = "value"
+    candidates_by: str = "rate"
 
     def resolved(self, shape) -> FleetConfig:
         """This config with every None replaced by its value for a grid of ``shape``."""
@@ -179,6 +180,10 @@ class Rovers(NamedTuple):
     i). H x W grid, S route slots.
 
     pos: i32[N, 2] rover cells (row, col). home: i32[N, 2] start cells, where idle rovers park.
+    base: i32[N, 2] where the rover last became idle (its last push's end, the cell where it dropped
+      a task, or its start): the rate rule ranks an idle rover's sources from there
+      (``FleetConfig.candidates_by``), so that its candidates change only when a rover takes or ends
+      a task, and cached candidates stay exactly what planning again would give.
     phase: i32[N] (``motion.IDLE``, ``APPROACH``, ``PUSH``).
     route: execute.Route batched (cells i32[N, S, 2], n_cells i32[N], fallback bool[N], end f32[N, 2]),
       each rover's task (stale while idle). mode: i32[N] 0 deliver, 1 rearrange.
@@ -192,6 +197,7 @@ class Rovers(NamedTuple):
 
     pos: jax.Array
     home: jax.Array
+    base: jax.Array
     phase: jax.Array
     route: Route
     mode: jax.Array
@@ -333,25 +339,27 @@ def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) 
     """Bytes of the fleet's own arrays on an ``(H, W)`` grid, beyond the shared fabric: the state's
     per-rover grids and routes, counted twice (a step's input state and its output state are alive
     together), plus the step's temporaries. Per cell: each of the R field slots (``field_slots``,
-    i32, 4 B) twice and its update's temporaries (``FIELD_TEMP_BYTES_PER_CELL``); for independent and
-    partitioned fleets the tried footprints (``Attempts.tried`` bool, 1 B) twice; for the coordinated
-    strategy the M cached candidates' footprint masks (bool) twice and, with ``candidates_by="rate"``,
-    each rover's distance and rate grids (8 B). Per route slot (S = ``route_slots``): N (+ M) routes
-    x 8 B twice, and for the coordinated strategy the ``PLAN_CHUNK`` candidates planned at once
-    (``PLANNED_SLOT_BYTES``: 340 + 29 K each, K = ``params.k``, default ``FabricParams()``)."""
+    i32, 4 B) twice and its update's temporaries (``FIELD_TEMP_BYTES_PER_CELL``); for independent
+    and partitioned fleets the tried footprints (``Attempts.tried`` bool, 1 B) twice; for the
+    coordinated strategy the M cached candidates' packed footprints (1 bit) twice and, with
+    ``candidates_by="rate"``, the distance and rate grids of ``assign.RATE_CHUNK`` rovers at a time
+    (8 B each). Per route slot (S = ``route_slots``): N (+ M) routes x 8 B twice, and for the
+    coordinated strategy the ``PLAN_CHUNK`` candidates planned at once (``PLANNED_SLOT_BYTES``: 340
+    + 29 K each, K = ``params.k``, default ``FabricParams()``)."""
     k = int((FabricParams() if params is None else params).k)
     cfg = config.resolved(shape)
     h, w = (int(v) for v in shape)
     n = cfg.n_rovers
     m = min(cfg.candidates, h * w) if cfg.strategy == "coordinated" else 0
-    per_cell = field_slots(n) * (2 * 4 + FIELD_TEMP_BYTES_PER_CELL) + 2 * m
+    per_cell = field_slots(n) * (2 * 4 + FIELD_TEMP_BYTES_PER_CELL)
+    packed = 2 * m * 4 * -(-h * w // 32)
     per_slot = 2 * (n + m) * 8
     if cfg.strategy != "coordinated":
         per_cell += 2 * n
     else:
-        per_cell += 8 * n if cfg.candidates_by == "rate" else 0
+        per_cell += 8 * min(n, assign.RATE_CHUNK) if cfg.candidates_by == "rate" else 0
         per_slot += min(assign.PLAN_CHUNK, m) * (PLANNED_SLOT_BYTES[0] + PLANNED_SLOT_BYTES[1] * k)
-    return per_cell * h * w + per_slot * route_slots(cfg, shape)
+    return per_cell * h * w + packed + per_slot * route_slots(cfg, shape)
 
 
 def estimate_fleet_bytes(shape, config: FleetConfig, params: FabricParams | None = None) -> int:
@@ -408,7 +416,7 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
                            RUNNING))
     zeros_n = jnp.zeros(n, jnp.int32)
     limit = DEFAULT_MAX_STEPS if max_steps is None else max_steps
-    rovers = Rovers(pos=pos, home=pos, phase=zeros_n, route=route, mode=zeros_n, task_step=zeros_n,
+    rovers = Rovers(pos=pos, home=pos, base=pos, phase=zeros_n, route=route, mode=zeros_n, task_step=zeros_n,
                     progress=zeros_n, slot=jnp.full(n, -1, jnp.int32), wait=zeros_n, pushes=zeros_n,
                     idle_steps=zeros_n)
     totals = Totals(t=_i32(0), stall=_i32(0), max_steps=_i32(limit), max_pushes=budget, started=_i32(0),
@@ -462,7 +470,7 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
             planned = jax.lax.cond(state.fresh, lambda _: state.candidates, lambda _: assign.plan_candidates(
                 scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
                 evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates),
-                by_rate=(rovers.pos, idle) if cfg.candidates_by == "rate" else None, previous=state.candidates),
+                by_rate=(rovers.base, idle) if cfg.candidates_by == "rate" else None, previous=state.candidates),
                 None)
             return assign.assign_planned(planned, rovers.pos, idle, state.owner, budget,
                                          rovers.route) + (planned, state.attempts, jnp.bool_(True))
@@ -554,7 +562,8 @@ def _drop_unreachable(rovers: Rovers, pool: motion.FieldPool, owner):
     slot, pos = rovers.slot, rovers.pos
     here = pool.dist[jnp.maximum(slot, 0), pos[:, 0], pos[:, 1]]
     dropped = (rovers.phase == APPROACH) & (slot >= 0) & (here >= FAR)
-    rovers = rovers._replace(phase=jnp.where(dropped, IDLE, rovers.phase), slot=jnp.where(dropped, -1, slot))
+    rovers = rovers._replace(phase=jnp.where(dropped, IDLE, rovers.phase), slot=jnp.where(dropped, -1, slot),
+                             base=jnp.where(dropped[:, None], pos, rovers.base))
     return rovers, _release(owner, dropped), dropped
 
 
@@ -610,7 +619,8 @@ def _apply_pushes(scene, rovers: Rovers, owner, ended, spill, evaluator):
                 spilled.at[r].set(result.spilled))
 
     obj, *applied = jax.lax.fori_loop(0, jnp.sum(ended, dtype=jnp.int32), one, (scene.obj, zeros, zeros, zeros))
-    rovers = rovers._replace(phase=jnp.where(ended, IDLE, rovers.phase), pushes=rovers.pushes + ended)
+    rovers = rovers._replace(phase=jnp.where(ended, IDLE, rovers.phase), pushes=rovers.pushes + ended,
+                             base=jnp.where(ended[:, None], rovers.pos, rovers.base))
     return scene.with_obj(obj), rovers, _release(owner, ended), tuple(applied)
 
 
