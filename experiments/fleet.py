@@ -40,34 +40,48 @@ def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="ra
     s = summary_of(run)
     label = strategy if strategy != "coordinated" else f"coordinated ({candidates_by})"
     return {"site": name, "rovers": n, "strategy": label, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
-            "pushes": s["pushes"], "delivered_per_rover_step": s["delivered_per_rover_step"],
+            "pushes": s["pushes"], "delivered": s["delivered"], "outside_start": s["initial_outside"],
+            "delivered_per_rover_step": s["delivered_per_rover_step"],
             "conflicts": s["conflicts"], "step_ms": s["step_ms"], "plan_ms": s["plan_ms"],
             "refresh_ms": s["refresh_ms"], "full_build_ms": s["full_build_ms"],
             "idle_fraction_mean": statistics.fmean(s["idle_fraction"]), "stop_reason": s["stop_reason"],
             "wall_s": round(wall, 2)}
 
 
+def _rate(r) -> float:
+    """Objects delivered per step over the run."""
+    return r["delivered"] / max(r["steps"], 1)
+
+
 def _markdown(rows, meta) -> str:
     t90_one = {(r["site"], r["strategy"]): r["T90"] for r in rows if r["rovers"] == 1}
+    one = {(r["site"], r["strategy"]): r for r in rows if r["rovers"] == 1}
     lines = [f"# Fleet: T90, speed-up and planning time\n\n{meta}\n",
-             "| site | strategy | N | T50 | T90 | S(N) | delivered / rover-step | idle (mean) | conflicts | "
-             "step ms | plan ms | refresh ms (median, p95) | full build ms | plan / build | stop |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+             "S(N) = T90(1) / T90(N); rate x = objects delivered per step against one rover's, both over "
+             "their whole runs (the speed-up where a run stopped at the step limit before T90); plan / 1: "
+             "median plan ms against one rover's.\n",
+             "| site | strategy | N | steps | delivered | T50 | T90 | S(N) | rate x | delivered / rover-step | "
+             "idle (mean) | conflicts | step ms (median, p95) | plan ms (median, p95) | refresh ms (median, p95) | "
+             "full build ms | plan / build | plan / 1 | stop |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
 
-    def ms(d):
-        return "-" if d["median"] is None else f"{d['median']:.1f}"
+    def both(d):
+        return "-" if d["median"] is None else f"{d['median']:.1f}, {d['p95']:.1f}"
 
     for r in rows:
-        one = t90_one.get((r["site"], r["strategy"]))
-        speed = f"{one / r['T90']:.2f}" if one and r["T90"] else "-"
+        t90 = t90_one.get((r["site"], r["strategy"]))
+        speed = f"{t90 / r['T90']:.2f}" if t90 and r["T90"] else "-"
+        single = one.get((r["site"], r["strategy"]))
+        rate = f"{_rate(r) / _rate(single):.2f}" if single and _rate(single) > 0 else "-"
+        alone = single["plan_ms"]["median"] if single else None
+        per_one = "-" if r["plan_ms"]["median"] is None or not alone else f"{r['plan_ms']['median'] / alone:.2f}"
         build = r["full_build_ms"]
         ratio = "-" if r["plan_ms"]["median"] is None or not build else f"{r['plan_ms']['median'] / build:.2f}"
-        refresh = "-" if r["refresh_ms"]["median"] is None else \
-            f"{r['refresh_ms']['median']:.1f}, {r['refresh_ms']['p95']:.1f}"
-        lines.append(f"| {r['site']} | {r['strategy']} | {r['rovers']} | {r['T50'] or '-'} | {r['T90'] or '-'} | "
-                     f"{speed} | {r['delivered_per_rover_step']:.3f} | {r['idle_fraction_mean']:.0%} | "
-                     f"{r['conflicts']} | {ms(r['step_ms'])} | {ms(r['plan_ms'])} | {refresh} | {build or 0:.2f} | "
-                     f"{ratio} | {r['stop_reason']} |")
+        lines.append(f"| {r['site']} | {r['strategy']} | {r['rovers']} | {r['steps']} | {r['delivered']:.0f} | "
+                     f"{r['T50'] or '-'} | {r['T90'] or '-'} | {speed} | {rate} | "
+                     f"{r['delivered_per_rover_step']:.3f} | {r['idle_fraction_mean']:.0%} | {r['conflicts']} | "
+                     f"{both(r['step_ms'])} | {both(r['plan_ms'])} | {both(r['refresh_ms'])} | {build or 0:.2f} | "
+                     f"{ratio} | {per_one} | {r['stop_reason']} |")
     return "\n".join(lines) + "\n"
 
 
