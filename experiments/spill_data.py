@@ -1,0 +1,226 @@
+"""Routes and what the MuJoCo rover did with them: a data set to fit spill models to physics.
+
+Scenes of four families (``FAMILIES``: uniform counts, speckled single objects, gaussian piles,
+dense strips), each at several densities, on one grid shape. On each scene the fabric plans the
+routes of the ``--sources`` sources with the largest J (table entry 0, the selected route) and
+their alternatives (entries 1 .. ``--entries`` - 1: other turn profiles from the same source); each
+route is pushed by the rover on the C engine (``transport.physics.check_routes``, batched) under
+``--layouts`` particle layouts. A record holds one route under one layout: the per-cell counts
+before, the route's cells, the counts after (the particles rasterised back to the grid,
+``bridge.projected_obj``), and the rover's verdicts (collected, delivered, left behind, spilled,
+lost; lateral error; whether it stayed finite and reached the end), beside ``ROVER_FIT``'s
+prediction of the same route, so any model can be fitted to it.
+
+The split is by scene, never by route: every ``HOLDOUT``-th scene (in generation order) is held
+out. The default configuration makes 16 seeds x 4 families x 3 densities = 192 scenes of 20 x 20
+cells, 8 routes each (4 sources x 2 entries, fewer where a source has no alternative), so at least
+1,000 training and 300 held-out routes, each under 2 layouts. It is regenerable from the script and
+its arguments: the scenes, routes and layouts are seeded. Writes ``OUT.npz`` (compressed, written
+to a temporary file and renamed, so an interrupted run leaves no half file) and ``OUT.json`` (the
+manifest: arguments, counts per split, family and density, the archive's SHA-256).
+
+    python -m experiments.spill_data --out experiments/data/spill             # the full set
+    python -m experiments.spill_data --quick --out /tmp/spill_quick             # 4 scenes, a smoke test
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+FAMILIES = ("uniform", "speckled", "piles", "strips")
+DENSITIES = (0.15, 0.35, 0.6)
+HOLDOUT = 4
+SHAPE = (20, 20)
+MAX_COUNT = 6
+
+
+def family_scene(family: str, density: float, seed: int, shape=SHAPE):
+    """One scene of ``family`` at ``density`` (the share of cells holding material; for strips, the
+    share of rows that are strips), seeded; a round target near one side, no material on it."""
+    from jaxplan.transport import Scene, circle, random_scene
+
+    h, w = shape
+    rng = np.random.default_rng([seed, FAMILIES.index(family), int(round(density * 1000)), h, w])
+    if family == "piles":
+        return random_scene(seed, shape, density, layout="piles", max_count=MAX_COUNT)
+    if family == "uniform":
+        obj = np.where(rng.random(shape) < density, rng.integers(1, MAX_COUNT + 1, shape), 0)
+    elif family == "speckled":
+        obj = (rng.random(shape) < density).astype(int)
+    else:
+        obj = np.zeros(shape, int)
+        rows = rng.random(h) < density
+        obj[rows] = rng.integers(3, MAX_COUNT + 1, (int(rows.sum()), w))
+        if rng.random() < 0.5:
+            obj = obj.T.copy()
+    side = rng.integers(4)
+    centre = [(w / 2, 2.5), (w / 2, h - 2.5), (2.5, h / 2), (w - 2.5, h / 2)][side]
+    scene = Scene.from_arrays(np.zeros(shape), circle(centre, 2.2), name=f"{family}_d{density:g}_s{seed}")
+    return scene.with_obj(np.where(np.asarray(scene.target_mask), 0.0, obj).astype(np.float32))
+
+
+def scene_routes(scene, sources: int, entries: int):
+    """``(routes: execute.Route [B], source i32[B, 2], entry i32[B])``: the ``sources`` sources with
+    the largest J, each with table entries 0 .. ``entries`` - 1 that exist and leave the source."""
+    from jaxplan.transport import FabricParams, build_fabric, extract_paths, routes_from_paths
+
+    fabric = build_fabric(scene, FabricParams())
+    value = np.where(np.asarray(fabric.occupied), np.asarray(fabric.value), -np.inf)
+    order = np.argsort(-value, axis=None, kind="stable")[:sources]
+    order = order[np.isfinite(value.reshape(-1)[order])]
+    w = scene.shape[1]
+    src = np.repeat(np.stack([order // w, order % w], -1), entries, 0).astype(np.int32)
+    rank = np.tile(np.arange(entries, dtype=np.int32), len(order))
+    paths = extract_paths(fabric, src, rank, detour=scene.detour)
+    keep = np.isfinite(np.asarray(paths.raw)) & (np.asarray(paths.n_cells) >= 2)
+    import jax
+
+    paths = jax.tree.map(lambda a: np.asarray(a)[keep], paths)
+    return routes_from_paths(scene, paths), src[keep], rank[keep]
+
+
+def scene_records(scene, sources: int, entries: int, layouts: int) -> list[dict]:
+    """Every route of ``scene_routes`` under ``layouts`` particle layouts, pushed in one batch."""
+    import jax
+
+    from jaxplan.transport.physics import check_routes
+    from jaxplan.transport.physics.bridge import projected_obj
+    from jaxplan.transport.spillage import ROVER_FIT
+
+    routes, src, rank = scene_routes(scene, sources, entries)
+    n = int(np.asarray(routes.n_cells).shape[0])
+    if n == 0:
+        return []
+    # route i under layout l sits at batch position l * n + i; a layout is seeded by its position
+    batch = jax.tree.map(lambda a: np.concatenate([np.asarray(a)] * layouts), routes)
+    check = check_routes(scene, batch, spill=ROVER_FIT)
+    out = check.outcome
+    before = np.asarray(scene.obj, np.float32)
+    records = []
+    for j in range(n * layouts):
+        i = j % n
+        after, lost = projected_obj(scene, check, j)
+        cells = np.asarray(routes.cells[i])[: int(routes.n_cells[i])]
+        records.append({
+            "obj_before": before, "obj_after": np.asarray(after, np.float32), "cells": cells.astype(np.int16),
+            "source": src[i], "entry": int(rank[i]), "layout": j // n,
+            **{k: float(np.asarray(getattr(out, k))[j]) for k in
+               ("collected", "delivered", "left_behind", "spilled", "lost", "predicted_delivered",
+                "predicted_spilled", "mean_lateral")},
+            "finite": bool(np.asarray(out.finite)[j]), "reached": bool(np.asarray(out.reached)[j]),
+        })
+    return records
+
+
+def _plan(seeds, densities) -> list[tuple[str, float, int]]:
+    return [(f, d, s) for s in seeds for f in FAMILIES for d in densities]
+
+
+def _stack(records: list[dict], scene_meta: list[dict]) -> dict:
+    """The records as arrays: cells padded with -1 to the longest route."""
+    longest = max(len(r["cells"]) for r in records)
+    cells = np.full((len(records), longest, 2), -1, np.int16)
+    for k, r in enumerate(records):
+        cells[k, : len(r["cells"])] = r["cells"]
+    arrays = {"cells": cells, "n_cells": np.asarray([len(r["cells"]) for r in records], np.int32),
+              "obj_before": np.stack([r["obj_before"] for r in records]),
+              "obj_after": np.stack([r["obj_after"] for r in records]),
+              "source": np.stack([r["source"] for r in records]).astype(np.int16)}
+    for key in ("entry", "layout", "scene"):
+        arrays[key] = np.asarray([r[key] for r in records], np.int32)
+    for key in ("collected", "delivered", "left_behind", "spilled", "lost", "predicted_delivered",
+                "predicted_spilled", "mean_lateral"):
+        arrays[key] = np.asarray([r[key] for r in records], np.float32)
+    for key in ("finite", "reached"):
+        arrays[key] = np.asarray([r[key] for r in records], bool)
+    arrays["scene_family"] = np.asarray([m["family"] for m in scene_meta])
+    arrays["scene_density"] = np.asarray([m["density"] for m in scene_meta], np.float32)
+    arrays["scene_seed"] = np.asarray([m["seed"] for m in scene_meta], np.int32)
+    arrays["scene_heldout"] = np.asarray([m["heldout"] for m in scene_meta], bool)
+    arrays["scene_target_mask"] = np.stack([m["target_mask"] for m in scene_meta])
+    return arrays
+
+
+def _counts(records, scene_meta) -> dict:
+    counts: dict = {"train": {"routes": 0, "records": 0}, "heldout": {"routes": 0, "records": 0}}
+    for r in records:
+        meta = scene_meta[r["scene"]]
+        split = counts["heldout" if meta["heldout"] else "train"]
+        split["records"] += 1
+        split["routes"] += int(r["layout"] == 0)
+        key = f"{meta['family']} d{meta['density']:g}"
+        split[key] = split.get(key, 0) + int(r["layout"] == 0)
+    return counts
+
+
+def write_atomically(path: Path, arrays: dict) -> str:
+    """``np.savez_compressed`` to a temporary file renamed over ``path``; the archive's SHA-256."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part")
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    os.replace(tmp, path)
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def generate(seeds, densities, sources: int, entries: int, layouts: int, progress: bool = True):
+    """``(records, scene_meta)`` for every (family, density, seed) of the plan, in order."""
+    from tqdm.auto import tqdm
+
+    records, scene_meta = [], []
+    for k, (family, density, seed) in enumerate(tqdm(_plan(seeds, densities), desc="scenes", disable=not progress)):
+        scene = family_scene(family, density, seed)
+        scene_meta.append({"family": family, "density": density, "seed": seed, "heldout": k % HOLDOUT == HOLDOUT - 1,
+                           "target_mask": np.asarray(scene.target_mask)})
+        for r in scene_records(scene, sources, entries, layouts):
+            records.append({**r, "scene": k})
+    return records, scene_meta
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(prog="python -m experiments.spill_data", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="examples:\n"
+                                            "  python -m experiments.spill_data --out experiments/data/spill\n"
+                                            "  python -m experiments.spill_data --quick --out /tmp/spill_quick")
+    parser.add_argument("--out", required=True, help="output stem: writes OUT.npz and OUT.json")
+    parser.add_argument("--seeds", type=int, default=16, help="seeds per family and density; default 16")
+    parser.add_argument("--sources", type=int, default=4, help="sources per scene (largest J); default 4")
+    parser.add_argument("--entries", type=int, default=2, help="table entries per source (routes); default 2")
+    parser.add_argument("--layouts", type=int, default=2, help="particle layouts per route; default 2")
+    parser.add_argument("--quick", action="store_true",
+                        help="one scene per family, two routes each, one layout (a smoke test)")
+    args = parser.parse_args(argv)
+    for name in ("seeds", "sources", "entries", "layouts"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name}: {getattr(args, name)} is not a count; give an int >= 1.")
+    seeds, densities = range(args.seeds), DENSITIES
+    if args.quick:
+        args.seeds, args.sources, args.entries, args.layouts = 1, 2, 1, 1
+        seeds, densities = range(1), (0.35,)
+    start = time.perf_counter()
+    records, scene_meta = generate(seeds, densities, args.sources, args.entries, args.layouts)
+    if not records:
+        parser.error("no route was planned on any scene; nothing to write.")
+    out = Path(args.out)
+    digest = write_atomically(out.with_suffix(".npz"), _stack(records, scene_meta))
+    manifest = {"command": "python -m experiments.spill_data " + " ".join(sys.argv[1:] if argv is None else argv),
+                "arguments": {k: v for k, v in vars(args).items() if k != "out"}, "shape": list(SHAPE),
+                "families": list(FAMILIES), "densities": list(densities), "holdout_every": HOLDOUT,
+                "scenes": len(scene_meta), "counts": _counts(records, scene_meta),
+                "npz": out.with_suffix(".npz").name, "sha256": digest, "seconds": round(time.perf_counter() - start, 1)}
+    out.with_suffix(".json").write_text(json.dumps(manifest, indent=1) + "\n")
+    print(f"wrote {out.with_suffix('.npz')} ({len(records)} records, {len(scene_meta)} scenes) and "
+          f"{out.with_suffix('.json')}")
+    return manifest
+
+
+if __name__ == "__main__":
+    main()
