@@ -12,9 +12,10 @@ lost; lateral error; whether it stayed finite and reached the end), beside ``ROV
 prediction of the same route, so any model can be fitted to it.
 
 The split is by scene, never by route: every ``HOLDOUT``-th scene (in generation order) is held
-out. The default configuration makes 16 seeds x 4 families x 3 densities = 192 scenes of 20 x 20
-cells, 8 routes each (4 sources x 2 entries, fewer where a source has no alternative), so at least
-1,000 training and 300 held-out routes, each under 2 layouts. It is regenerable from the script and
+out. The default configuration makes 20 seeds x 4 families x 3 densities = 240 scenes of 20 x 20
+cells, up to 8 routes each (4 sources x 2 entries, fewer where a source has no alternative): 180
+training and 60 held-out scenes, sized for at least 1,000 training and 300 held-out routes, each
+under 2 layouts. It is regenerable from the script and
 its arguments: the scenes, routes and layouts are seeded. Writes ``OUT.npz`` (compressed, written
 to a temporary file and renamed, so an interrupted run leaves no half file) and ``OUT.json`` (the
 manifest: arguments, counts per split, family and density, the archive's SHA-256).
@@ -90,8 +91,7 @@ def scene_records(scene, sources: int, entries: int, layouts: int) -> list[dict]
     """Every route of ``scene_routes`` under ``layouts`` particle layouts, pushed in one batch."""
     import jax
 
-    from jaxplan.transport.physics import check_routes
-    from jaxplan.transport.physics.bridge import projected_obj
+    from jaxplan.transport.physics import check_routes, projected_obj
     from jaxplan.transport.spillage import ROVER_FIT
 
     routes, src, rank = scene_routes(scene, sources, entries)
@@ -191,7 +191,7 @@ def main(argv=None) -> dict:
                                             "  python -m experiments.spill_data --out experiments/data/spill\n"
                                             "  python -m experiments.spill_data --quick --out /tmp/spill_quick")
     parser.add_argument("--out", required=True, help="output stem: writes OUT.npz and OUT.json")
-    parser.add_argument("--seeds", type=int, default=16, help="seeds per family and density; default 16")
+    parser.add_argument("--seeds", type=int, default=20, help="seeds per family and density; default 20")
     parser.add_argument("--sources", type=int, default=4, help="sources per scene (largest J); default 4")
     parser.add_argument("--entries", type=int, default=2, help="table entries per source (routes); default 2")
     parser.add_argument("--layouts", type=int, default=2, help="particle layouts per route; default 2")

@@ -1,6 +1,7 @@
-"""The spill data generator (experiments/spill_data.py): a quick run writes an archive whose records
-conserve mass, stay on the grid and split by scene, and a manifest that counts them; the scene
-families are deterministic; bad arguments stop before any work."""
+"""The spill data generator (experiments/spill_data.py): one scene's records, pushed in physics,
+conserve mass and stay on the grid; the writer splits records by scene, counts them in its manifest
+and leaves no partial file; the scene families are deterministic; bad arguments stop before any
+work."""
 import json
 
 import numpy as np
@@ -9,35 +10,42 @@ import pytest
 from experiments import spill_data
 
 
-@pytest.fixture(scope="module")
-def quick(tmp_path_factory):
-    out = tmp_path_factory.mktemp("spill") / "quick"
+def test_one_scenes_records_conserve_mass_in_physics():
+    scene = spill_data.family_scene("piles", 0.35, 0)
+    records = spill_data.scene_records(scene, sources=2, entries=1, layouts=1)
+    assert len(records) == 2
+    for r in records:
+        # the particles rasterised back to the grid, with what left the world, are the counts before
+        np.testing.assert_allclose(r["obj_after"].sum() + r["lost"], r["obj_before"].sum(), rtol=1e-5)
+        assert r["finite"] and r["collected"] >= r["delivered"] - 1e-4
+        assert np.all((r["cells"] >= 0) & (r["cells"] < np.asarray(spill_data.SHAPE)))
+        np.testing.assert_array_equal(r["obj_before"], np.asarray(scene.obj))
+
+
+def _fake_records(scene, sources, entries, layouts):
+    """Records shaped like ``scene_records``'s, without the physics (the writer is under test)."""
+    obj = np.asarray(scene.obj, np.float32)
+    return [{"obj_before": obj, "obj_after": obj, "cells": np.asarray([[1, 1], [1, 2], [2, 3]][: 2 + k % 2], np.int16),
+             "source": np.asarray([1, 1], np.int32), "entry": k % entries, "layout": k // (sources * entries),
+             **dict.fromkeys(("collected", "delivered", "left_behind", "spilled", "lost", "predicted_delivered",
+                              "predicted_spilled", "mean_lateral"), 1.0), "finite": True, "reached": True}
+            for k in range(sources * entries * layouts)]
+
+
+def test_the_writer_splits_by_scene_and_counts_in_its_manifest(tmp_path, monkeypatch):
+    monkeypatch.setattr(spill_data, "scene_records", _fake_records)
+    out = tmp_path / "quick"
     manifest = spill_data.main(["--quick", "--out", str(out)])
-    return manifest, dict(np.load(out.with_suffix(".npz"))), json.loads(out.with_suffix(".json").read_text()), out
-
-
-def test_a_quick_run_writes_records_that_conserve_mass(quick):
-    manifest, data, written, out = quick
-    assert manifest == written
-    assert sorted(p.name for p in out.parent.iterdir()) == ["quick.json", "quick.npz"]     # no partial file
-    n = data["delivered"].shape[0]
-    assert n == written["counts"]["train"]["records"] + written["counts"]["heldout"]["records"] > 0
-    # the particles rasterised back to the grid, with what left the world, are the counts before
-    before, after = data["obj_before"].sum((1, 2)), data["obj_after"].sum((1, 2))
-    np.testing.assert_allclose(after + data["lost"], before, rtol=1e-5)
-    assert np.all(data["finite"]) and np.all(data["collected"] >= data["delivered"] - 1e-4)
-    cells = data["cells"]
-    valid = np.arange(cells.shape[1])[None] < data["n_cells"][:, None]
-    assert np.all((cells[valid] >= 0) & (cells[valid] < np.asarray(spill_data.SHAPE)))
-    assert np.all(cells[~valid] == -1)
-
-
-def test_records_split_by_scene(quick):
-    _, data, written, _ = quick
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["quick.json", "quick.npz"]     # no partial file
+    assert json.loads(out.with_suffix(".json").read_text()) == manifest
+    data = dict(np.load(out.with_suffix(".npz")))
     heldout = data["scene_heldout"][data["scene"]]
     assert heldout.any() and (~heldout).any()
-    assert written["counts"]["heldout"]["records"] == int(heldout.sum())
+    counts = manifest["counts"]
+    assert counts["heldout"]["records"] == int(heldout.sum()) and counts["train"]["records"] == int((~heldout).sum())
     assert list(data["scene_family"]) == list(spill_data.FAMILIES)
+    valid = np.arange(data["cells"].shape[1])[None] < data["n_cells"][:, None]
+    assert np.all(data["cells"][~valid] == -1) and np.all(data["cells"][valid] >= 0)
 
 
 def test_scene_families_are_deterministic():

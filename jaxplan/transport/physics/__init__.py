@@ -12,6 +12,7 @@ from jaxplan.transport.physics.bridge import (
            pad_paths,
            particle_fates,
            plan_routes,
+           projected_obj,
            pursuit_params,
            pursuit_policy,
            route_mask,
@@ -32,5 +33,6 @@ from jaxplan.transport.physics.report import plot_check, render_frames, table_ma
 
 __all__ = ["Check", "PUSH_IN", "PursuitParams", "RouteOutcome", "RoverConfig", "World", "build_world", "cells_of",
            "check_routes", "friction_fields", "initial_qpos", "pad_paths", "particle_fates", "particle_layout",
-           "plan_routes", "plot_check", "pursuit_params", "pursuit_policy", "render_frames", "route_mask",
-           "route_path", "rover_geometry", "rover_prefix", "rover_qpos_adr", "table_markdown", "world_for_routes"]
+           "plan_routes", "plot_check", "projected_obj", "pursuit_params", "pursuit_policy", "render_frames",
+           "route_mask", "route_path", "rover_geometry", "rover_prefix", "rover_qpos_adr", "table_markdown",
+           "world_for_routes"]
