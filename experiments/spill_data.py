@@ -11,17 +11,17 @@ before, the route's cells, the counts after (the particles rasterised back to th
 lost; lateral error; whether it stayed finite and reached the end), beside ``ROVER_FIT``'s
 prediction of the same route, so any model can be fitted to it.
 
-The split is by scene, never by route: every ``HOLDOUT``-th scene (in generation order) is held
-out. The default configuration makes 20 seeds x 4 families x 3 densities = 240 scenes of 20 x 20
-cells, up to 8 routes each (4 sources x 2 entries, fewer where a source has no alternative): 180
-training and 60 held-out scenes, sized for at least 1,000 training and 300 held-out routes, each
-under 2 layouts. It is regenerable from the script and
-its arguments: the scenes, routes and layouts are seeded. Writes ``OUT.npz`` (compressed, written
-to a temporary file and renamed, so an interrupted run leaves no half file) and ``OUT.json`` (the
-manifest: arguments, counts per split, family and density, the archive's SHA-256).
+The split is by scene, never by route: the scenes of every ``HOLDOUT``-th seed are held out, so
+every family and density has held-out scenes. The default configuration makes 20 seeds x 4 families
+x 3 densities = 240 scenes of 20 x 20 cells, up to 8 routes each (4 sources x 2 entries, fewer where
+a source has no alternative): 180 training and 60 held-out scenes (seeds 3, 7, 11, 15, 19), sized
+for at least 1,000 training and 300 held-out routes, each under 2 layouts. It is regenerable from
+the script and its arguments: the scenes, routes and layouts are seeded. Writes ``OUT.npz``
+(compressed, written to a temporary file and renamed, so an interrupted run leaves no half file) and
+``OUT.json`` (the manifest: arguments, counts per split, family and density, the archive's SHA-256).
 
     python -m experiments.spill_data --out experiments/data/spill             # the full set
-    python -m experiments.spill_data --quick --out /tmp/spill_quick             # 4 scenes, a smoke test
+    python -m experiments.spill_data --quick --out /tmp/spill_quick             # 8 scenes, a smoke test
 """
 from __future__ import annotations
 
@@ -119,6 +119,12 @@ def scene_records(scene, sources: int, entries: int, layouts: int) -> list[dict]
     return records
 
 
+def is_heldout(seed: int) -> bool:
+    """Whether the scenes of ``seed`` are held out: every ``HOLDOUT``-th seed, all its families and
+    densities."""
+    return seed % HOLDOUT == HOLDOUT - 1
+
+
 def _plan(seeds, densities) -> list[tuple[str, float, int]]:
     return [(f, d, s) for s in seeds for f in FAMILIES for d in densities]
 
@@ -177,7 +183,7 @@ def generate(seeds, densities, sources: int, entries: int, layouts: int, progres
     records, scene_meta = [], []
     for k, (family, density, seed) in enumerate(tqdm(_plan(seeds, densities), desc="scenes", disable=not progress)):
         scene = family_scene(family, density, seed)
-        scene_meta.append({"family": family, "density": density, "seed": seed, "heldout": k % HOLDOUT == HOLDOUT - 1,
+        scene_meta.append({"family": family, "density": density, "seed": seed, "heldout": is_heldout(seed),
                            "target_mask": np.asarray(scene.target_mask)})
         for r in scene_records(scene, sources, entries, layouts):
             records.append({**r, "scene": k})
@@ -196,15 +202,16 @@ def main(argv=None) -> dict:
     parser.add_argument("--entries", type=int, default=2, help="table entries per source (routes); default 2")
     parser.add_argument("--layouts", type=int, default=2, help="particle layouts per route; default 2")
     parser.add_argument("--quick", action="store_true",
-                        help="one scene per family, two routes each, one layout (a smoke test)")
+                        help="two seeds (one held out), a scene per family each, two routes, one layout (a smoke "
+                             "test)")
     args = parser.parse_args(argv)
     for name in ("seeds", "sources", "entries", "layouts"):
         if getattr(args, name) < 1:
             parser.error(f"--{name}: {getattr(args, name)} is not a count; give an int >= 1.")
     seeds, densities = range(args.seeds), DENSITIES
     if args.quick:
-        args.seeds, args.sources, args.entries, args.layouts = 1, 2, 1, 1
-        seeds, densities = range(1), (0.35,)
+        args.seeds, args.sources, args.entries, args.layouts = HOLDOUT, 2, 1, 1
+        seeds, densities = (0, HOLDOUT - 1), (0.35,)        # one training and one held-out seed
     start = time.perf_counter()
     records, scene_meta = generate(seeds, densities, args.sources, args.entries, args.layouts)
     if not records:

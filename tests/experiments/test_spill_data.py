@@ -43,7 +43,8 @@ def test_the_writer_splits_by_scene_and_counts_in_its_manifest(tmp_path, monkeyp
     assert heldout.any() and (~heldout).any()
     counts = manifest["counts"]
     assert counts["heldout"]["records"] == int(heldout.sum()) and counts["train"]["records"] == int((~heldout).sum())
-    assert list(data["scene_family"]) == list(spill_data.FAMILIES)
+    assert list(data["scene_family"]) == list(spill_data.FAMILIES) * 2          # two seeds, one held out
+    np.testing.assert_array_equal(data["scene_heldout"], [spill_data.is_heldout(s) for s in data["scene_seed"]])
     valid = np.arange(data["cells"].shape[1])[None] < data["n_cells"][:, None]
     assert np.all(data["cells"][~valid] == -1) and np.all(data["cells"][valid] >= 0)
 
