@@ -519,7 +519,7 @@ def _drives(rovers: Rovers):
 
 
 def _fields(rovers: Rovers, pool: motion.FieldPool, owner, blocked):
-    """Step 2: ``(rovers, pool, computed bool[N])`` (module docstring): a slot stays with its rover
+    """Step 2: ``(rovers, pool)`` (module docstring): a slot stays with its rover
     while the rover drives to the goal it was computed for; a rover that waited ``motion.PATIENCE``
     steps gets its field (re)computed in its slot, or in a free one (in rover order; none left: it
     waits on). blocked: bool[H, W], the scene's blocked cells (never passable, their corners never
@@ -553,7 +553,7 @@ def _fields(rovers: Rovers, pool: motion.FieldPool, owner, blocked):
     dist = motion.update_fields(pool.dist, goal, passable, pos[jnp.maximum(holder, 0)], stale, chunk=FIELD_CHUNK,
                                 corner=corner_free(blocked), use_corner=jnp.any(blocked))
     rovers = rovers._replace(slot=slot, wait=jnp.where(computed, 0, rovers.wait))
-    return rovers, motion.FieldPool(dist, goal, holder), computed
+    return rovers, motion.FieldPool(dist, goal, holder)
 
 
 def _drop_unreachable(rovers: Rovers, pool: motion.FieldPool, owner):
@@ -708,7 +708,7 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
         state, params, spill, ep, cfg, evaluator)
     rovers = _take_tasks(state.rovers, assigned, route, mode, state.totals.t + 1)
     # 2. distance fields, unreachable starts dropped
-    rovers, fields, _ = _fields(rovers, state.fields, owner, blocked)
+    rovers, fields = _fields(rovers, state.fields, owner, blocked)
     rovers, owner, dropped = _drop_unreachable(rovers, fields, owner)
     rovers = rovers._replace(idle_steps=rovers.idle_steps + (rovers.phase == IDLE))
     # 3. move
