@@ -16,6 +16,9 @@ the default build up to float rounding (on a 30 x 30 fabric: integer fields iden
 within 1e-5, from operations contracted or ordered differently). Benchmarks and users get XLA's
 defaults; ``JAXPLAN_TEST_XLA_DEFAULTS=1`` runs the suite with them too.
 
+A worker that dies mid-test (a crash in native code) is replaced, the test it died in is run once
+more there, and the run ends either way (``tests/xdist_crashes.py``).
+
 Property tests draw the same examples on every run (hypothesis profile "suite", derandomized), so a
 red suite means a change broke something, not that the search got lucky; ``HYPOTHESIS_PROFILE=explore``
 draws fresh examples each run to look for new counterexamples.
@@ -42,6 +45,10 @@ _FAST_COMPILE_FLAGS = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_e
 def pytest_configure(config):
     if hasattr(config, "workerinput"):
         return   # an xdist worker: it inherited the controller's environment
+    if config.pluginmanager.hasplugin("xdist") and config.getoption("dist", "no") == "loadscope":
+        from tests.xdist_crashes import CrashPlugin
+
+        config.pluginmanager.register(CrashPlugin(), "jaxplan-xdist-crashes")
     if not os.environ.get("JAXPLAN_TEST_XLA_DEFAULTS"):
         os.environ["XLA_FLAGS"] = f"{_FAST_COMPILE_FLAGS} {os.environ.get('XLA_FLAGS', '')}".strip()
     if os.environ.get(_CACHE_ENV):
