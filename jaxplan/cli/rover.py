@@ -27,16 +27,30 @@ MIN_SPEED, MAX_SPEED = 0.05, 2.0   # cells/s: the wheel limit is 2 cells/s (rove
 MAX_FRICTION = 5.0       # far above any floor, gravel or steel contact
 
 
+def _learned_fit():
+    from jaxplan.transport.spillage import LEARNED_FIT
+
+    return LEARNED_FIT
+
+
+def _rover_fit():
+    from jaxplan.transport.spillage import ROVER_FIT
+
+    return ROVER_FIT
+
+
+# --spill-model: the fitted models of this rover (experiments/results/spill_models.md compares them)
+SPILL_MODELS = {"learned": _learned_fit, "rover-fit": _rover_fit}
+
+
 def _cmd_rover(args) -> int:
     # offscreen rendering needs the EGL backend chosen before mujoco is first imported
     os.environ.setdefault("MUJOCO_GL", "egl")
     import matplotlib
 
     matplotlib.use("Agg")
-    from jaxplan.transport.spillage import ROVER_FIT
-
-    # the prediction the physics is compared with: the model fitted to this rover unless asked otherwise
-    spill = spill_params(args, default=ROVER_FIT)
+    # the prediction the physics is compared with: a model fitted to this rover unless asked otherwise
+    spill = spill_params(args, default=SPILL_MODELS[args.spill_model]())
     params = fabric_params(args)
     scene = load_scene(args.scene, args.site_seed)
     check_fabric_memory(args, scene, params)
@@ -66,8 +80,6 @@ def _check_and_write(args, scene, params, spill, run) -> dict:
         render_frames,
         table_markdown,
     )
-    from jaxplan.transport.spillage import ROVER_FIT
-
     stages = ["plan (build_fabric + extract_paths)", "physics rollouts", "figure", "rendering"]
     with tqdm(total=len(stages), desc="jaxplan rover", unit="stage", file=sys.stderr, leave=False) as bar:
         bar.set_postfix_str(stages[0])
@@ -112,7 +124,7 @@ def _check_and_write(args, scene, params, spill, run) -> dict:
         "friction": check.world.config.friction if args.friction is None else args.friction,
         "solver": check.world.config.solver,
         "spill": spill_dict(spill),
-        "spill_preset": "ROVER_FIT" if spill is ROVER_FIT else None,
+        "spill_preset": next((name for name, preset in SPILL_MODELS.items() if spill is preset()), None),
         "notes": ("masses in objects (1 particle = 1 object); predicted_* from the 2D push "
                   "(execute.execute_push); lateral errors in cells, blade point to spline; rollout_seconds "
                   "includes compilation on MJX"),
@@ -147,9 +159,10 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                           "DIR/routes.md (predicted vs simulated delivered mass, tracking error), "
                           "DIR/rover.png (top view before/after next to the 2D grids), "
                           "DIR/frames.png (rendered frames of route 0, when offscreen rendering "
-                          "works) and DIR/summary.json. The predicted mass comes from the spill "
-                          "model fitted to this rover's physics (jaxplan.transport.spillage.capacity.ROVER_FIT) "
-                          "unless a spill option (--lam, --capacity, --mu, --miss, --turn-saturation, "
+                          "works) and DIR/summary.json. The predicted mass comes from a spill "
+                          "model fitted to this rover's physics (--spill-model: learned, the default, "
+                          "jaxplan.transport.spillage.LEARNED_FIT; or rover-fit, ROVER_FIT) unless a "
+                          "spill option (--lam, --capacity, --mu, --miss, --turn-saturation, "
                           "--spill-threshold) is given. See docs/physics.md."),
         epilog="example:\n  jaxplan rover --out out/rover\n"
                "  jaxplan rover --scene corridor --routes 2 --backend c --out out/rover_corridor\n"
@@ -180,5 +193,8 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                         "GPU runs faster with Newton (docs/physics.md)")
     add_theta_option(p)
     add_spill_options(p)
+    p.add_argument("--spill-model", default="learned", choices=tuple(SPILL_MODELS),
+                   help="the fitted spill model the physics is compared with, when no spill option is given: "
+                        "learned (LEARNED_FIT, the default) or rover-fit (ROVER_FIT, the capacity model)")
     p.add_argument("--no-render", action="store_true", help="skip the rendered frames")
     p.set_defaults(func=_cmd_rover)

@@ -169,12 +169,15 @@ _NO_CAPACITY = 1e9   # objects: the capacity-aware model without a binding cap (
 
 
 def spill_dict(spill) -> dict:
-    """The spill model of a summary.json: its type and every field (traced ones as floats; an infinite
-    one, such as the default ``turn_saturation``, as the string "inf": JSON has no infinity)."""
+    """The spill model of a summary.json: its type and every field (traced ones as floats, arrays as
+    nested lists of floats; an infinite one, such as the default ``turn_saturation``, as the string
+    "inf": JSON has no infinity)."""
     out = {"model": type(spill).__name__}
     for f in dataclasses.fields(spill):
         value = getattr(spill, f.name)
-        if not isinstance(value, (bool, int, str)):
+        if np.ndim(value) > 0:
+            value = np.asarray(value, np.float64).tolist()
+        elif not isinstance(value, (bool, int, str)):
             value = float(value)
             value = value if math.isfinite(value) else str(value)
         out[f.name] = value

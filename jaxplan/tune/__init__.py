@@ -1,7 +1,8 @@
 """Gradient-based tuning of jaxplan's models with optax.
 
 ``jaxplan.tune.spill``: fit the spill model's ``SpillParams`` (lambda, threshold) to observed
-(route, delivered, spilled) data.
+(route, delivered, spilled) data, or the learned spill model's network to your rover's rollouts
+(``fit_learned``: give rollouts, get ``LearnedSpillParams``).
 ``jaxplan.tune.fabric``: tune the fabric's ``theta_tol``, ``tau_h`` and anchor ``lambda`` through the
 soft kernels (``FabricParams(temperature=...)``) and check the result with the hard episode loop.
 ``jaxplan.tune.ranking``: fit PushAround's gap-ranking weights (``RankingParams``: lambda_t, lambda_p,
@@ -18,8 +19,19 @@ from jaxplan.tune.ranking import (
     ranking_loss,
     synthetic_ranking_data,
 )
-from jaxplan.tune.spill import SpillData, SpillFit, fit_spill, predict_spill, spill_loss, synthetic_spill_data
+from jaxplan.tune.spill import (
+    LearnedFit,
+    SpillData,
+    SpillFit,
+    fit_learned,
+    fit_spill,
+    learned_loss,
+    predict_spill,
+    spill_loss,
+    synthetic_spill_data,
+)
 
 __all__ = ["fabric", "gradient_probe", "RankingData", "RankingFit", "SpillData", "SpillFit", "fit_ranking",
-           "fit_spill", "predict_spill", "ranking_data", "ranking_logits", "ranking_loss", "spill_loss",
+           "fit_learned", "fit_spill", "LearnedFit", "learned_loss", "predict_spill", "ranking_data", "ranking_logits",
+           "ranking_loss", "spill_loss",
            "synthetic_ranking_data", "synthetic_spill_data"]

@@ -108,3 +108,36 @@ def test_sample_lengths_have_finite_gradients_on_padded_routes():
     grad = jax.grad(lambda w: spillage.sample_route(w, 3, 4).ds.sum())(way)
     assert np.all(np.isfinite(np.asarray(grad)))
     assert float(jnp.abs(grad[:3]).sum()) > 0.0
+
+
+def _learned_truth(seed=5, hidden=4):
+    rng = np.random.default_rng(seed)
+    f = len(spillage.FEATURES)
+    return spillage.LearnedSpillParams(w1=(0.5 * rng.standard_normal((f, hidden))).astype(np.float32),
+                                       b1=np.zeros(hidden, np.float32),
+                                       w2=(0.5 * rng.standard_normal((hidden, 3))).astype(np.float32),
+                                       b2=np.array([-2.5, -1.5, -2.0], np.float32),
+                                       load_w=np.array([0.5, -0.3], np.float32))
+
+
+def test_fit_learned_brings_the_loss_down_on_data_of_a_learned_model():
+    from jaxplan.tune import fit_learned, learned_loss
+
+    data = synthetic_spill_data(_learned_truth(), seed=1, n_routes=48)
+    fit = fit_learned(data, hidden=4, steps=200, learning_rate=0.02, seed=0, chunk=100)
+    assert fit.losses.shape == (200,) and np.all(np.isfinite(fit.losses))
+    final = float(learned_loss(fit.params, data))
+    assert final < 0.2 * float(fit.losses[0])
+    delivered, _ = predict_spill(fit.params, data)
+    rel = np.abs(np.asarray(delivered) - np.asarray(data.delivered)) / np.maximum(np.asarray(data.delivered), 1.0)
+    assert np.median(rel) < 0.05
+
+
+@pytest.mark.parametrize("kwargs, match", [({"hidden": 0}, "hidden: must be an int >= 1"),
+                                           ({"steps": 0}, "steps: must be an int >= 1"),
+                                           ({"chunk": 2.5}, "chunk: must be an int >= 1")])
+def test_fit_learned_rejects_bad_settings(clean_data, kwargs, match):
+    from jaxplan.tune import fit_learned
+
+    with pytest.raises(ValueError, match=match):
+        fit_learned(clean_data, **kwargs)

@@ -258,6 +258,21 @@ def pickups_per_sample(samples: PathSamples, waypoint_pickup):
     return jnp.where(samples.first & samples.valid, waypoint_pickup[samples.segment], 0.0)
 
 
+def chord_lengths(samples: PathSamples):
+    """f32[N]: distance from the previous sample's position to this one's (0 at the first sample and
+    in padding), world units.
+
+    Used instead of ``samples.ds`` where a gradient is taken: ``ds`` comes from ``sqrt(|r'|^2)``, whose
+    gradient is NaN on the zero-length padding segments of a route shorter than its slots; the chord
+    norm here is guarded.
+    """
+    d = samples.pos[1:] - samples.pos[:-1]
+    d2 = jnp.sum(d * d, -1)
+    ok = samples.valid[1:] & samples.valid[:-1] & (d2 > 1e-12)
+    chord = jnp.where(ok, jnp.sqrt(jnp.where(ok, d2, 1.0)), 0.0)
+    return jnp.concatenate([jnp.zeros((1,), chord.dtype), chord])
+
+
 def threshold_spill(spill, threshold, temperature):
     """Apply the spill threshold: ``f32[...]`` objects kept of ``spill: f32[...]`` objects.
 

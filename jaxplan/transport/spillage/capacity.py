@@ -124,20 +124,6 @@ def validate_capacity_params(params: CapacitySpillParams) -> None:
                              f"got {value!r}.")
 
 
-def _chords(samples: spillage.PathSamples):
-    """f32[N]: distance from the previous sample's position to this one's (0 at the first sample and
-    in padding), world units.
-
-    Used instead of ``samples.ds`` because ``ds`` comes from ``sqrt(|r'|^2)``, whose gradient is NaN on
-    the zero-length padding segments of a route shorter than its slots; the chord norm here is guarded.
-    """
-    d = samples.pos[1:] - samples.pos[:-1]
-    d2 = jnp.sum(d * d, -1)
-    ok = samples.valid[1:] & samples.valid[:-1] & (d2 > 1e-12)
-    chord = jnp.where(ok, jnp.sqrt(jnp.where(ok, d2, 1.0)), 0.0)
-    return jnp.concatenate([jnp.zeros((1,), chord.dtype), chord])
-
-
 def capacity_spill(samples: spillage.PathSamples, pickup, params: CapacitySpillParams):
     """``(delivered f32[], spill f32[N])`` in objects: blade capacity + curvature + distance losses.
 
@@ -146,7 +132,7 @@ def capacity_spill(samples: spillage.PathSamples, pickup, params: CapacitySpillP
     """
     missed = missed_objects(samples, pickup, params.miss, params.samples_per_step)
     turn = jnp.abs(samples.turn)
-    dist_frac = jnp.clip(params.mu * _chords(samples), 0.0, 1.0)
+    dist_frac = jnp.clip(params.mu * spillage.chord_lengths(samples), 0.0, 1.0)
     cap = jnp.asarray(params.capacity, jnp.float32)
     temp = jnp.asarray(params.temperature, jnp.float32)
     sat = jnp.asarray(params.turn_saturation, jnp.float32)
