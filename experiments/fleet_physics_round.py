@@ -1,7 +1,8 @@
 """The fleet's own concurrent pushes in physics, by clearance: what ``jaxplan fleet --physics`` checks.
 
 For each clearance (0, 1, 2) a coordinated fleet of ``--rovers`` runs on the site for ``--steps``
-steps with the spill model fitted to the MuJoCo rover (``ROVER_FIT``, as ``jaxplan rover`` uses);
+steps with a spill model fitted to the MuJoCo rover (``--spill-model``: ``LEARNED_FIT``, the default of
+``jaxplan rover`` and ``jaxplan fleet --physics``, or ``ROVER_FIT``);
 its first full round of concurrent pushes (``physics.first_round``: the most tasks running at one
 step, so their footprints are pairwise disjoint) is then driven at once in one MuJoCo world with
 gravel (``physics.check_first_round``, C engine): rover-rover contacts, and each push's simulated
@@ -24,17 +25,18 @@ from experiments.results_io import write_results
 from jaxplan import FabricParams
 from jaxplan.fleet import FleetConfig, check_first_round, run_fleet, site
 from jaxplan.transport import EpisodeParams
-from jaxplan.transport.spillage import ROVER_FIT
+from jaxplan.transport.spillage import LEARNED_FIT, ROVER_FIT
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
+SPILL_MODELS = {"learned": LEARNED_FIT, "rover-fit": ROVER_FIT}
 
 
-def _one(scene, n: int, clearance: int, steps: int) -> dict:
+def _one(scene, n: int, clearance: int, steps: int, spill) -> dict:
     config = FleetConfig(n, "coordinated", clearance=clearance)
-    run = run_fleet(scene, n, "coordinated", FabricParams(), ROVER_FIT, EpisodeParams(max_pushes=1_000_000),
+    run = run_fleet(scene, n, "coordinated", FabricParams(), spill, EpisodeParams(max_pushes=1_000_000),
                     max_steps=steps, config=config)
     start = time.perf_counter()
-    check = check_first_round(run, ROVER_FIT)
+    check = check_first_round(run, spill)
     pushes = check.get("pushes", [])
     return {"clearance": clearance, "rovers": n, "round": check.get("rovers", 0), "contacts": check.get("contacts"),
             "within": sum(bool(p["within"]) for p in pushes), "fraction_within": check.get("fraction_within"),
@@ -68,14 +70,16 @@ def main(argv=None) -> None:
     parser.add_argument("--rovers", type=int, default=4, help="fleet size; default 4")
     parser.add_argument("--clearances", type=int, nargs="+", default=[0, 1, 2], choices=(0, 1, 2))
     parser.add_argument("--steps", type=int, default=600, help="fleet steps before the check; default 600")
+    parser.add_argument("--spill-model", default="learned", choices=tuple(SPILL_MODELS),
+                        help="spill model the fleet plans and predicts with; default learned (LEARNED_FIT)")
     parser.add_argument("--name", default="fleet_physics_round", help="results file stem")
     args = parser.parse_args(argv)
     scene = site(args.site)
     meta = (f"{_dt.datetime.now(_dt.UTC).isoformat(timespec='seconds')}, {platform.platform()}; {args.site}, "
-            f"coordinated, {args.rovers} rovers, ROVER_FIT spill, {args.steps} fleet steps, C engine.")
+            f"coordinated, {args.rovers} rovers, {args.spill_model} spill model, {args.steps} fleet steps, C engine.")
     rows = []
     for clearance in args.clearances:
-        rows.append(_one(scene, args.rovers, clearance, args.steps))
+        rows.append(_one(scene, args.rovers, clearance, args.steps, SPILL_MODELS[args.spill_model]))
         result = {"meta": meta, "rows": rows}
         write_results(RESULTS_DIR, args.name, result, _markdown(result))
 

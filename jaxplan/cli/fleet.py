@@ -126,7 +126,8 @@ def _cmd_fleet(args) -> int:
     matplotlib.use("Agg")
     from jaxplan.fleet import FleetConfig, run_fleet, summary_of, write_fleet_outputs
 
-    params, spill, ep = fabric_params(args), spill_params(args), _episode_params(args)
+    params, ep = fabric_params(args), _episode_params(args)
+    spill = spill_params(args, default=_physics_default() if args.physics else None)
     scene = _fleet_scene(args.scene, args.site_seed)
     if args.rovers > _cells_outside_targets(scene):
         raise CLIError(f"--rovers: {args.rovers} rovers do not fit on the {_cells_outside_targets(scene)} cells "
@@ -169,6 +170,14 @@ def _cells_outside_targets(scene) -> int:
     import numpy as np
 
     return int((~np.asarray(scene.target_mask)).sum())
+
+
+def _physics_default():
+    """With --physics and no spill option the fleet plans and predicts with the model fitted to the
+    MuJoCo rover, so that the check compares physics with that rover's prediction."""
+    from jaxplan.transport.spillage import LEARNED_FIT
+
+    return LEARNED_FIT
 
 
 def _physics_check(fleet, spill) -> dict:
@@ -265,7 +274,8 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
     p.add_argument("--physics", action="store_true",
                    help="drive the first round of concurrent pushes in one MuJoCo world with gravel and report "
                         "rover-rover contacts and simulated vs predicted delivery per push (printed, and in "
-                        "DIR/physics.json)")
+                        "DIR/physics.json); without a spill option the fleet then plans and predicts with the "
+                        "spill model fitted to the MuJoCo rover (LEARNED_FIT)")
     p.add_argument("--fps", type=FPS, default=8, metavar="N",
                    help="animation frames per second, an int in [1, 50]; default 8")
     p.add_argument("--no-animation", action="store_true", help="skip the GIF (faster)")

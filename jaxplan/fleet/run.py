@@ -29,7 +29,7 @@ from jaxplan.transport import (
     validate_episode_params,
     validate_params,
 )
-from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill, validate_spill_params
+from jaxplan.transport.spillage import Evaluator, SpillParams, evaluator_for, validate_spill_params
 
 __all__ = ["DEFAULT_MAX_PUSHES", "DEFAULT_MAX_STEPS", "MAX_STEPS_LIMIT", "FleetRun", "check_fleet_memory",
            "run_fleet", "validate_fleet_inputs"]
@@ -271,16 +271,18 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
               spill: SpillParams | None = None, episode: EpisodeParams | None = None,
               max_steps: int = DEFAULT_MAX_STEPS, *, starts=None, record: bool = False, progress: bool = False,
               config: FleetConfig | None = None,
-              evaluator: Evaluator = curvature_spill) -> FleetRun:
+              evaluator: Evaluator | None = None) -> FleetRun:
     """Run a fleet of ``n_rovers`` on ``scene`` with ``strategy`` until it stops (``state`` module
     docstring) or ``max_steps`` steps. Returns ``FleetRun``.
 
     starts: optional i32[N, 2] distinct start cells outside the targets. record: keep per-step frames.
     progress: a progress bar on stderr. config: a ``FleetConfig`` for the other static settings
-    (its n_rovers and strategy must match). All inputs are checked before any work.
+    (its n_rovers and strategy must match). evaluator: the spill model's (default: the one ``spill`` is
+    for, ``evaluator_for(spill)``). All inputs are checked before any work.
     """
     params = FabricParams() if params is None else params
     spill = SpillParams() if spill is None else spill
+    evaluator = evaluator_for(spill) if evaluator is None else evaluator
     episode = EpisodeParams(max_pushes=DEFAULT_MAX_PUSHES) if episode is None else episode
     validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts, config)
     if params.temperature is not None:    # a concrete 0 is the hard fabric

@@ -73,7 +73,7 @@ from jaxplan.transport import (
     selective_rebuild,
 )
 from jaxplan.transport import STOP_REASONS as EPISODE_STOP_REASONS
-from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill
+from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill, evaluator_for
 
 __all__ = ["DEADLOCK", "MAX_STEPS", "NO_REACHABLE", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord",
            "FleetState", "Rovers", "Totals", "advance", "estimate_fleet_bytes", "fleet_rebuild", "max_rovers",
@@ -692,12 +692,13 @@ def refresh(state: FleetState, params: FabricParams, episode: EpisodeParams, bef
 
 
 def advance(state: FleetState, params: FabricParams, spill: SpillParams, episode: EpisodeParams,
-            config: FleetConfig, evaluator: Evaluator = curvature_spill):
+            config: FleetConfig, evaluator: Evaluator | None = None):
     """A live state's step without the fabric's refresh: ``(state, FleetRecord)``, whose fabric is still
     that of the counts before the step. ``step`` is ``advance`` then ``refresh``; a host driver may
     refresh on its own (``run_fleet`` times the two apart). Pure and jittable; config and evaluator
-    static. The state must not be done."""
+    static (None: the model ``spill`` is for, ``evaluator_for(spill)``). The state must not be done."""
     _check_static(params, episode, config, "advance")
+    evaluator = evaluator_for(spill) if evaluator is None else evaluator
     return _advance(state, params, spill, episode, config.resolved(state.scene.shape), evaluator)
 
 
@@ -732,19 +733,20 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
 
 
 def step(state: FleetState, params: FabricParams, spill: SpillParams, episode: EpisodeParams,
-         config: FleetConfig, evaluator: Evaluator = curvature_spill):
+         config: FleetConfig, evaluator: Evaluator | None = None):
     """One step of the fleet (module docstring): ``(state, FleetRecord)``. Pure, one jittable program;
-    config and evaluator are static. A done state is returned as it is, with an invalid record. The
-    push budget is ``state.totals.max_pushes`` (``episode.max_pushes`` is not read); ``episode.rebuild``
-    picks the fabric's refresh (step 4)."""
+    config and evaluator are static (evaluator None: ``evaluator_for(spill)``). A done state is
+    returned as it is, with an invalid record. The push budget is ``state.totals.max_pushes``
+    (``episode.max_pushes`` is not read); ``episode.rebuild`` picks the fabric's refresh (step 4)."""
     _check_static(params, episode, config, "step")
+    evaluator = evaluator_for(spill) if evaluator is None else evaluator
     cfg = config.resolved(state.scene.shape)
     return jax.lax.cond(state.totals.done, lambda s: (s, _idle_record(s)),
                         lambda s: _live(s, params, spill, episode, cfg, evaluator), state)
 
 
 def rollout(state: FleetState, params: FabricParams, spill: SpillParams, episode: EpisodeParams,
-            config: FleetConfig, n_steps: int, evaluator: Evaluator = curvature_spill):
+            config: FleetConfig, n_steps: int, evaluator: Evaluator | None = None):
     """``n_steps`` (static) steps in one ``lax.scan``: ``(state, FleetRecord stacked over n_steps)``."""
     return jax.lax.scan(lambda s, _: step(s, params, spill, episode, config, evaluator), state, None,
                         length=n_steps)

@@ -44,6 +44,8 @@ def test_fleet_writes_every_file(fleet_run, capsys):
     assert summary["pushes"] <= 4 and len(summary["pushes_per_rover"]) == 2
     assert summary["scene"] == "random14x14_piles_d0.4_s3"      # the file's scene name
     assert summary["unreachable_mass"] == 0.0
+    # --physics without a spill option: the fleet plans and predicts with the rover's learned model
+    assert summary["spill"]["model"] == "LearnedSpillParams"
     with np.load(out / "trajectory.npz") as data:
         t = summary["steps"]
         assert data["pos"].shape == (t + 1, 2, 2) and data["delivered"].shape == (t + 1,)
