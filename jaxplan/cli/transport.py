@@ -185,6 +185,8 @@ def spill_dict(spill) -> dict:
 
 
 _DEFAULT_LAM = 0.05
+DEFAULT_PUSHES = 200    # --max-pushes of a grid episode
+PHYSICS_PUSHES = 15     # --max-pushes of an episode closed through physics (a few seconds of MuJoCo each)
 
 
 _DEFAULT_SPILL_THRESHOLD = 1e-3
@@ -231,8 +233,11 @@ def spill_params(args, default=None):
 def episode_params(args):
     from jaxplan.transport import EpisodeParams, validate_episode_params
 
+    budget = args.max_pushes
+    if budget is None:
+        budget = PHYSICS_PUSHES if getattr(args, "physics", False) else DEFAULT_PUSHES
     ep = EpisodeParams(rearrange_margin=args.rearrange_margin, stop_fraction=args.stop_fraction,
-                       max_pushes=args.max_pushes, source_rule=args.source_rule, reselect=args.reselect,
+                       max_pushes=budget, source_rule=args.source_rule, reselect=args.reselect,
                        rebuild=args.rebuild)
     validate_episode_params(ep)
     return ep
@@ -329,6 +334,8 @@ def _cmd_episode(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
+    if args.physics:
+        return _cmd_closed_loop(args)
     params, spill, ep = fabric_params(args), spill_params(args), episode_params(args)
     scene = load_scene(args.scene, args.site_seed)
     check_fabric_memory(args, scene, params)
@@ -343,6 +350,72 @@ def _cmd_episode(args) -> int:
     for _name, path in summary["outputs"].items():
         print(f"wrote {path}")
     return 0
+
+
+def _learned_fit():
+    from jaxplan.transport.spillage import LEARNED_FIT
+
+    return LEARNED_FIT
+
+
+def _cmd_closed_loop(args) -> int:
+    """``jaxplan episode --physics``: the episode closed through MuJoCo (``physics.closed_loop``)."""
+    import matplotlib.pyplot as plt
+
+    from jaxplan.transport.physics import (
+        animate_closed_loop,
+        grid_episode,
+        plot_closed_loop,
+        run_closed_loop,
+    )
+
+    params, ep = fabric_params(args), episode_params(args)
+    spill = spill_params(args, default=_learned_fit())   # the rover's own fit unless asked otherwise
+    scene = load_scene(args.scene, args.site_seed)
+    check_fabric_memory(args, scene, params)
+    with run_folder(args) as run:
+        loop = run_closed_loop(scene, params, spill, ep, max_pushes=max(ep.max_pushes, 1), progress=True)
+        grid_only = grid_episode(scene, params, spill, ep, max_pushes=max(ep.max_pushes, 1))
+        summary = closed_loop_summary(args.scene, spill, loop, grid_only)
+        with _writing_into(run):
+            fig = plot_closed_loop(loop, grid_only, title=f"{scene.name or args.scene}: physics against the plan")
+            fig.savefig(run.file("closed_loop.png"), dpi=110)
+            plt.close(fig)
+            outputs = {"figure": str(run.file("closed_loop.png"))}
+            if not args.no_animation:
+                animate_closed_loop(scene, loop, run.file("closed_loop.gif"), fps=args.fps)
+                outputs["animation"] = str(run.file("closed_loop.gif"))
+            np.savez_compressed(run.file("counts.npz"), obj=loop.obj.astype(np.float32))
+            outputs["counts"] = str(run.file("counts.npz"))
+            outputs["summary"] = str(run.file("summary.json"))
+            summary["outputs"] = outputs
+            run.write_json("summary.json", summary)
+    final = summary["final"]
+    print(f"{len(loop.pushes)} pushes in physics ({loop.stop_reason}): delivered {final['delivered']:.1f}, "
+          f"predicted push by push {final['predicted']:.1f}, grid-only episode {final['grid_only']:.1f}; "
+          f"cumulative prediction within 10% after {summary['within_10pct_after']} of {len(loop.pushes)} pushes")
+    for path in outputs.values():
+        print(f"wrote {path}")
+    return 0
+
+
+def closed_loop_summary(scene_name, spill, loop, grid_only) -> dict:
+    """summary.json of ``jaxplan episode --physics``: every push, both cumulative curves, and after
+    how many pushes the cumulative prediction lies within 10% of physics."""
+    physics, predicted = loop.delivered[1:], loop.predicted[1:]
+    within = np.abs(predicted - physics) <= 0.1 * np.maximum(physics, 1e-9)
+    return {"scene": scene_name, "spill": spill_dict(spill), "stop_reason": loop.stop_reason,
+            "pushes": loop.pushes, "cumulative": {"physics": loop.delivered.tolist(),
+                                                  "predicted": loop.predicted.tolist(),
+                                                  "grid_only": np.asarray(grid_only).tolist()},
+            "within_10pct_after": int(within.sum()), "within_10pct_every_push": bool(within.all()),
+            "final": {"delivered": float(loop.delivered[-1]), "predicted": float(loop.predicted[-1]),
+                      "grid_only": float(np.asarray(grid_only)[-1]),
+                      "spilled": float(sum(p["spilled"] for p in loop.pushes)),
+                      "left_behind": float(sum(p["left_behind"] for p in loop.pushes)),
+                      "lost": float(sum(p["lost"] for p in loop.pushes))},
+            "notes": "masses in objects; physics = the target cells' gain on the grid rasterised from the "
+                     "particles; predicted = the grid's push of the same route from the same counts"}
 
 
 def _cmd_scenes(args) -> int:
@@ -388,7 +461,9 @@ def _add_episode_options(p) -> None:
     add_spill_options(p)
     p.add_argument("--max-pushes", type=ranged(int, 0, MAX_PUSHES, why="the tick counter is an int32 in the "
                                                                      "compiled step; 10^6 pushes take hours"),
-                   default=200, metavar="N", help=f"push budget, an int in [0, {MAX_PUSHES}]; default 200")
+                   default=None, metavar="N",
+                   help=f"push budget, an int in [0, {MAX_PUSHES}]; default {DEFAULT_PUSHES} "
+                        f"({PHYSICS_PUSHES} with episode --physics)")
     p.add_argument("--rearrange-margin", type=ranged(float, 0.0, inf_ok=True), default=0.1, metavar="X",
                    help="choose Rearrange (connector + highway) when it collects more than (1 + X) "
                         "times the direct route; >= 0, 'inf' never rearranges; default 0.1")
@@ -479,12 +554,20 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                           "tick by tick)."),
         epilog="example:\n  jaxplan episode --scene default --out out/episode\n"
                "  jaxplan episode --scene my_site.json --lam 0.1 --max-pushes 50 --out out/site\n"
-               "  jaxplan episode --scene tests/data/small.map --site-seed 3 --out out/small_map")
+               "  jaxplan episode --scene tests/data/small.map --site-seed 3 --out out/small_map\n"
+               "  jaxplan episode --scene default --physics --max-pushes 5 --out out/physics_episode")
     p.add_argument("--scene", required=True, metavar="FILE_OR_NAME", help=scene_help + MAP_SCENE_HELP)
     add_site_seed_option(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     add_theta_option(p)
     _add_episode_options(p)
+    p.add_argument("--physics", action="store_true",
+                   help="close the episode through physics: push each planned route with the MuJoCo rover "
+                        "(C engine), rasterise the particles back to counts and plan the next push from "
+                        "them; writes DIR/summary.json (per push: physics' delivered mass against the "
+                        "grid's prediction from the same counts; both cumulative curves and a grid-only "
+                        "episode's), DIR/closed_loop.png, DIR/closed_loop.gif and DIR/counts.npz. Predicts "
+                        "with the rover's learned spill model (LEARNED_FIT) unless a spill option is given")
     p.set_defaults(func=_cmd_episode)
 
     p = sub.add_parser(
