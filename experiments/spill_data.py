@@ -87,7 +87,7 @@ def scene_routes(scene, sources: int, entries: int):
     return routes_from_paths(scene, paths), src[keep], rank[keep]
 
 
-def scene_records(scene, sources: int, entries: int, layouts: int) -> list[dict]:
+def scene_records(scene, sources: int, entries: int, layouts: int, backend: str = "auto") -> list[dict]:
     """Every route of ``scene_routes`` under ``layouts`` particle layouts, pushed in one batch."""
     import jax
 
@@ -100,7 +100,7 @@ def scene_records(scene, sources: int, entries: int, layouts: int) -> list[dict]
         return []
     # route i under layout l sits at batch position l * n + i; a layout is seeded by its position
     batch = jax.tree.map(lambda a: np.concatenate([np.asarray(a)] * layouts), routes)
-    check = check_routes(scene, batch, spill=ROVER_FIT)
+    check = check_routes(scene, batch, spill=ROVER_FIT, backend=backend)
     out = check.outcome
     before = np.asarray(scene.obj, np.float32)
     records = []
@@ -176,7 +176,8 @@ def write_atomically(path: Path, arrays: dict) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def generate(seeds, densities, sources: int, entries: int, layouts: int, progress: bool = True):
+def generate(seeds, densities, sources: int, entries: int, layouts: int, progress: bool = True,
+             backend: str = "auto"):
     """``(records, scene_meta)`` for every (family, density, seed) of the plan, in order."""
     from tqdm.auto import tqdm
 
@@ -185,7 +186,7 @@ def generate(seeds, densities, sources: int, entries: int, layouts: int, progres
         scene = family_scene(family, density, seed)
         scene_meta.append({"family": family, "density": density, "seed": seed, "heldout": is_heldout(seed),
                            "target_mask": np.asarray(scene.target_mask)})
-        for r in scene_records(scene, sources, entries, layouts):
+        for r in scene_records(scene, sources, entries, layouts, backend):
             records.append({**r, "scene": k})
     return records, scene_meta
 
@@ -201,6 +202,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--sources", type=int, default=4, help="sources per scene (largest J); default 4")
     parser.add_argument("--entries", type=int, default=2, help="table entries per source (routes); default 2")
     parser.add_argument("--layouts", type=int, default=2, help="particle layouts per route; default 2")
+    parser.add_argument("--backend", default="auto", choices=("auto", "c", "mjx", "warp"),
+                        help="physics engine; default auto (the C engine on a CPU, MJX-Warp on a GPU with warp-lang)")
     parser.add_argument("--quick", action="store_true",
                         help="two seeds (one held out), a scene per family each, two routes, one layout (a smoke "
                              "test)")
@@ -213,7 +216,8 @@ def main(argv=None) -> dict:
         args.seeds, args.sources, args.entries, args.layouts = HOLDOUT, 2, 1, 1
         seeds, densities = (0, HOLDOUT - 1), (0.35,)        # one training and one held-out seed
     start = time.perf_counter()
-    records, scene_meta = generate(seeds, densities, args.sources, args.entries, args.layouts)
+    records, scene_meta = generate(seeds, densities, args.sources, args.entries, args.layouts,
+                                   backend=args.backend)
     if not records:
         parser.error("no route was planned on any scene; nothing to write.")
     out = Path(args.out)

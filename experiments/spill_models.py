@@ -35,7 +35,7 @@ import numpy as np
 from experiments.results_io import write_results
 from experiments.spill_data import family_scene
 
-DEFAULT_DATA = Path("experiments/data/spill_s10.npz")
+DEFAULT_DATA = Path("experiments/data/spill.npz")
 FIT_FILE = Path("jaxplan/transport/spillage/learned_fit.json")
 WITHIN = 0.10
 
@@ -128,6 +128,11 @@ def score(routes: dict, models: dict) -> dict:
     inputs = _subset(routes["data"], first)
     physics = {k: _per_route(routes[k].astype(np.float64), route) for k in
                ("collected", "delivered", "spilled", "left_behind", "lost")}
+    # how far a route's layouts lie apart: (max - min) / mean of its delivered mass
+    by_route = routes["delivered"].astype(np.float64)[np.argsort(route, kind="stable")]
+    starts = np.unique(np.sort(route), return_index=True)[1]
+    spread = np.maximum.reduceat(by_route, starts) - np.minimum.reduceat(by_route, starts)
+    physics["layout_spread"] = spread / np.maximum(physics["delivered"], 1e-9)
     groups = {"heldout": routes["heldout"][first], "family": routes["family"][first],
               "density": routes["density"][first]}
     predicted = {}
@@ -150,7 +155,9 @@ def score(routes: dict, models: dict) -> dict:
 def _class_row(mask, physics, predicted) -> dict:
     obs = physics["delivered"][mask]
     row = {"routes": int(mask.sum()),
-           "physics": {k: round(float(v[mask].mean()), 2) for k, v in physics.items()}, "models": {}}
+           "physics": {k: round(float(v[mask].mean()), 2) for k, v in physics.items() if k != "layout_spread"},
+           "models": {}}
+    row["physics"]["layout_spread_median"] = round(float(np.median(physics["layout_spread"][mask])), 3)
     for name, pred in predicted.items():
         p = pred[mask]
         rel = np.abs(p - obs) / np.maximum(obs, 1e-9)
@@ -202,14 +209,15 @@ def markdown(result: dict) -> str:
              "held-out scenes (never in a fit). Fitted on "
              f"{result['counts']['train']} training routes; {result['counts']['heldout']} held out.", "",
              "| class | routes | " + " | ".join(names) + " | physics delivered / spilled / left | "
-             + " / ".join(f"{n} delivered" for n in names) + " |",
-             "|---|---:|" + "---:|" * len(names) + "---:|---:|"]
+             + " / ".join(f"{n} delivered" for n in names) + " | layouts apart (median) |",
+             "|---|---:|" + "---:|" * len(names) + "---:|---:|---:|"]
     for cls, row in result["scores"]["heldout"].items():
         ph = row["physics"]
         lines.append(f"| {cls} | {row['routes']} | "
                      + " | ".join(f"{row['models'][n]['within_10pct']:.0%}" for n in names)
                      + f" | {ph['delivered']:.1f} / {ph['spilled']:.1f} / {ph['left_behind']:.1f} | "
-                     + " / ".join(f"{row['models'][n]['delivered']:.1f}" for n in names) + " |")
+                     + " / ".join(f"{row['models'][n]['delivered']:.1f}" for n in names)
+                     + f" | {ph['layout_spread_median']:.1%} |")
     train = result["scores"]["train"]["all"]["models"]
     lines += ["", "Training routes, all classes: " + ", ".join(f"{n} {train[n]['within_10pct']:.0%}" for n in names)
               + ". Median relative error held out: " + ", ".join(

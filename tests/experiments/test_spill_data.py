@@ -22,7 +22,7 @@ def test_one_scenes_records_conserve_mass_in_physics():
         np.testing.assert_array_equal(r["obj_before"], np.asarray(scene.obj))
 
 
-def _fake_records(scene, sources, entries, layouts):
+def _fake_records(scene, sources, entries, layouts, backend="auto"):
     """Records shaped like ``scene_records``'s, without the physics (the writer is under test)."""
     obj = np.asarray(scene.obj, np.float32)
     return [{"obj_before": obj, "obj_after": obj, "cells": np.asarray([[1, 1], [1, 2], [2, 3]][: 2 + k % 2], np.int16),
@@ -35,7 +35,8 @@ def _fake_records(scene, sources, entries, layouts):
 def test_the_writer_splits_by_scene_and_counts_in_its_manifest(tmp_path, monkeypatch):
     monkeypatch.setattr(spill_data, "scene_records", _fake_records)
     out = tmp_path / "quick"
-    manifest = spill_data.main(["--quick", "--out", str(out)])
+    manifest = spill_data.main(["--quick", "--backend", "c", "--out", str(out)])
+    assert manifest["arguments"]["backend"] == "c"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["quick.json", "quick.npz"]     # no partial file
     assert json.loads(out.with_suffix(".json").read_text()) == manifest
     data = dict(np.load(out.with_suffix(".npz")))

@@ -66,14 +66,18 @@ def _reference(pts, n, pick, p):
 @given(route=routes(), params=params_st)
 def test_capacity_spill_equals_serial_reference(route, params):
     pts, n, pick = route
-    delivered, spill = _evaluate_jit(pts, n, pick, params)
-    ref_delivered, ref_spill = _reference(pts, n, pick, params)
+    assert_equals_reference(_evaluate_jit(pts, n, pick, params), _reference(pts, n, pick, params), n, pick)
+
+
+def assert_equals_reference(evaluated, reference, n, pick):
+    """An evaluator's ``(delivered, spill[N])`` equals the serial reference's on the route's samples,
+    is 0 on the padding, and keeps mass: delivered + spilled = collected."""
+    (delivered, spill), (ref_delivered, ref_spill) = evaluated, reference
     m = len(ref_spill)
     tol = 1e-3 * (1.0 + pick.sum())
     assert abs(float(delivered) - ref_delivered) <= tol
     np.testing.assert_allclose(np.asarray(spill)[:m], ref_spill, atol=tol)
     assert np.all(np.asarray(spill)[m:] == 0)
-    # mass: delivered + spilled = collected
     assert abs(float(delivered) + float(np.sum(spill)) - float(pick[: n - 1].sum())) <= tol
 
 
