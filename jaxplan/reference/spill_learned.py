@@ -13,6 +13,7 @@ from jaxplan.reference.spill_capacity import turning_near_waypoints
 
 LOAD_SCALE = 10.0
 LENGTH_SCALE = 10.0
+DISTANCE_CAP = 2.5
 
 
 def _softplus(x: float) -> float:
@@ -40,7 +41,7 @@ def sample_features(samples, waypoint_pickup, samples_per_step: int):
         pick = waypoint_pickup[s["segment"]] if s["first"] else 0.0
         feats.append([abs(s["turn"]) * m, sum(abs(samples[j]["turn"]) for j in window),
                       abs(sum(samples[j]["turn"] for j in window)), pick / LOAD_SCALE, near[s["segment"]],
-                      (total - done) / LENGTH_SCALE, done / LENGTH_SCALE])
+                      min((total - done) / LENGTH_SCALE, DISTANCE_CAP), min(done / LENGTH_SCALE, DISTANCE_CAP)])
     return feats, chords
 
 

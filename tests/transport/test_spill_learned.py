@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from jaxplan.reference import execute as ref_ex
 from jaxplan.reference import spill_learned as ref_sl
 from jaxplan.transport import spillage as sp
+from jaxplan.transport.spillage.learned import DISTANCE_CAP, sample_features
 from tests.transport.test_spill_capacity import SLOTS, assert_equals_reference, routes
 
 SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -131,3 +132,16 @@ def test_execute_push_runs_with_the_learned_model():
     before = float(np.asarray(scene.obj).sum())
     assert float(np.asarray(obj_after).sum()) == pytest.approx(before, rel=1e-5)   # nothing created or lost
     assert 0 < float(push.delivered) <= float(push.collected)
+
+
+def test_distance_features_stop_at_the_cap_on_long_routes():
+    # 40 cells: 39 world units, past the cap (25); the serial reference clips the same way
+    n = 40
+    pts = np.array([[0.5 + i, 0.5 + (i // 10) % 2] for i in range(n)], np.float32)
+    pick = np.array([3.0] * (n - 1) + [0.0], np.float32)
+    params = _params(7)
+    samples = sp.sample_route(jnp.asarray(pts), n, params.samples_per_step)
+    feats, _ = sample_features(samples, sp.pickups_per_sample(samples, jnp.asarray(pick)), params.samples_per_step)
+    to_go, done = np.asarray(feats[:, 5]), np.asarray(feats[:, 6])
+    assert to_go.max() == pytest.approx(DISTANCE_CAP) and done.max() == pytest.approx(DISTANCE_CAP)
+    assert_equals_reference(_evaluate(pts, n, pick, params), _reference(pts, n, pick, params), n, pick)

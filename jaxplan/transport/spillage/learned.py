@@ -6,7 +6,8 @@ turns follow each other and how far the load still has to go. This model keeps t
 (the load at a sample depends on what was lost before it) and lets a network with one hidden layer
 read the route's shape around each spline sample:
 
-    features_i = [|turn_i| m, window |turn|, |window turn|, pickup_i / L, near_i, to_go_i / D, done_i / D]
+    features_i = [|turn_i| m, window |turn|, |window turn|, pickup_i / L, near_i,
+                  min(to_go_i / D, C), min(done_i / D, C)]
     a_i        = tanh(features_i @ w1 + b1) @ w2 + b2                     (three outputs per sample)
     missed_i   = sigmoid(a_i[2]) * pickup_i
     load      <- load + pickup_i - missed_i
@@ -19,7 +20,8 @@ read the route's shape around each spline sample:
 (signed and then absolute for ``|window turn|``: a zigzag turns much and nets little); ``near_i`` is
 the turning within half a step of the cell picked up there (``turning_near_pickups``); ``to_go`` and
 ``done`` are the route's length still ahead and already behind, ``dl_i`` the distance from the previous
-sample (``chord_lengths``); ``L = LOAD_SCALE`` objects, ``D = LENGTH_SCALE`` world units. The rates
+sample (``chord_lengths``); ``L = LOAD_SCALE`` objects, ``D = LENGTH_SCALE`` world units, and
+``C = DISTANCE_CAP``: past the longest routes of its data the network sees no longer distances. The rates
 are a loss per world unit and per radian, so the spilled fraction of a stretch barely depends on how
 densely the spline is sampled; the load enters them linearly inside the softplus, so the network
 runs on every sample at once and the sequential scan stays as cheap as the capacity model's.
@@ -38,11 +40,15 @@ import numpy as np
 from jaxplan.transport.spillage import base as spillage
 from jaxplan.transport.spillage.capacity import turning_near_pickups
 
-__all__ = ["FEATURES", "HIDDEN", "LEARNED_FIT", "LENGTH_SCALE", "LOAD_SCALE", "LearnedSpillParams", "learned_spill",
-           "load_learned", "sample_features", "validate_learned_params"]
+__all__ = ["DISTANCE_CAP", "FEATURES", "HIDDEN", "LEARNED_FIT", "LENGTH_SCALE", "LOAD_SCALE", "LearnedSpillParams",
+           "learned_spill", "load_learned", "sample_features", "validate_learned_params"]
 
 LOAD_SCALE = 10.0     # objects: load and pickup features are in units of this
 LENGTH_SCALE = 10.0   # world units: the distance features are in units of this
+# The distance features stop growing here (in LENGTH_SCALE units): the fit's routes are at most ~25
+# world units long, and a network read beyond its data extrapolates (it lost half the load of an
+# 80-unit straight run when unclipped).
+DISTANCE_CAP = 2.5
 HIDDEN = 8            # hidden units of the default (unfitted) parameters
 FEATURES = ("turn", "window_turn", "window_net_turn", "pickup", "near_turn", "to_go", "done")
 _NEUTRAL_BIAS = (-4.6, -3.0, -3.0)   # ~1% lost per world unit, ~5% per radian, ~5% of a cell missed
@@ -125,7 +131,8 @@ def sample_features(samples: spillage.PathSamples, pickup, samples_per_step: int
     done = jnp.cumsum(chord)
     to_go = done[-1] - done
     feats = jnp.stack([turn * m, _window_sum(turn, m), jnp.abs(_window_sum(samples.turn, m)), pickup / LOAD_SCALE,
-                       turning_near_pickups(samples, m), to_go / LENGTH_SCALE, done / LENGTH_SCALE], -1)
+                       turning_near_pickups(samples, m), jnp.minimum(to_go / LENGTH_SCALE, DISTANCE_CAP),
+                       jnp.minimum(done / LENGTH_SCALE, DISTANCE_CAP)], -1)
     return jnp.where(samples.valid[:, None], feats, 0.0), chord
 
 
