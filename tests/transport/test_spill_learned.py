@@ -145,3 +145,14 @@ def test_distance_features_stop_at_the_cap_on_long_routes():
     to_go, done = np.asarray(feats[:, 5]), np.asarray(feats[:, 6])
     assert to_go.max() == pytest.approx(DISTANCE_CAP) and done.max() == pytest.approx(DISTANCE_CAP)
     assert_equals_reference(_evaluate(pts, n, pick, params), _reference(pts, n, pick, params), n, pick)
+
+
+def test_the_shipped_fit_keeps_a_long_straight_run_nearly_lossless():
+    # site-scale fallback runs are far longer than the fit's 20 x 20 routes: the capped distance
+    # features keep the fit from extrapolating a loss along them
+    for n in (20, 80):
+        pts = np.array([[0.5 + i, 0.5] for i in range(n)], np.float32)
+        pick = np.zeros(n, np.float32)
+        pick[:3] = 8.0
+        delivered, _, _ = sp.evaluate_route(jnp.asarray(pts), n, jnp.asarray(pick), sp.LEARNED_FIT)
+        assert float(delivered) >= 0.95 * pick.sum()

@@ -46,8 +46,7 @@ __all__ = ["DISTANCE_CAP", "FEATURES", "HIDDEN", "LEARNED_FIT", "LENGTH_SCALE", 
 LOAD_SCALE = 10.0     # objects: load and pickup features are in units of this
 LENGTH_SCALE = 10.0   # world units: the distance features are in units of this
 # The distance features stop growing here (in LENGTH_SCALE units): the fit's routes are at most ~25
-# world units long, and a network read beyond its data extrapolates (it lost half the load of an
-# 80-unit straight run when unclipped).
+# world units long, and a network read beyond its data extrapolates.
 DISTANCE_CAP = 2.5
 HIDDEN = 8            # hidden units of the default (unfitted) parameters
 FEATURES = ("turn", "window_turn", "window_net_turn", "pickup", "near_turn", "to_go", "done")
