@@ -168,10 +168,10 @@ def _class_row(mask, physics, predicted) -> dict:
     return row
 
 
-def build_cost(models: dict, shape=(48, 48), repeats: int = 5) -> dict:
+def build_cost(models: dict, shape=(48, 48), repeats: int = 5, only=None) -> dict:
     """Median seconds of a full build with Eq. 6 (``build_fabric`` then ``selection.reselect`` of every
     source with the model) per model, measured side by side on one piles scene after a warm-up, and
-    each model's ratio to ``ROVER_FIT``'s."""
+    each model's ratio to ``ROVER_FIT``'s (``only``: the names to measure; default every model)."""
     from jaxplan.transport import FabricParams, build_fabric, default_walk_cap, random_scene, reselect
     from jaxplan.transport.spillage import evaluator_for
 
@@ -184,7 +184,7 @@ def build_cost(models: dict, shape=(48, 48), repeats: int = 5) -> dict:
         fabric = reselect(scene, params, fabric, spill, max_steps=cap, evaluator=evaluator_for(spill))
         jax.block_until_ready(fabric.selected)
 
-    times = {name: [] for name in models if not name.startswith("_")}
+    times = {name: [] for name in models if not name.startswith("_") and (only is None or name in only)}
     for name in times:
         build(models[name])                     # compile
     for _ in range(repeats):                    # interleaved: the models share the machine's state
@@ -263,7 +263,8 @@ def main(argv=None) -> dict:
                      "(held out: every fourth seed, 3, 7, ...); use --seeds 4 or more")
     models = fit_models(routes, 20 if args.quick else args.steps, not args.no_progress, args.quick)
     scores = score(routes, models)
-    cost = build_cost(models, (args.cost_size, args.cost_size), args.cost_repeats)
+    cost = build_cost(models, (args.cost_size, args.cost_size), args.cost_repeats,
+                      only=("ROVER_FIT", "learned") if args.quick else None)
     held = scores["heldout"]["all"]["models"]
     better = held["learned"]["within_10pct"] > held["ROVER_FIT"]["within_10pct"]
     manifest = json.loads(args.data.with_suffix(".json").read_text()) if args.data.with_suffix(".json").exists() else {}

@@ -15,7 +15,7 @@ from jaxplan.cli.common import (
     run_folder,
     wrap,
 )
-from jaxplan.cli.transport import add_spill_options, spill_dict, spill_params
+from jaxplan.cli.transport import add_spill_options, rover_spill_models, spill_dict, spill_params
 
 STRATEGIES = ("coordinated", "independent", "partitioned")
 MAX_ROVERS = 1024
@@ -127,7 +127,9 @@ def _cmd_fleet(args) -> int:
     from jaxplan.fleet import FleetConfig, run_fleet, summary_of, write_fleet_outputs
 
     params, ep = fabric_params(args), _episode_params(args)
-    spill = spill_params(args, default=_physics_default() if args.physics else None)
+    # with --physics the fleet plans and predicts with the model fitted to the MuJoCo rover, so that
+    # the check compares physics with that rover's prediction
+    spill = spill_params(args, default=rover_spill_models()["learned"] if args.physics else None)
     scene = _fleet_scene(args.scene, args.site_seed)
     if args.rovers > _cells_outside_targets(scene):
         raise CLIError(f"--rovers: {args.rovers} rovers do not fit on the {_cells_outside_targets(scene)} cells "
@@ -170,14 +172,6 @@ def _cells_outside_targets(scene) -> int:
     import numpy as np
 
     return int((~np.asarray(scene.target_mask)).sum())
-
-
-def _physics_default():
-    """With --physics and no spill option the fleet plans and predicts with the model fitted to the
-    MuJoCo rover, so that the check compares physics with that rover's prediction."""
-    from jaxplan.transport.spillage import LEARNED_FIT
-
-    return LEARNED_FIT
 
 
 def _physics_check(fleet, spill) -> dict:

@@ -19,28 +19,12 @@ from jaxplan.cli.common import (
     run_folder,
     wrap,
 )
-from jaxplan.cli.transport import add_spill_options, spill_dict, spill_params
+from jaxplan.cli.transport import SPILL_MODEL_NAMES, add_spill_options, rover_spill_models, spill_dict, spill_params
 from jaxplan.transport import DEFAULT_SCENE
 
 MAX_ROUTES = 64          # routes per batch: each is a MuJoCo world with its own gravel particles
 MIN_SPEED, MAX_SPEED = 0.05, 2.0   # cells/s: the wheel limit is 2 cells/s (rover.model); ticks grow as 1/speed
 MAX_FRICTION = 5.0       # far above any floor, gravel or steel contact
-
-
-def _learned_fit():
-    from jaxplan.transport.spillage import LEARNED_FIT
-
-    return LEARNED_FIT
-
-
-def _rover_fit():
-    from jaxplan.transport.spillage import ROVER_FIT
-
-    return ROVER_FIT
-
-
-# --spill-model: the fitted models of this rover (experiments/results/spill_models.md compares them)
-SPILL_MODELS = {"learned": _learned_fit, "rover-fit": _rover_fit}
 
 
 def _cmd_rover(args) -> int:
@@ -50,7 +34,7 @@ def _cmd_rover(args) -> int:
 
     matplotlib.use("Agg")
     # the prediction the physics is compared with: a model fitted to this rover unless asked otherwise
-    spill = spill_params(args, default=SPILL_MODELS[args.spill_model]())
+    spill = spill_params(args, default=rover_spill_models()[args.spill_model])
     params = fabric_params(args)
     scene = load_scene(args.scene, args.site_seed)
     check_fabric_memory(args, scene, params)
@@ -124,7 +108,7 @@ def _check_and_write(args, scene, params, spill, run) -> dict:
         "friction": check.world.config.friction if args.friction is None else args.friction,
         "solver": check.world.config.solver,
         "spill": spill_dict(spill),
-        "spill_preset": next((name for name, preset in SPILL_MODELS.items() if spill is preset()), None),
+        "spill_preset": next((name for name, fit in rover_spill_models().items() if spill is fit), None),
         "notes": ("masses in objects (1 particle = 1 object); predicted_* from the 2D push "
                   "(execute.execute_push); lateral errors in cells, blade point to spline; rollout_seconds "
                   "includes compilation on MJX"),
@@ -193,7 +177,7 @@ def add_parsers(sub, fmt, scene_help: str) -> None:
                         "GPU runs faster with Newton (docs/physics.md)")
     add_theta_option(p)
     add_spill_options(p)
-    p.add_argument("--spill-model", default="learned", choices=tuple(SPILL_MODELS),
+    p.add_argument("--spill-model", default="learned", choices=SPILL_MODEL_NAMES,
                    help="the fitted spill model the physics is compared with, when no spill option is given: "
                         "learned (LEARNED_FIT, the default) or rover-fit (ROVER_FIT, the capacity model)")
     p.add_argument("--no-render", action="store_true", help="skip the rendered frames")

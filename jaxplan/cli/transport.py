@@ -185,6 +185,16 @@ def spill_dict(spill) -> dict:
 
 
 _DEFAULT_LAM = 0.05
+SPILL_MODEL_NAMES = ("learned", "rover-fit")   # --spill-model: the fits to the MuJoCo rover
+
+
+def rover_spill_models() -> dict:
+    """The spill models fitted to the MuJoCo rover by ``--spill-model`` name: "learned"
+    (``LEARNED_FIT``, the default where physics checks a plan) and "rover-fit" (``ROVER_FIT``)."""
+    from jaxplan.transport.spillage import LEARNED_FIT, ROVER_FIT
+
+    return dict(zip(SPILL_MODEL_NAMES, (LEARNED_FIT, ROVER_FIT)))
+
 DEFAULT_PUSHES = 200    # --max-pushes of a grid episode
 PHYSICS_PUSHES = 15     # --max-pushes of an episode closed through physics (a few seconds of MuJoCo each)
 
@@ -352,12 +362,6 @@ def _cmd_episode(args) -> int:
     return 0
 
 
-def _learned_fit():
-    from jaxplan.transport.spillage import LEARNED_FIT
-
-    return LEARNED_FIT
-
-
 def _cmd_closed_loop(args) -> int:
     """``jaxplan episode --physics``: the episode closed through MuJoCo (``physics.closed_loop``)."""
     import matplotlib.pyplot as plt
@@ -370,7 +374,7 @@ def _cmd_closed_loop(args) -> int:
     )
 
     params, ep = fabric_params(args), episode_params(args)
-    spill = spill_params(args, default=_learned_fit())   # the rover's own fit unless asked otherwise
+    spill = spill_params(args, default=rover_spill_models()["learned"])   # the rover's own fit unless asked otherwise
     scene = load_scene(args.scene, args.site_seed)
     check_fabric_memory(args, scene, params)
     with run_folder(args) as run:

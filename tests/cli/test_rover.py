@@ -69,15 +69,14 @@ def test_turning_options_select_the_capacity_model():
 
 def test_rover_predicts_with_the_fitted_model_unless_a_spill_option_is_given():
     from jaxplan.cli.app import build_parser
-    from jaxplan.cli.rover import SPILL_MODELS
-    from jaxplan.cli.transport import spill_dict, spill_params
+    from jaxplan.cli.transport import rover_spill_models, spill_dict, spill_params
     from jaxplan.transport.spillage import LEARNED_FIT, SpillParams
     from jaxplan.transport.spillage.capacity import ROVER_FIT
 
     parse = build_parser().parse_args
     # the learned model by default, the capacity fit on request; both go into summary.json
-    assert SPILL_MODELS[parse(["rover"]).spill_model]() is LEARNED_FIT
-    assert SPILL_MODELS[parse(["rover", "--spill-model", "rover-fit"]).spill_model]() is ROVER_FIT
+    assert rover_spill_models()[parse(["rover"]).spill_model] is LEARNED_FIT
+    assert rover_spill_models()[parse(["rover", "--spill-model", "rover-fit"]).spill_model] is ROVER_FIT
     learned = json.loads(json.dumps(spill_dict(LEARNED_FIT)))
     assert learned["model"] == "LearnedSpillParams" and np.shape(learned["w1"]) == np.shape(LEARNED_FIT.w1)
     assert spill_params(parse(["rover"]), default=ROVER_FIT) is ROVER_FIT

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxplan.cli import main
-from jaxplan.transport import Scene, box, execute_push, random_scene
+from jaxplan.transport import execute_push, random_scene
 from jaxplan.transport.physics import (
     animate_closed_loop,
     grid_episode,
@@ -81,11 +81,9 @@ def test_execute_push_is_the_prediction_of_the_first_push(scene, loop):
     assert loop.pushes[0]["predicted"] == pytest.approx(float(push.delivered), rel=1e-6)
 
 
-def test_cli_episode_physics_writes_its_files(tmp_path, capsys):
-    obj = np.zeros((5, 8))
-    obj[2, 1:4] = [3, 2, 3]
-    path = tmp_path / "tiny.json"
-    Scene.from_arrays(obj, box(6.0, 0.0, 8.0, 5.0), name="tiny").save(path)
+def test_cli_episode_physics_writes_its_files(scene, tmp_path, capsys):
+    path = tmp_path / "scene.npz"
+    scene.save(path)          # the module's scene: its programs are compiled already
     out = tmp_path / "out"
     assert main(["episode", "--scene", str(path), "--physics", "--max-pushes", "1", "--no-animation",
                  "--out", str(out)]) == 0
@@ -95,5 +93,5 @@ def test_cli_episode_physics_writes_its_files(tmp_path, capsys):
     assert summary["final"]["delivered"] == summary["cumulative"]["physics"][-1]
     assert (out / "closed_loop.png").read_bytes()[:4] == b"\x89PNG"
     with np.load(out / "counts.npz") as counts:
-        assert counts["obj"].shape == (2, 5, 8)
+        assert counts["obj"].shape == (2, *scene.shape)
     assert "pushes in physics" in capsys.readouterr().out
