@@ -4,7 +4,8 @@ Scenes of four families (``FAMILIES``: uniform counts, speckled single objects, 
 dense strips), each at several densities, on one grid shape. On each scene the fabric plans the
 routes of the ``--sources`` sources with the largest J (table entry 0, the selected route) and
 their alternatives (entries 1 .. ``--entries`` - 1: other turn profiles from the same source); each
-route is pushed by the rover on the C engine (``transport.physics.check_routes``, batched) under
+route (and, with ``--perturbed K``, K copies of it with one interior cell moved: ``perturb_route``)
+is pushed by the rover on the C engine (``transport.physics.check_routes``, batched) under
 ``--layouts`` particle layouts. A record holds one route under one layout: the per-cell counts
 before, the route's cells, the counts after (the particles rasterised back to the grid,
 ``bridge.projected_obj``), and the rover's verdicts (collected, delivered, left behind, spilled,
@@ -67,10 +68,37 @@ def family_scene(family: str, density: float, seed: int, shape=SHAPE):
     return scene.with_obj(np.where(np.asarray(scene.target_mask), 0.0, obj).astype(np.float32))
 
 
-def scene_routes(scene, sources: int, entries: int):
-    """``(routes: execute.Route [B], source i32[B, 2], entry i32[B])``: the ``sources`` sources with
-    the largest J, each with table entries 0 .. ``entries`` - 1 that exist and leave the source."""
-    from jaxplan.transport import FabricParams, build_fabric, extract_paths, routes_from_paths
+def perturb_route(scene, cells, rng):
+    """A copy of the walk ``cells: i[n, 2]`` with one interior cell moved to another free cell that
+    neighbours both of its neighbours (8-connected, in the grid, not blocked, not a target, not on
+    the walk), chosen by ``rng``; None when no interior cell has such a neighbour. The walk keeps
+    its source and its end, so it collects and delivers as a route does, along another shape."""
+    h, w = scene.shape
+    cells = np.asarray(cells)
+    blocked = np.asarray(scene.blocked) | np.asarray(scene.target_mask)
+    on_walk = {tuple(c) for c in cells.tolist()}
+    for i in rng.permutation(np.arange(1, len(cells) - 1)):
+        (r0, c0), (r1, c1) = cells[i - 1], cells[i + 1]
+        rows, cols = range(max(r0, r1) - 1, min(r0, r1) + 2), range(max(c0, c1) - 1, min(c0, c1) + 2)
+        options = [(r, c) for r in rows for c in cols
+                   if 0 <= r < h and 0 <= c < w and not blocked[r, c] and (r, c) not in on_walk]
+        if options:
+            out = cells.copy()
+            out[i] = options[rng.integers(len(options))]
+            return out
+    return None
+
+
+def scene_routes(scene, sources: int, entries: int, perturbed: int = 0):
+    """``(routes: execute.Route [B], source i32[B, 2], entry i32[B], perturbed i32[B])``: the
+    ``sources`` sources with the largest J, each with table entries 0 .. ``entries`` - 1 that exist
+    and leave the source, then ``perturbed`` perturbations of each (``perturb_route``, seeded by the
+    scene's name; ``perturbed`` = k for the k-th, 0 for the planned routes)."""
+    import zlib
+
+    import jax
+
+    from jaxplan.transport import FabricParams, build_fabric, extract_paths, route_from_path, routes_from_paths
 
     fabric = build_fabric(scene, FabricParams())
     value = np.where(np.asarray(fabric.occupied), np.asarray(fabric.value), -np.inf)
@@ -81,20 +109,38 @@ def scene_routes(scene, sources: int, entries: int):
     rank = np.tile(np.arange(entries, dtype=np.int32), len(order))
     paths = extract_paths(fabric, src, rank, detour=scene.detour)
     keep = np.isfinite(np.asarray(paths.raw)) & (np.asarray(paths.n_cells) >= 2)
-    import jax
-
     paths = jax.tree.map(lambda a: np.asarray(a)[keep], paths)
-    return routes_from_paths(scene, paths), src[keep], rank[keep]
+    routes = jax.tree.map(np.asarray, routes_from_paths(scene, paths))
+    src, rank = src[keep], rank[keep]
+    variant = np.zeros(len(rank), np.int32)
+    rng = np.random.default_rng(zlib.crc32((scene.name or "").encode()))
+    extra = []
+    for k in range(1, perturbed + 1):
+        for i in range(len(rank)):
+            n = int(routes.n_cells[i])
+            moved = perturb_route(scene, routes.cells[i][:n], rng)
+            if moved is not None:
+                cells = routes.cells[i].copy()
+                cells[:n] = moved
+                extra.append((route_from_path(scene, cells, n, routes.fallback[i]), src[i], rank[i], k))
+    if extra:
+        more = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *[e[0] for e in extra])
+        routes = jax.tree.map(lambda a, b: np.concatenate([a, b]), routes, more)
+        src = np.concatenate([src, np.stack([e[1] for e in extra])])
+        rank = np.concatenate([rank, np.asarray([e[2] for e in extra], np.int32)])
+        variant = np.concatenate([variant, np.asarray([e[3] for e in extra], np.int32)])
+    return routes, src, rank, variant
 
 
-def scene_records(scene, sources: int, entries: int, layouts: int, backend: str = "auto") -> list[dict]:
+def scene_records(scene, sources: int, entries: int, layouts: int, backend: str = "auto",
+                  perturbed: int = 0) -> list[dict]:
     """Every route of ``scene_routes`` under ``layouts`` particle layouts, pushed in one batch."""
     import jax
 
     from jaxplan.transport.physics import check_routes, projected_obj
     from jaxplan.transport.spillage import ROVER_FIT
 
-    routes, src, rank = scene_routes(scene, sources, entries)
+    routes, src, rank, variant = scene_routes(scene, sources, entries, perturbed)
     n = int(np.asarray(routes.n_cells).shape[0])
     if n == 0:
         return []
@@ -110,7 +156,7 @@ def scene_records(scene, sources: int, entries: int, layouts: int, backend: str 
         cells = np.asarray(routes.cells[i])[: int(routes.n_cells[i])]
         records.append({
             "obj_before": before, "obj_after": np.asarray(after, np.float32), "cells": cells.astype(np.int16),
-            "source": src[i], "entry": int(rank[i]), "layout": j // n,
+            "source": src[i], "entry": int(rank[i]), "perturbed": int(variant[i]), "layout": j // n,
             **{k: float(np.asarray(getattr(out, k))[j]) for k in
                ("collected", "delivered", "left_behind", "spilled", "lost", "predicted_delivered",
                 "predicted_spilled", "mean_lateral")},
@@ -139,7 +185,7 @@ def _stack(records: list[dict], scene_meta: list[dict]) -> dict:
               "obj_before": np.stack([r["obj_before"] for r in records]),
               "obj_after": np.stack([r["obj_after"] for r in records]),
               "source": np.stack([r["source"] for r in records]).astype(np.int16)}
-    for key in ("entry", "layout", "scene"):
+    for key in ("entry", "perturbed", "layout", "scene"):
         arrays[key] = np.asarray([r[key] for r in records], np.int32)
     for key in ("collected", "delivered", "left_behind", "spilled", "lost", "predicted_delivered",
                 "predicted_spilled", "mean_lateral"):
@@ -177,7 +223,7 @@ def write_atomically(path: Path, arrays: dict) -> str:
 
 
 def generate(seeds, densities, sources: int, entries: int, layouts: int, progress: bool = True,
-             backend: str = "auto"):
+             backend: str = "auto", perturbed: int = 0):
     """``(records, scene_meta)`` for every (family, density, seed) of the plan, in order."""
     from tqdm.auto import tqdm
 
@@ -186,7 +232,7 @@ def generate(seeds, densities, sources: int, entries: int, layouts: int, progres
         scene = family_scene(family, density, seed)
         scene_meta.append({"family": family, "density": density, "seed": seed, "heldout": is_heldout(seed),
                            "target_mask": np.asarray(scene.target_mask)})
-        for r in scene_records(scene, sources, entries, layouts, backend):
+        for r in scene_records(scene, sources, entries, layouts, backend, perturbed):
             records.append({**r, "scene": k})
     return records, scene_meta
 
@@ -202,6 +248,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--sources", type=int, default=4, help="sources per scene (largest J); default 4")
     parser.add_argument("--entries", type=int, default=2, help="table entries per source (routes); default 2")
     parser.add_argument("--layouts", type=int, default=2, help="particle layouts per route; default 2")
+    parser.add_argument("--perturbed", type=int, default=0,
+                        help="perturbed copies of each planned route (one interior cell moved); default 0")
     parser.add_argument("--backend", default="auto", choices=("auto", "c", "mjx", "warp"),
                         help="physics engine; default auto (the C engine on a CPU, MJX-Warp on a GPU with warp-lang)")
     parser.add_argument("--quick", action="store_true",
@@ -211,13 +259,15 @@ def main(argv=None) -> dict:
     for name in ("seeds", "sources", "entries", "layouts"):
         if getattr(args, name) < 1:
             parser.error(f"--{name}: {getattr(args, name)} is not a count; give an int >= 1.")
+    if args.perturbed < 0:
+        parser.error(f"--perturbed: {args.perturbed} is not a count; give an int >= 0.")
     seeds, densities = range(args.seeds), DENSITIES
     if args.quick:
         args.seeds, args.sources, args.entries, args.layouts = HOLDOUT, 2, 1, 1
         seeds, densities = (0, HOLDOUT - 1), (0.35,)        # one training and one held-out seed
     start = time.perf_counter()
     records, scene_meta = generate(seeds, densities, args.sources, args.entries, args.layouts,
-                                   backend=args.backend)
+                                   backend=args.backend, perturbed=args.perturbed)
     if not records:
         parser.error("no route was planned on any scene; nothing to write.")
     out = Path(args.out)

@@ -81,7 +81,8 @@ def load_routes(path: Path, seeds: int | None = None) -> dict:
     if not np.allclose(pick.sum(1), d["collected"]):
         raise ValueError(f"{path}: the rebuilt routes collect other masses than the data set records; "
                          "was it written by another version of experiments/spill_data.py?")
-    key = np.stack([scene_of, d["source"][:, 0], d["source"][:, 1], d["entry"]], 1)
+    perturbed = d.get("perturbed", np.zeros_like(d["entry"]))    # data sets before --perturbed have none
+    key = np.stack([scene_of, d["source"][:, 0], d["source"][:, 1], d["entry"], perturbed], 1)
     _, route = np.unique(key, axis=0, return_inverse=True)
     delivered = d["delivered"].astype(np.float32)
     return {"data": SpillData(way, npt, pick, delivered, d["collected"] - delivered),

@@ -22,11 +22,12 @@ def test_one_scenes_records_conserve_mass_in_physics():
         np.testing.assert_array_equal(r["obj_before"], np.asarray(scene.obj))
 
 
-def _fake_records(scene, sources, entries, layouts, backend="auto"):
+def _fake_records(scene, sources, entries, layouts, backend="auto", perturbed=0):
     """Records shaped like ``scene_records``'s, without the physics (the writer is under test)."""
     obj = np.asarray(scene.obj, np.float32)
     return [{"obj_before": obj, "obj_after": obj, "cells": np.asarray([[1, 1], [1, 2], [2, 3]][: 2 + k % 2], np.int16),
-             "source": np.asarray([1, 1], np.int32), "entry": k % entries, "layout": k // (sources * entries),
+             "source": np.asarray([1, 1], np.int32), "entry": k % entries, "perturbed": 0,
+             "layout": k // (sources * entries),
              **dict.fromkeys(("collected", "delivered", "left_behind", "spilled", "lost", "predicted_delivered",
                               "predicted_spilled", "mean_lateral"), 1.0), "finite": True, "reached": True}
             for k in range(sources * entries * layouts)]
@@ -57,9 +58,31 @@ def test_scene_families_are_deterministic():
         assert float(np.asarray(a.obj).sum()) > 0 and not np.asarray(a.obj)[np.asarray(a.target_mask)].any()
 
 
-@pytest.mark.parametrize("argv", [["--layouts", "0"], ["--seeds", "-1"]])
+@pytest.mark.parametrize("argv", [["--layouts", "0"], ["--seeds", "-1"], ["--perturbed", "-1"]])
 def test_bad_arguments_exit_before_any_work(argv, tmp_path, capsys):
     with pytest.raises(SystemExit) as err:
         spill_data.main([*argv, "--out", str(tmp_path / "x")])
     assert err.value.code == 2 and "error:" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_perturbed_routes_are_walks_with_one_interior_cell_moved():
+    scene = spill_data.family_scene("uniform", 0.35, 0)
+    routes, src, rank, variant = spill_data.scene_routes(scene, sources=3, entries=1, perturbed=2)
+    planned = np.flatnonzero(variant == 0)
+    assert len(planned) == 3 and set(variant.tolist()) <= {0, 1, 2} and (variant > 0).any()
+    free = ~(np.asarray(scene.blocked) | np.asarray(scene.target_mask))
+    for j in np.flatnonzero(variant > 0):
+        (i,) = [p for p in planned if (src[p] == src[j]).all() and rank[p] == rank[j]]
+        n = int(routes.n_cells[j])
+        assert n == int(routes.n_cells[i]) and bool(routes.fallback[j]) == bool(routes.fallback[i])
+        a, b = routes.cells[i][:n], routes.cells[j][:n]
+        moved = np.flatnonzero((a != b).any(-1))
+        assert len(moved) == 1 and 0 < moved[0] < n - 1                     # one interior cell, ends kept
+        assert np.abs(np.diff(b, axis=0)).max() <= 1                          # still an 8-connected walk
+        assert free[tuple(b[moved[0]])] and len({tuple(c) for c in b.tolist()}) == n
+
+
+def test_perturb_route_gives_up_where_nothing_can_move():
+    scene = spill_data.family_scene("uniform", 0.35, 0)
+    assert spill_data.perturb_route(scene, np.array([[5, 5], [5, 6]]), np.random.default_rng(0)) is None
