@@ -22,6 +22,7 @@ import numpy as np
 
 from experiments.results_io import write_results
 from experiments.spill_data import family_scene, is_heldout
+from jaxplan.transport.spillage import ROVER_MODELS
 
 # one scene per family with enough material for 15 pushes; seeds 3, 7 and 11 are held out
 SCENES = (("uniform", 0.35, 3), ("piles", 0.35, 7), ("strips", 0.35, 11))
@@ -38,15 +39,13 @@ def run_scene(family: str, density: float, seed: int, pushes: int, spill_model: 
         plot_closed_loop,
         run_closed_loop,
     )
-    from jaxplan.transport.spillage import LEARNED_FIT, ROVER_FIT
 
-    spill = {"learned": LEARNED_FIT, "rover-fit": ROVER_FIT}[spill_model]
+    spill = ROVER_MODELS[spill_model]
     scene = family_scene(family, density, seed)
     start = time.perf_counter()
     loop = run_closed_loop(scene, spill=spill, max_pushes=pushes, progress=True)
     grid_only = grid_episode(scene, spill=spill, max_pushes=pushes)
-    physics, predicted = loop.delivered[1:], loop.predicted[1:]
-    rel = np.abs(predicted - physics) / np.maximum(physics, 1e-9)
+    rel = loop.relative_error
     name = scene.name
     fig = plot_closed_loop(loop, grid_only, title=f"{name}: physics against the plan")
     fig.savefig(out_dir / f"closed_loop_{name}.png", dpi=100)
@@ -86,7 +85,7 @@ def main(argv=None) -> dict:
                                             "  python -m experiments.closed_loop --pushes 3 --scenes 1")
     parser.add_argument("--pushes", type=int, default=15, help="push budget per scene; default 15")
     parser.add_argument("--scenes", type=int, default=len(SCENES), help=f"how many of the {len(SCENES)} scenes")
-    parser.add_argument("--spill-model", default="learned", choices=("learned", "rover-fit"))
+    parser.add_argument("--spill-model", default="learned", choices=tuple(ROVER_MODELS))
     parser.add_argument("--results-dir", type=Path, default=Path("experiments/results"))
     parser.add_argument("--stem", default="closed_loop")
     parser.add_argument("--no-gif", action="store_true")

@@ -25,10 +25,9 @@ from experiments.results_io import write_results
 from jaxplan import FabricParams
 from jaxplan.fleet import FleetConfig, check_first_round, run_fleet, site
 from jaxplan.transport import EpisodeParams
-from jaxplan.transport.spillage import LEARNED_FIT, ROVER_FIT
+from jaxplan.transport.spillage import ROVER_MODELS
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
-SPILL_MODELS = {"learned": LEARNED_FIT, "rover-fit": ROVER_FIT}
 
 
 def _one(scene, n: int, clearance: int, steps: int, spill) -> dict:
@@ -70,7 +69,7 @@ def main(argv=None) -> None:
     parser.add_argument("--rovers", type=int, default=4, help="fleet size; default 4")
     parser.add_argument("--clearances", type=int, nargs="+", default=[0, 1, 2], choices=(0, 1, 2))
     parser.add_argument("--steps", type=int, default=600, help="fleet steps before the check; default 600")
-    parser.add_argument("--spill-model", default="learned", choices=tuple(SPILL_MODELS),
+    parser.add_argument("--spill-model", default="learned", choices=tuple(ROVER_MODELS),
                         help="spill model the fleet plans and predicts with; default learned (LEARNED_FIT)")
     parser.add_argument("--name", default="fleet_physics_round", help="results file stem")
     args = parser.parse_args(argv)
@@ -79,7 +78,7 @@ def main(argv=None) -> None:
             f"coordinated, {args.rovers} rovers, {args.spill_model} spill model, {args.steps} fleet steps, C engine.")
     rows = []
     for clearance in args.clearances:
-        rows.append(_one(scene, args.rovers, clearance, args.steps, SPILL_MODELS[args.spill_model]))
+        rows.append(_one(scene, args.rovers, clearance, args.steps, ROVER_MODELS[args.spill_model]))
         result = {"meta": meta, "rows": rows}
         write_results(RESULTS_DIR, args.name, result, _markdown(result))
 

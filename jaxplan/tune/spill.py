@@ -79,6 +79,15 @@ def spill_loss(params: SpillParams, data: SpillData):
 
 def _validate(data: SpillData, init: SpillParams, steps, learning_rate):
     validate_spill_params(init)
+    _validate_data(data)
+    for name in ("lam", "threshold"):
+        if not float(np.asarray(getattr(init, name))) > 0:
+            raise ValueError(f"init.{name}: the fit works in log space and needs a start > 0; "
+                             f"got {getattr(init, name)!r}.")
+    _validate_schedule(steps, learning_rate)
+
+
+def _validate_data(data: SpillData):
     if not isinstance(data, SpillData):
         raise ValueError(f"data: expected a SpillData, got {type(data).__name__}. "
                          "Build one with jaxplan.tune.SpillData(waypoints, n_points, pickup, delivered, spilled).")
@@ -87,10 +96,9 @@ def _validate(data: SpillData, init: SpillParams, steps, learning_rate):
         raise ValueError("data: waypoints [B, S, 2], n_points [B], pickup [B, S], delivered [B] and spilled [B] "
                          f"must share B >= 1; got n_points shape {np.shape(data.n_points)}, waypoints "
                          f"{np.shape(data.waypoints)}, delivered {np.shape(data.delivered)}.")
-    for name in ("lam", "threshold"):
-        if not float(np.asarray(getattr(init, name))) > 0:
-            raise ValueError(f"init.{name}: the fit works in log space and needs a start > 0; "
-                             f"got {getattr(init, name)!r}.")
+
+
+def _validate_schedule(steps, learning_rate):
     if not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"steps: must be an int >= 1; got {steps!r}.")
     if not float(learning_rate) > 0:
@@ -234,7 +242,8 @@ def fit_learned(data: SpillData, *, hidden: int = 8, steps: int = 1500, learning
     """
     from tqdm.auto import tqdm
 
-    _validate(data, SpillParams(lam=1.0, threshold=1.0), steps, learning_rate)
+    _validate_data(data)
+    _validate_schedule(steps, learning_rate)
     for name, value in (("hidden", hidden), ("chunk", chunk)):
         if not isinstance(value, (int, np.integer)) or value < 1:
             raise ValueError(f"{name}: must be an int >= 1; got {value!r}.")

@@ -69,12 +69,13 @@ def test_turning_options_select_the_capacity_model():
 
 def test_rover_predicts_with_the_fitted_model_unless_a_spill_option_is_given():
     from jaxplan.cli.app import build_parser
-    from jaxplan.cli.transport import rover_spill_models, spill_dict, spill_params
+    from jaxplan.cli.transport import SPILL_MODEL_NAMES, rover_spill_models, spill_dict, spill_params
     from jaxplan.transport.spillage import LEARNED_FIT, SpillParams
     from jaxplan.transport.spillage.capacity import ROVER_FIT
 
     parse = build_parser().parse_args
     # the learned model by default, the capacity fit on request; both go into summary.json
+    assert tuple(rover_spill_models()) == SPILL_MODEL_NAMES
     assert rover_spill_models()[parse(["rover"]).spill_model] is LEARNED_FIT
     assert rover_spill_models()[parse(["rover", "--spill-model", "rover-fit"]).spill_model] is ROVER_FIT
     learned = json.loads(json.dumps(spill_dict(LEARNED_FIT)))

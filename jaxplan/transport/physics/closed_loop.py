@@ -54,6 +54,12 @@ class ClosedLoop(NamedTuple):
         """f[P + 1], the sum of the grid's per-push predictions (each from physics' counts)."""
         return np.concatenate([[0.0], np.cumsum([p["predicted"] for p in self.pushes])])
 
+    @property
+    def relative_error(self) -> np.ndarray:
+        """f[P], |predicted - delivered| / delivered of the running sums after each push."""
+        physics, predicted = self.delivered[1:], self.predicted[1:]
+        return np.abs(predicted - physics) / np.maximum(physics, 1e-9)
+
 
 def _target_mass(scene, obj) -> float:
     return float(np.asarray(obj, np.float64)[np.asarray(scene.target_mask)].sum())
@@ -72,13 +78,12 @@ def _plan(scene, params, ep, spill, evaluator):
     return plan, jax.tree.map(lambda a: np.asarray(a)[None], plan.route)
 
 
-def _stop_reason(scene, plan, initial_outside: float, ep, pushes: int, max_pushes: int) -> str | None:
+def _stop_reason(scene, initial_outside: float, ep, pushes: int, max_pushes: int) -> str | None:
+    """The stop rule's parts that need no plan (the last, "no source", is the plan's)."""
     if pushes >= max_pushes:
         return "max pushes"
     if _outside_mass(scene, scene.obj) <= float(ep.stop_fraction) * initial_outside:
         return "stop fraction"
-    if not bool(plan.has_source):
-        return "no source"
     return None
 
 
@@ -93,16 +98,14 @@ def _frames(check, n_frames: int) -> np.ndarray:
     return np.concatenate([particles, rover], 1)
 
 
-def run_closed_loop(scene, params=None, spill=None, episode=None, *, max_pushes: int = 15,
-                    config: RoverConfig | None = None, frames_per_push: int = 6,
-                    progress: bool = False) -> ClosedLoop:
-    """Plan, push in MuJoCo (C engine), rasterise, re-plan: ``max_pushes`` pushes at most (module
-    docstring). spill: the model the planner selects and predicts with (default ``LEARNED_FIT``, the
-    fit to this rover); episode: ``EpisodeParams`` (its ``stop_fraction``, ``source_rule``,
-    ``rearrange_margin``, ``reselect``); config: the rover (``RoverConfig()``)."""
+def _drive(scene, params, spill, episode, max_pushes: int, push, progress: bool = False):
+    """The loop both episodes share: plan on the current counts, ``push(scene, plan, route, spill,
+    evaluator) -> (counts after f[H, W], record dict)``, carry on from the counts after, until the stop
+    rule. Returns ``(records, obj f[P + 1, H, W], stop_reason)``; each record gains ``delivered``, the
+    target cells' gain."""
     from tqdm.auto import tqdm
 
-    from jaxplan.transport import EpisodeParams, FabricParams, execute_push
+    from jaxplan.transport import EpisodeParams, FabricParams
     from jaxplan.transport.spillage import LEARNED_FIT, evaluator_for
 
     params = FabricParams() if params is None else params
@@ -112,51 +115,61 @@ def run_closed_loop(scene, params=None, spill=None, episode=None, *, max_pushes:
         raise ValueError(f"max_pushes: must be an int >= 1; got {max_pushes!r}.")
     evaluator = evaluator_for(spill)
     initial_outside = _outside_mass(scene, scene.obj)
-    obj, pushes, frames, reason = [np.asarray(scene.obj, np.float64)], [], [], "max pushes"
+    obj, records = [np.asarray(scene.obj, np.float64)], []
     with tqdm(total=int(max_pushes), desc="pushes in physics", unit="push", disable=not progress) as bar:
         while True:
-            plan, route = _plan(scene, params, ep, spill, evaluator)
-            stop = _stop_reason(scene, plan, initial_outside, ep, len(pushes), int(max_pushes))
-            if stop is not None:
-                reason = stop
-                break
-            _, push = execute_push(scene, plan.route, spill, evaluator)
-            check = check_routes(scene, route, config=config, spill=spill, evaluator=evaluator)
-            after, lost = projected_obj(scene, check, 0)
-            out = check.outcome
-            cells = np.asarray(plan.route.cells)[: int(plan.route.n_cells)]
-            pushes.append({"source": [int(x) for x in np.asarray(plan.source)], "mode": int(plan.mode),
-                           "cells": cells.tolist(), "predicted": float(push.delivered),
-                           "delivered": _target_mass(scene, after) - _target_mass(scene, scene.obj),
-                           "collected": float(np.asarray(out.collected)[0]),
-                           "spilled": float(np.asarray(out.spilled)[0]),
-                           "left_behind": float(np.asarray(out.left_behind)[0]), "lost": float(lost)})
-            frames.append(_frames(check, frames_per_push))
+            reason = _stop_reason(scene, initial_outside, ep, len(records), int(max_pushes))
+            if reason is None:
+                plan, route = _plan(scene, params, ep, spill, evaluator)
+                reason = None if bool(plan.has_source) else "no source"
+            if reason is not None:
+                return records, np.stack(obj), reason
+            after, record = push(scene, plan, route, spill, evaluator)
+            record["delivered"] = _target_mass(scene, after) - _target_mass(scene, scene.obj)
+            records.append(record)
             scene = scene.with_obj(np.asarray(after, np.float32))
             obj.append(np.asarray(after, np.float64))
             bar.update()
-    return ClosedLoop(np.stack(obj), pushes, frames, reason)
+
+
+def run_closed_loop(scene, params=None, spill=None, episode=None, *, max_pushes: int = 15,
+                    config: RoverConfig | None = None, frames_per_push: int = 6,
+                    progress: bool = False) -> ClosedLoop:
+    """Plan, push in MuJoCo (C engine), rasterise, re-plan: ``max_pushes`` pushes at most (module
+    docstring). spill: the model the planner selects and predicts with (default ``LEARNED_FIT``, the
+    fit to this rover); episode: ``EpisodeParams`` (its ``stop_fraction``, ``source_rule``,
+    ``rearrange_margin``, ``reselect``); config: the rover (``RoverConfig()``)."""
+    from jaxplan.transport import execute_push
+
+    frames = []
+
+    def physics_push(scene, plan, route, spill, evaluator):
+        _, push = execute_push(scene, plan.route, spill, evaluator)
+        check = check_routes(scene, route, config=config, spill=spill, evaluator=evaluator)
+        after, lost = projected_obj(scene, check, 0)
+        frames.append(_frames(check, frames_per_push))
+        out = check.outcome
+        cells = np.asarray(plan.route.cells)[: int(plan.route.n_cells)]
+        return after, {"source": [int(x) for x in np.asarray(plan.source)], "mode": int(plan.mode),
+                       "cells": cells.tolist(), "predicted": float(push.delivered),
+                       "collected": float(np.asarray(out.collected)[0]),
+                       "spilled": float(np.asarray(out.spilled)[0]),
+                       "left_behind": float(np.asarray(out.left_behind)[0]), "lost": float(lost)}
+
+    pushes, obj, reason = _drive(scene, params, spill, episode, max_pushes, physics_push, progress)
+    return ClosedLoop(obj, pushes, frames, reason)
 
 
 def grid_episode(scene, params=None, spill=None, episode=None, *, max_pushes: int = 15) -> np.ndarray:
     """f[P + 1]: the cumulative delivered mass of the same loop pushed on the grid only (the episode
     the plan alone predicts), with the same planner, spill model and stop rule."""
-    from jaxplan.transport import EpisodeParams, FabricParams, execute_push
-    from jaxplan.transport.spillage import LEARNED_FIT, evaluator_for
+    from jaxplan.transport import execute_push
 
-    params = FabricParams() if params is None else params
-    spill = LEARNED_FIT if spill is None else spill
-    ep = EpisodeParams() if episode is None else episode
-    evaluator = evaluator_for(spill)
-    initial_outside = _outside_mass(scene, scene.obj)
-    delivered = [0.0]
-    while True:
-        plan, _ = _plan(scene, params, ep, spill, evaluator)
-        if _stop_reason(scene, plan, initial_outside, ep, len(delivered) - 1, int(max_pushes)) is not None:
-            return np.asarray(delivered)
-        after, _ = execute_push(scene, plan.route, spill, evaluator)
-        delivered.append(delivered[-1] + _target_mass(scene, after) - _target_mass(scene, scene.obj))
-        scene = scene.with_obj(np.asarray(after, np.float32))
+    def grid_push(scene, plan, route, spill, evaluator):
+        return execute_push(scene, plan.route, spill, evaluator)[0], {}
+
+    pushes, _, _ = _drive(scene, params, spill, episode, max_pushes, grid_push)
+    return np.concatenate([[0.0], np.cumsum([p["delivered"] for p in pushes])])
 
 
 def plot_closed_loop(loop: ClosedLoop, grid_only: np.ndarray | None = None, title: str = ""):

@@ -35,8 +35,12 @@ from jaxplan.transport.spillage.learned import (
     validate_learned_params,
 )
 
+# The spill models fitted to the MuJoCo rover, by name (``--spill-model`` of the CLI): the learned
+# model (the default where physics checks a plan) and the capacity model's fit to the built-in scenes.
+ROVER_MODELS = {"learned": LEARNED_FIT, "rover-fit": ROVER_FIT}
+
 __all__ = ["CENTRIPETAL", "CapacitySpillParams", "EVALUATORS", "Evaluator", "FEATURES", "FIT_FIELDS", "FIT_GRID",
-           "LEARNED_FIT", "LearnedSpillParams", "PathSamples", "ROVER_FIT",
+           "LEARNED_FIT", "LearnedSpillParams", "PathSamples", "ROVER_FIT", "ROVER_MODELS",
            "SpillParams", "capacity_spill", "curvature_spill", "evaluate_route", "evaluator_for", "fit_capacity",
            "pickups_per_sample", "predict_delivered", "predict_missed", "register", "sample_route",
            "sample_route_prefix", "threshold_spill", "validate_capacity_params", "validate_learned_params",
