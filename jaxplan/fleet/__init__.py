@@ -3,10 +3,11 @@ reserving its footprint; idle rovers get tasks by a strategy (``coordinated``, `
 ``partitioned``); rovers approach and push one cell per step without colliding.
 
 Modules: ``footprint`` (a task's cells and push path), ``motion`` (distance fields, the one-step
-move), ``assign`` (the strategies), ``state`` (``FleetConfig``, ``FleetState`` with its ``Rovers`` and
-``Totals``, ``reset``, ``step``, ``rollout``), ``run`` (``run_fleet``, the host driver, and
-``FleetRun``), ``sites`` (the built-in sites ``site128``, ``site256``, ``site512``, ``site1024``), ``report`` (a
-run's summary, files, figure and animation), ``physics`` (concurrent pushes in one MuJoCo world).
+move), ``assign`` (the strategies), ``make_way`` (parked rovers leave a task's footprint),
+``state`` (``FleetConfig``, ``FleetState`` with its ``Rovers`` and ``Totals``, ``reset``, ``step``,
+``rollout``), ``run`` (``run_fleet``, the host driver, and ``FleetRun``), ``generators`` (the
+built-in sites ``site128``, ``site256``, ``site512``, ``site1024``), ``report`` (a run's summary,
+files, figure and animation), ``physics`` (concurrent pushes in one MuJoCo world).
 """
 from jaxplan.fleet.generators import SITES, site
 from jaxplan.fleet.physics import (

@@ -103,7 +103,8 @@ def summary_of(run: FleetRun) -> dict:
     delivered_per_rover_step: delivered / (N * T). step_ms, plan_ms, refresh_ms: wall ms over every
     step, ``{"median", "p95"}`` (None without steps): the whole step, everything but the fabric's
     refresh, and the refresh (0 in steps where no push ended). full_build_ms: one warm full build of
-    the site's initial fabric, measured in the same process (None when not measured).
+    the site's initial fabric, measured in the same process (None when not measured). dropped: tasks
+    dropped as unreachable; made_way: parked rovers sent out of a task's footprint.
     """
     t, n = _check_run(run)
     delivered = float(run.delivered[-1]) - float(run.delivered[0])
@@ -129,6 +130,8 @@ def summary_of(run: FleetRun) -> dict:
         "plan_ms": _median_p95(run.plan_ms),
         "refresh_ms": _median_p95(run.refresh_ms),
         "full_build_ms": None if run.full_build_ms is None else _float_or_none(run.full_build_ms),
+        "dropped": int(run.dropped),
+        "made_way": int(run.made_way),
         "conflicts": int(run.conflicts),
         "stop_reason": str(run.stop_reason),
         "message": str(run.message),

@@ -64,7 +64,8 @@ class FleetRun:
     frames: with ``record=True``, T+1 dicts (0 = start) {"obj": f32[H, W], "heat": f32[H, W],
     "highways": bool[H, W], "routes": N entries, i32[k, 2] cells of the rover's task or None}.
     kernel_conflicts: the step's own count of the same violations (``FleetRecord.conflicts``), summed.
-    dropped: tasks dropped because their start could not be reached.
+    dropped: tasks dropped because their start could not be reached. made_way: times a parked rover
+    was sent to a new home, out of a task's footprint (coordinated; ``jaxplan.fleet.make_way``).
     scene_name: the name of the scene the run was given (``scene`` is the compiled step's copy, which
     carries no name); None when it had none. summary.json's ``scene`` (``report.summary_of``).
     """
@@ -89,6 +90,7 @@ class FleetRun:
     frames: list | None = None
     kernel_conflicts: int = 0
     dropped: int = 0
+    made_way: int = 0
     scene_name: str | None = None
     step_ms: list = dataclasses.field(default_factory=list)
     refresh_ms: list = dataclasses.field(default_factory=list)
@@ -306,7 +308,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     del first                        # the host copy of the start state (fabric, distance fields)
     plan_ms, refresh_ms, step_ms, pushes, reservations = [], [], [], [], []
     open_tasks: dict[int, dict] = {}
-    kernel_conflicts = dropped = 0
+    kernel_conflicts = dropped = made_way = 0
     kernel = config.kernel()
     rebuild = rebuild_mode(episode.rebuild, scene.shape)
     run_step = lambda s: _advance_jit(s, params, spill, planning, kernel, evaluator)  # noqa: E731
@@ -336,6 +338,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
             inside.append(float(rec.inside))
             outside.append(float(rec.outside))
             kernel_conflicts += int(rec.conflicts)
+            made_way += int(np.asarray(rec.made_way).sum())
             assigned, ended, gone = np.asarray(rec.assigned), np.asarray(rec.ended), np.asarray(rec.dropped)
             if assigned.any():
                 routes = jax.device_get(state.rovers.route)
@@ -376,6 +379,6 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
         idle_steps=np.asarray(final.rovers.idle_steps, np.int32),
         plan_ms=plan_ms, conflicts=len(conflicts(pos, reservations)), stop_reason=reason,
         message=_message(reason, final, episode, int(max_steps)), frames=frames,
-        kernel_conflicts=kernel_conflicts, dropped=dropped, scene_name=getattr(scene, "name", None),
+        kernel_conflicts=kernel_conflicts, dropped=dropped, made_way=made_way, scene_name=getattr(scene, "name", None),
         step_ms=step_ms, refresh_ms=refresh_ms, full_build_ms=full_build_ms)
 

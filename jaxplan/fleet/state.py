@@ -6,7 +6,8 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    push budget lasts (tasks started < ``FleetState.totals.max_pushes``, which ``reset`` takes from
    ``EpisodeParams.max_pushes``, so that the compiled step does not depend on the budget, a static
    field of ``EpisodeParams``: ``step`` ignores ``episode.max_pushes``). A rover already on its task's
-   start pushes at once, the others approach.
+   start pushes at once, the others approach. Coordinated, parked rovers that hold up the best free
+   task are sent to new homes (``make_way``).
 2. **Distance fields**: a rover that drives (approaching its task's start, or idle and driving back
    to its home cell, its start cell) goes by the Chebyshev distance to its goal, which no other
    rover's reservation outdates (``motion.approach_distance``). Only a rover that waited
@@ -30,12 +31,13 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    ("done"); no task runs and the budget is spent ("budget"); no task runs, none could be assigned
    and the next step would be the same (the assignment's reason: "done" when no source is left,
    "no_route" / "walk_cap" as in an episode, "no_reachable_task" when every pushable task's
-   footprint held another rover and no rover moved); nothing moved or pushed for ``stall_steps`` steps ("deadlock",
-   or "no_reachable_task" when no task runs: rovers kept dropping unreachable tasks); the step
-   limit ("max_steps").
+   footprint held another rover, every idle rover is parked at home and none was sent to make way);
+   nothing moved or pushed for ``stall_steps`` steps while a task ran, a task was dropped or an idle
+   rover was on its way home ("deadlock", or "no_reachable_task" when no task runs: rovers kept
+   dropping unreachable tasks, or could not get home); the step limit ("max_steps").
 
 Each step is a function of ``_advance`` (``advance``; ``step`` is ``advance`` then ``refresh``):
-``_assign`` and ``_take_tasks`` (1), ``_fields`` and ``_drop_unreachable`` (2), ``_move`` (3),
+``_assign``, ``_take_tasks`` and ``_make_way`` (1), ``_fields`` and ``_drop_unreachable`` (2), ``_move`` (3),
 ``_apply_pushes`` (4, the rebuild in ``refresh``), ``_stop`` (5); then ``_expire`` marks the cached
 tasks the step outdated. ``FleetState`` holds the shared scene and fabric,
 the footprints and cached tasks, every rover's row in ``Rovers`` and the scalars in ``Totals``.
@@ -51,7 +53,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.fleet import assign, footprint, motion, sectors
+from jaxplan.fleet import assign, footprint, make_way, motion, sectors
 from jaxplan.fleet.motion import APPROACH, FAR, IDLE, PUSH
 from jaxplan.transport import (
     BUDGET,
@@ -277,7 +279,8 @@ class FleetRecord(NamedTuple):
     started; dropped: bool[N] an unreachable task was dropped; ended: bool[N] a push was applied.
     collected, delivered, spilled: f32[N] objects of the pushes applied (0 elsewhere).
     delivered_total: f32[] objects delivered by all pushes so far. outside, inside: f32[] objects
-    outside / inside the targets after the step. mass: f32[] the grid's total. conflicts: i32[]
+    outside / inside the targets after the step. mass: f32[] the grid's total. made_way: bool[N]
+    parked rovers sent to a new home, out of a task's footprint (``make_way``). conflicts: i32[]
     invariant violations of this step found in the step itself (two rovers in one cell, a swap, a
     rover in another's footprint); must be 0. failure: i32[] why an assignment found nothing
     (``STOP_REASONS`` code, 0 when it did or none ran). stop: i32[] the stop code after the step.
@@ -296,6 +299,7 @@ class FleetRecord(NamedTuple):
     outside: jax.Array
     inside: jax.Array
     mass: jax.Array
+    made_way: jax.Array
     conflicts: jax.Array
     failure: jax.Array
     stop: jax.Array
@@ -447,7 +451,8 @@ def _idle_record(state: FleetState) -> FleetRecord:
     inside = jnp.sum(jnp.where(scene.target_mask, scene.obj, 0.0))
     return FleetRecord(pos=rovers.pos, phase=rovers.phase, assigned=b, dropped=b, ended=b, collected=f, delivered=f,
                        spilled=f, delivered_total=totals.delivered, outside=totals.outside, inside=_f32(inside),
-                       mass=_f32(jnp.sum(scene.obj)), conflicts=_i32(0), failure=_i32(RUNNING), stop=totals.stop,
+                       mass=_f32(jnp.sum(scene.obj)), made_way=b, conflicts=_i32(0), failure=_i32(RUNNING),
+                       stop=totals.stop,
                        valid=jnp.bool_(False))
 
 
@@ -496,6 +501,17 @@ def _take_tasks(rovers: Rovers, assigned, route, mode, step_no) -> Rovers:
                            mode=jnp.where(assigned, mode, rovers.mode),
                            task_step=jnp.where(assigned, step_no, rovers.task_step),
                            progress=jnp.where(assigned, 0, rovers.progress))
+
+
+def _make_way(state: FleetState, rovers: Rovers, candidates, owner, assigned):
+    """Step 1b, coordinated: ``(rovers, made_way bool[N])``, the parked rovers that hold up the best
+    free candidate sent to new homes while an idle rover is left without a task and the budget
+    allows another (``make_way``)."""
+    room = state.totals.max_pushes - state.totals.started - jnp.sum(assigned) > 0
+    wanted = jnp.any(rovers.phase == IDLE) & room
+    home, moved = make_way.make_way(candidates, owner, rovers.pos, rovers.home,
+                                    _parked(rovers.pos, rovers.home, rovers.phase), wanted, state.scene)
+    return rovers._replace(home=home), moved
 
 
 def _release(owner, rovers):
@@ -624,19 +640,22 @@ def _apply_pushes(scene, rovers: Rovers, owner, ended, spill, evaluator):
     return scene.with_obj(obj), rovers, _release(owner, ended), tuple(applied)
 
 
-def _stop(totals: Totals, scene, phase, assigned, dropped, moved, ended, applied, failure, stall_steps: int) -> Totals:
+def _stop(totals: Totals, scene, phase, parked, made_way, assigned, dropped, moved, ended, applied, failure,
+          stall_steps: int) -> Totals:
     """Step 5: the totals after the step and its stop code (module docstring, first that holds).
-    phase: i32[N] after the step; assigned, dropped, moved, ended: bool[N] what it did; applied:
+    phase: i32[N] after the step; parked: bool[N] idle on the home cell after the step; made_way,
+    assigned, dropped, moved, ended: bool[N] what it did; applied:
     ``(collected, delivered, spilled)`` f32[N] of its pushes; failure: i32[] the assignment's."""
     t = totals.t + 1
     outside = _f32(outside_mass(scene))
     started = totals.started + jnp.sum(assigned) - jnp.sum(dropped)
     has_task = jnp.any(phase != IDLE)
+    homing = jnp.any(~parked & (phase == IDLE)) | jnp.any(made_way)
     progressed = jnp.any(moved) | jnp.any(ended)
-    stall = jnp.where(progressed, 0, jnp.where(has_task | jnp.any(dropped), totals.stall + 1, totals.stall))
+    stall = jnp.where(progressed, 0, jnp.where(has_task | jnp.any(dropped) | homing, totals.stall + 1, totals.stall))
     # all idle and nothing assigned: the next step is this one again, unless rovers are driving home
-    # out of the way of the tasks their cells blocked
-    stuck = ~has_task & ~jnp.any(assigned) & (failure != RUNNING) & ((failure != NO_REACHABLE) | ~jnp.any(moved))
+    # out of the way of the tasks their cells blocked (a rover that cannot get home stalls)
+    stuck = ~has_task & ~jnp.any(assigned) & (failure != RUNNING) & ((failure != NO_REACHABLE) | ~homing)
     stop = _i32(jnp.select(
         [outside <= totals.stop_at, ~has_task & (started >= totals.max_pushes), stuck, stall >= stall_steps,
          t >= totals.max_steps],
@@ -708,6 +727,10 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
     route, mode, assigned, owner, failure, candidates, attempts, fresh = _assign(
         state, params, spill, ep, cfg, evaluator)
     rovers = _take_tasks(state.rovers, assigned, route, mode, state.totals.t + 1)
+    if cfg.strategy == "coordinated":
+        rovers, made_way = _make_way(state, rovers, candidates, owner, assigned)
+    else:
+        made_way = jnp.zeros(assigned.shape, bool)
     # 2. distance fields, unreachable starts dropped
     rovers, fields = _fields(rovers, state.fields, owner, blocked)
     rovers, owner, dropped = _drop_unreachable(rovers, fields, owner)
@@ -717,8 +740,8 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
     # 4. apply the pushes that ended, release their footprints (the fabric is refreshed by ``refresh``)
     scene, rovers, owner, applied = _apply_pushes(state.scene, rovers, owner, ended, spill, evaluator)
     # 5. totals and stop
-    totals = _stop(state.totals, scene, rovers.phase, assigned, dropped, moved, ended, applied, failure,
-                   cfg.stall_steps)
+    totals = _stop(state.totals, scene, rovers.phase, _parked(rovers.pos, rovers.home, rovers.phase), made_way,
+                   assigned, dropped, moved, ended, applied, failure, cfg.stall_steps)
     # what the step outdated for the next: the cached candidates
     candidates, fresh = _expire(candidates, fresh, assigned, dropped, ended)
     new = state._replace(scene=scene, rovers=rovers, fields=fields, owner=owner, candidates=candidates,
@@ -727,7 +750,8 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
     record = FleetRecord(pos=rovers.pos, phase=rovers.phase, assigned=assigned, dropped=dropped, ended=ended,
                          collected=collected, delivered=delivered, spilled=spilled, delivered_total=totals.delivered,
                          outside=totals.outside, inside=_f32(jnp.sum(jnp.where(scene.target_mask, scene.obj, 0.0))),
-                         mass=_f32(jnp.sum(scene.obj)), conflicts=conflicts, failure=_i32(failure), stop=totals.stop,
+                         mass=_f32(jnp.sum(scene.obj)), made_way=made_way, conflicts=conflicts, failure=_i32(failure),
+                         stop=totals.stop,
                          valid=jnp.bool_(True))
     return new, record
 

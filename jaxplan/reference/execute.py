@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 QUANTUM = 2.0 ** -10   # as jaxplan.transport.execute.QUANTUM: spills land on the grid in these units
+STRAIGHT_TURN = 1e-4   # as jaxplan.transport.execute.STRAIGHT_TURN: a sample turning less spills on its own cell
 
 
 def _tangents(p0, p1, p2, p3, alpha: float):
@@ -122,7 +123,7 @@ def execute_route(obj, target_mask, dist, tvec, cell_size, origin, cells, fallba
     drops = []
     for s, amount in zip(samples, spills):
         drop = cells[s["segment"]]
-        if s["turn"] != 0:
+        if abs(s["turn"]) > STRAIGHT_TURN:
             left = np.array([-s["tangent"][1], s["tangent"][0]])
             x, y = s["pos"] - math.copysign(1.0, s["turn"]) * left * cell_size
             r, c = math.floor((y - oy) / cell_size), math.floor((x - ox) / cell_size)

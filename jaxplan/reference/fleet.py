@@ -6,6 +6,7 @@ at a time, written from docs/fleet.md.
 - ``move_rovers``: the prioritised one-step move rule.
 - ``greedy_assign``: the coordinated strategy's greedy choice over (idle rover, candidate) pairs.
 - ``rate_sources``: the idle rovers' best sources by rate (``FleetConfig.candidates_by="rate"``).
+- ``make_way``: parked rovers that hold up the best free candidate sent to new homes.
 """
 from __future__ import annotations
 
@@ -157,3 +158,51 @@ def rate_sources(value, length, occupied, owner, pos, idle, m: int, cell_size: f
             if k < len(ranked[r]) and ranked[r][k] not in out:
                 out.append(ranked[r][k])
     return out[:m]
+
+
+def make_way(footprints, exists, usable, predicted, steps, owner, pos, home, parked, wanted, blocked, target, obj):
+    """``(home [N, 2], moved bool[N])`` (``jaxplan.fleet.make_way``), one candidate and one cell at a time.
+
+    footprints: M sets of (row, col); exists, usable: bool[M]; predicted, steps: [M]; owner: [H, W]
+    (-1 free); pos, home: [N, 2]; parked: bool[N]; wanted: bool; blocked, target: bool[H, W]; obj:
+    [H, W] counts. The candidate: the best ``predicted / max(steps, 1)`` (float32; ties: the lowest
+    index) among existing usable ones whose footprint meets no reservation and holds rovers, all of
+    them parked. Its parked rovers, in rover order, take the free cell (not blocked, not a target,
+    not reserved, outside its footprint, nobody's home or cell, nor one given before) of the least
+    Chebyshev distance + (H + W) x (in a usable footprint) + (H + W) x (holds material); ties:
+    row-major. A rover with no such cell keeps its home.
+    """
+    h, w = owner.shape
+    pos = [tuple(int(v) for v in p) for p in np.asarray(pos)]
+    home = [tuple(int(v) for v in p) for p in np.asarray(home)]
+    n = len(pos)
+    best, pick = -np.inf, None
+    for c, cells in enumerate(footprints):
+        if not (wanted and exists[c] and usable[c]) or any(owner[p] >= 0 for p in cells):
+            continue
+        inside = [r for r in range(n) if pos[r] in cells]
+        if inside and all(parked[r] for r in inside):
+            score = np.float32(predicted[c]) / np.float32(max(int(steps[c]), 1))
+            if score > best:
+                best, pick = score, c
+    moved = [False] * n
+    if pick is None:
+        return np.asarray(home), np.asarray(moved)
+    union = set().union(*(footprints[c] for c in range(len(footprints)) if exists[c] and usable[c]))
+    taken = set(home) | set(pos)
+    for r in range(n):
+        if not (parked[r] and pos[r] in footprints[pick]):
+            continue
+        moved[r] = True
+        ranked = []
+        for i in range(h):
+            for j in range(w):
+                cell = (i, j)
+                if blocked[i, j] or target[i, j] or owner[i, j] >= 0 or cell in footprints[pick] or cell in taken:
+                    continue
+                far = max(abs(i - pos[r][0]), abs(j - pos[r][1]))
+                ranked.append((far + (h + w) * (int(cell in union) + int(obj[i, j] > 0)), i * w + j, cell))
+        if ranked:
+            home[r] = min(ranked)[2]
+            taken.add(home[r])
+    return np.asarray(home), np.asarray(moved)

@@ -3,7 +3,7 @@
 Mass bookkeeping (docs/transport.md, "Executing a route"): the route's non-target cells are emptied
 (each cell once), every spline sample's spill is dropped one cell size to the *outside* of the turn
 (or, if that point is off the grid, in the target or on a blocked cell, back on the cell the sample's
-segment leaves, a free route cell),
+segment leaves, a free route cell; also where the sample turns by less than ``STRAIGHT_TURN``),
 and the rest, ``delivered = collected - sum(spill)``, is added to one target cell: the cell the route
 enters, or for a fallback route the target cell nearest to its boundary point. The grid's total mass
 is therefore unchanged up to float rounding.
@@ -28,6 +28,11 @@ QUANTUM = 2.0 ** -10
 # route buffers are as long as the static walk cap allows (2 (cap + 1) slots in an episode), routes
 # a few dozen cells, so the spline is sampled over the route's own segments only, this many at a time.
 SPLINE_CHUNK = 32
+
+# Samples turning less than this (radians) count as straight: their spill lands on the route's own
+# cell. On a straight segment the spline's turn is rounding noise whose sign, and so the side a
+# spill would land on, changes with how the program was compiled.
+STRAIGHT_TURN = 1e-4
 
 
 @grid_jit
@@ -142,7 +147,7 @@ def spill_cells(scene, route: Route, samples: spillage.PathSamples):
     left = jnp.stack([-samples.tangent[:, 1], samples.tangent[:, 0]], -1)
     outside = -jnp.sign(samples.turn)[:, None] * left
     r, c, inside = _cell_of(scene, samples.pos + outside * scene.cell_size)
-    ok = inside & ~scene.target_mask[r, c] & ~scene.blocked[r, c] & (samples.turn != 0)
+    ok = inside & ~scene.target_mask[r, c] & ~scene.blocked[r, c] & (jnp.abs(samples.turn) > STRAIGHT_TURN)
     own = jnp.maximum(route.cells[jnp.clip(samples.segment, 0, route.cells.shape[0] - 1)], 0)
     return jnp.where(ok, r * w + c, own[:, 0] * w + own[:, 1])
 
