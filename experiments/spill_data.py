@@ -22,6 +22,7 @@ the script and its arguments: the scenes, routes and layouts are seeded. Writes 
 ``OUT.json`` (the manifest: arguments, counts per split, family and density, the archive's SHA-256).
 
     python -m experiments.spill_data --out experiments/data/spill             # the full set
+    python -m experiments.spill_data --perturbed 1 --only-perturbed --out experiments/data/spill_perturbed
     python -m experiments.spill_data --quick --out /tmp/spill_quick             # 8 scenes, a smoke test
 """
 from __future__ import annotations
@@ -89,11 +90,12 @@ def perturb_route(scene, cells, rng):
     return None
 
 
-def scene_routes(scene, sources: int, entries: int, perturbed: int = 0):
+def scene_routes(scene, sources: int, entries: int, perturbed: int = 0, planned: bool = True):
     """``(routes: execute.Route [B], source i32[B, 2], entry i32[B], perturbed i32[B])``: the
     ``sources`` sources with the largest J, each with table entries 0 .. ``entries`` - 1 that exist
     and leave the source, then ``perturbed`` perturbations of each (``perturb_route``, seeded by the
-    scene's name; ``perturbed`` = k for the k-th, 0 for the planned routes)."""
+    scene's name; ``perturbed`` = k for the k-th, 0 for the planned routes). ``planned=False`` keeps
+    only the perturbations (the same ones a run with both makes)."""
     import zlib
 
     import jax
@@ -129,18 +131,22 @@ def scene_routes(scene, sources: int, entries: int, perturbed: int = 0):
         src = np.concatenate([src, np.stack([e[1] for e in extra])])
         rank = np.concatenate([rank, np.asarray([e[2] for e in extra], np.int32)])
         variant = np.concatenate([variant, np.asarray([e[3] for e in extra], np.int32)])
+    if not planned:
+        keep = variant > 0
+        routes = jax.tree.map(lambda a: a[keep], routes)
+        src, rank, variant = src[keep], rank[keep], variant[keep]
     return routes, src, rank, variant
 
 
 def scene_records(scene, sources: int, entries: int, layouts: int, backend: str = "auto",
-                  perturbed: int = 0) -> list[dict]:
+                  perturbed: int = 0, planned: bool = True) -> list[dict]:
     """Every route of ``scene_routes`` under ``layouts`` particle layouts, pushed in one batch."""
     import jax
 
     from jaxplan.transport.physics import check_routes, projected_obj
     from jaxplan.transport.spillage import ROVER_FIT
 
-    routes, src, rank, variant = scene_routes(scene, sources, entries, perturbed)
+    routes, src, rank, variant = scene_routes(scene, sources, entries, perturbed, planned)
     n = int(np.asarray(routes.n_cells).shape[0])
     if n == 0:
         return []
@@ -223,7 +229,7 @@ def write_atomically(path: Path, arrays: dict) -> str:
 
 
 def generate(seeds, densities, sources: int, entries: int, layouts: int, progress: bool = True,
-             backend: str = "auto", perturbed: int = 0):
+             backend: str = "auto", perturbed: int = 0, planned: bool = True):
     """``(records, scene_meta)`` for every (family, density, seed) of the plan, in order."""
     from tqdm.auto import tqdm
 
@@ -232,7 +238,7 @@ def generate(seeds, densities, sources: int, entries: int, layouts: int, progres
         scene = family_scene(family, density, seed)
         scene_meta.append({"family": family, "density": density, "seed": seed, "heldout": is_heldout(seed),
                            "target_mask": np.asarray(scene.target_mask)})
-        for r in scene_records(scene, sources, entries, layouts, backend, perturbed):
+        for r in scene_records(scene, sources, entries, layouts, backend, perturbed, planned):
             records.append({**r, "scene": k})
     return records, scene_meta
 
@@ -250,6 +256,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--layouts", type=int, default=2, help="particle layouts per route; default 2")
     parser.add_argument("--perturbed", type=int, default=0,
                         help="perturbed copies of each planned route (one interior cell moved); default 0")
+    parser.add_argument("--only-perturbed", action="store_true",
+                        help="write only the perturbed copies (a second archive beside a set of planned routes)")
     parser.add_argument("--backend", default="auto", choices=("auto", "c", "mjx", "warp"),
                         help="physics engine; default auto (the C engine on a CPU, MJX-Warp on a GPU with warp-lang)")
     parser.add_argument("--quick", action="store_true",
@@ -261,13 +269,15 @@ def main(argv=None) -> dict:
             parser.error(f"--{name}: {getattr(args, name)} is not a count; give an int >= 1.")
     if args.perturbed < 0:
         parser.error(f"--perturbed: {args.perturbed} is not a count; give an int >= 0.")
+    if args.only_perturbed and args.perturbed == 0:
+        parser.error("--only-perturbed with --perturbed 0 writes nothing; give --perturbed 1 or more.")
     seeds, densities = range(args.seeds), DENSITIES
     if args.quick:
         args.seeds, args.sources, args.entries, args.layouts = HOLDOUT, 2, 1, 1
         seeds, densities = (0, HOLDOUT - 1), (0.35,)        # one training and one held-out seed
     start = time.perf_counter()
     records, scene_meta = generate(seeds, densities, args.sources, args.entries, args.layouts,
-                                   backend=args.backend, perturbed=args.perturbed)
+                                   backend=args.backend, perturbed=args.perturbed, planned=not args.only_perturbed)
     if not records:
         parser.error("no route was planned on any scene; nothing to write.")
     out = Path(args.out)

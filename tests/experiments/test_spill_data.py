@@ -22,7 +22,7 @@ def test_one_scenes_records_conserve_mass_in_physics():
         np.testing.assert_array_equal(r["obj_before"], np.asarray(scene.obj))
 
 
-def _fake_records(scene, sources, entries, layouts, backend="auto", perturbed=0):
+def _fake_records(scene, sources, entries, layouts, backend="auto", perturbed=0, planned=True):
     """Records shaped like ``scene_records``'s, without the physics (the writer is under test)."""
     obj = np.asarray(scene.obj, np.float32)
     return [{"obj_before": obj, "obj_after": obj, "cells": np.asarray([[1, 1], [1, 2], [2, 3]][: 2 + k % 2], np.int16),
@@ -58,7 +58,7 @@ def test_scene_families_are_deterministic():
         assert float(np.asarray(a.obj).sum()) > 0 and not np.asarray(a.obj)[np.asarray(a.target_mask)].any()
 
 
-@pytest.mark.parametrize("argv", [["--layouts", "0"], ["--seeds", "-1"], ["--perturbed", "-1"]])
+@pytest.mark.parametrize("argv", [["--layouts", "0"], ["--seeds", "-1"], ["--perturbed", "-1"], ["--only-perturbed"]])
 def test_bad_arguments_exit_before_any_work(argv, tmp_path, capsys):
     with pytest.raises(SystemExit) as err:
         spill_data.main([*argv, "--out", str(tmp_path / "x")])
@@ -81,6 +81,16 @@ def test_perturbed_routes_are_walks_with_one_interior_cell_moved():
         assert len(moved) == 1 and 0 < moved[0] < n - 1                     # one interior cell, ends kept
         assert np.abs(np.diff(b, axis=0)).max() <= 1                          # still an 8-connected walk
         assert free[tuple(b[moved[0]])] and len({tuple(c) for c in b.tolist()}) == n
+
+
+def test_only_perturbed_keeps_the_same_perturbations_without_the_planned_routes():
+    scene = spill_data.family_scene("uniform", 0.35, 0)
+    both = spill_data.scene_routes(scene, sources=3, entries=1, perturbed=1)
+    only = spill_data.scene_routes(scene, sources=3, entries=1, perturbed=1, planned=False)
+    moved = both[3] > 0
+    assert (only[3] == 1).all() and len(only[3]) == int(moved.sum()) > 0
+    np.testing.assert_array_equal(only[0].cells, both[0].cells[moved])
+    np.testing.assert_array_equal(only[1], both[1][moved])
 
 
 def test_perturb_route_gives_up_where_nothing_can_move():
