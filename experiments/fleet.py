@@ -44,8 +44,8 @@ def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="ra
             "delivered_per_rover_step": s["delivered_per_rover_step"],
             "conflicts": s["conflicts"], "step_ms": s["step_ms"], "plan_ms": s["plan_ms"],
             "refresh_ms": s["refresh_ms"], "full_build_ms": s["full_build_ms"],
-            "idle_fraction_mean": statistics.fmean(s["idle_fraction"]), "stop_reason": s["stop_reason"],
-            "wall_s": round(wall, 2)}
+            "idle_fraction_mean": statistics.fmean(s["idle_fraction"]), "made_way": s["made_way"],
+            "stop_reason": s["stop_reason"], "wall_s": round(wall, 2)}
 
 
 def _rate(r) -> float:
@@ -61,9 +61,10 @@ def _markdown(rows, meta) -> str:
              "their whole runs (the speed-up where a run stopped at the step limit before T90); plan / 1: "
              "median plan ms against one rover's.\n",
              "| site | strategy | N | steps | delivered | T50 | T90 | S(N) | rate x | delivered / rover-step | "
-             "idle (mean) | conflicts | step ms (median, p95) | plan ms (median, p95) | refresh ms (median, p95) | "
+             "idle (mean) | made way | conflicts | step ms (median, p95) | plan ms (median, p95) | "
+             "refresh ms (median, p95) | "
              "full build ms | plan / build | plan / 1 | stop |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
 
     def both(d):
         return "-" if d["median"] is None else f"{d['median']:.1f}, {d['p95']:.1f}"
@@ -79,7 +80,9 @@ def _markdown(rows, meta) -> str:
         ratio = "-" if r["plan_ms"]["median"] is None or not build else f"{r['plan_ms']['median'] / build:.2f}"
         lines.append(f"| {r['site']} | {r['strategy']} | {r['rovers']} | {r['steps']} | {r['delivered']:.0f} | "
                      f"{r['T50'] or '-'} | {r['T90'] or '-'} | {speed} | {rate} | "
-                     f"{r['delivered_per_rover_step']:.3f} | {r['idle_fraction_mean']:.0%} | {r['conflicts']} | "
+                     f"{r['delivered_per_rover_step']:.3f} | {r['idle_fraction_mean']:.0%} | "
+                     f"{r.get('made_way', '-')} | "
+                     f"{r['conflicts']} | "
                      f"{both(r['step_ms'])} | {both(r['plan_ms'])} | {both(r['refresh_ms'])} | {build or 0:.2f} | "
                      f"{ratio} | {per_one} | {r['stop_reason']} |")
     return "\n".join(lines) + "\n"

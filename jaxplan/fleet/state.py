@@ -37,9 +37,9 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    dropping unreachable tasks, or could not get home); the step limit ("max_steps").
 
 Each step is a function of ``_advance`` (``advance``; ``step`` is ``advance`` then ``refresh``):
-``_assign``, ``_take_tasks`` and ``_make_way`` (1), ``_fields`` and ``_drop_unreachable`` (2), ``_move`` (3),
-``_apply_pushes`` (4, the rebuild in ``refresh``), ``_stop`` (5); then ``_expire`` marks the cached
-tasks the step outdated. ``FleetState`` holds the shared scene and fabric,
+``_assign``, ``_take_tasks`` and ``_make_way`` (1), ``_fields`` and ``_drop_unreachable`` (2),
+``_move`` (3), ``_apply_pushes`` (4, the rebuild in ``refresh``), ``_stop`` (5); then ``_expire``
+marks the cached tasks the step outdated. ``FleetState`` holds the shared scene and fabric,
 the footprints and cached tasks, every rover's row in ``Rovers`` and the scalars in ``Totals``.
 
 A finished state's step is a no-op, so ``rollout`` (``lax.scan``) may run past the end. Counts stay
@@ -452,8 +452,7 @@ def _idle_record(state: FleetState) -> FleetRecord:
     return FleetRecord(pos=rovers.pos, phase=rovers.phase, assigned=b, dropped=b, ended=b, collected=f, delivered=f,
                        spilled=f, delivered_total=totals.delivered, outside=totals.outside, inside=_f32(inside),
                        mass=_f32(jnp.sum(scene.obj)), made_way=b, conflicts=_i32(0), failure=_i32(RUNNING),
-                       stop=totals.stop,
-                       valid=jnp.bool_(False))
+                       stop=totals.stop, valid=jnp.bool_(False))
 
 
 def _select_rows(mask, new, old):
@@ -751,8 +750,7 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
                          collected=collected, delivered=delivered, spilled=spilled, delivered_total=totals.delivered,
                          outside=totals.outside, inside=_f32(jnp.sum(jnp.where(scene.target_mask, scene.obj, 0.0))),
                          mass=_f32(jnp.sum(scene.obj)), made_way=made_way, conflicts=conflicts, failure=_i32(failure),
-                         stop=totals.stop,
-                         valid=jnp.bool_(True))
+                         stop=totals.stop, valid=jnp.bool_(True))
     return new, record
 
 

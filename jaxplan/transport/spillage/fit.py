@@ -39,6 +39,9 @@ FIT_GRID = {"capacity": (4.0, 8.0, 16.0, 24.0, 48.0, 96.0, 192.0, 1000.0),
             "lam": (0.0, 0.01, 0.02, 0.03, 0.05, 0.1, 0.2, 0.5),
             "mu": (0.0, 0.002, 0.005, 0.01, 0.03, 0.1),
             "turn_saturation": (1.0, 3.0, 10.0, 30.0, 1e4)}
+GRID_BATCH = 16
+"""Grid points ``fit_capacity`` (and ``fit_miss``) evaluate together (a ``vmap``); the rest of the grid
+runs in turn, so the memory does not grow with the grid."""
 _LOG_FIELDS = ("capacity", "turn_saturation")   # fitted on a log scale; the others through softplus
 
 
@@ -93,11 +96,14 @@ def fit_miss(waypoints, n_points, waypoint_pickup, left_behind, *, samples_per_s
     left_behind: f[R] observed objects left on the routes' own cells (e.g. ``RouteOutcome.left_behind``
     of physics rollouts). The predicted mass is linear in ``miss`` until ``miss * near`` reaches 1 at
     a sharp turn, so the fit is a plain search: every multiple of ``resolution`` in ``[0, max_miss]``,
-    one array operation over the candidates (the splines are sampled once).
+    ``GRID_BATCH`` candidates at a time (the splines are sampled once).
     """
     near, pickup = _turning_and_pickups(waypoints, n_points, waypoint_pickup, samples_per_step, spline_alpha)
     candidates = jnp.arange(0.0, max_miss + resolution / 2, resolution, dtype=jnp.float32)
-    sse = jnp.sum((_missed_totals(near, pickup, candidates) - jnp.asarray(left_behind, jnp.float32)) ** 2, -1)
+    observed = jnp.asarray(left_behind, jnp.float32)
+    # GRID_BATCH candidates at a time: all of them times the routes' samples need not fit in memory
+    sse = jax.jit(lambda c: jax.lax.map(lambda m: jnp.sum((_missed_totals(near, pickup, m) - observed) ** 2), c,
+                                        batch_size=GRID_BATCH))(candidates)
     return float(candidates[int(jnp.argmin(sse))])
 
 
@@ -124,7 +130,7 @@ def fit_capacity(waypoints, n_points, waypoint_pickup, delivered, *, temperature
     first (:func:`fit_miss`) and held there, otherwise it stays ``base.miss``. Fields not fitted keep
     ``base``'s values.
     Loss: mean squared error in objects^2. A coarse grid (``grid[field]`` start values, default
-    ``FIT_GRID``; every combination evaluated in one ``vmap`` over parameter sets) picks the start,
+    ``FIT_GRID``; every combination evaluated, ``GRID_BATCH`` at a time) picks the start,
     then ``steps`` Adam steps (optax) on the logarithm of ``capacity`` and ``turn_saturation`` and
     the softplus-inverse of ``lam`` and ``mu`` (so they stay positive). ``temperature`` is held fixed.
     The grid's capacities reach 1000 objects (no cap in practice): Adam started from a small capacity
@@ -155,7 +161,9 @@ def fit_capacity(waypoints, n_points, waypoint_pickup, delivered, *, temperature
 
     k = len(fields)
     mesh = np.stack(np.meshgrid(*[np.asarray(grid[f], np.float32) for f in fields], indexing="ij"), -1).reshape(-1, k)
-    grid_loss = np.asarray(jax.jit(jax.vmap(lambda v: mse(tuple(v[i] for i in range(k)))))(jnp.asarray(mesh)))
+    # a few parameter sets at a time: the grid times the routes' samples does not fit in memory at once
+    grid_loss = np.asarray(jax.jit(lambda m: jax.lax.map(lambda v: mse(tuple(v[i] for i in range(k))), m,
+                                                         batch_size=GRID_BATCH))(jnp.asarray(mesh)))
     start = mesh[int(np.argmin(grid_loss))]
 
     # capacity and the saturation load on a log scale (Adam's step is then a relative change, right
