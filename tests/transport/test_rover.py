@@ -74,7 +74,7 @@ def test_warp_drives_the_routes_like_the_c_engine(tiny):
     assert np.max(np.abs(path_c[:, -1] - path_c[:, 0])) > 1.0     # it did drive
 
 
-DEMO_TICKS = 120   # 6 s: the blade drives ~4 cells into the demo route and pushes ~20 particles
+DEMO_TICKS = 90    # 4.5 s: the blade is in the pile (the test asserts at least 10 particles moved)
 DEMO_CELLS = 6     # the route's first cells: the ones the blade reaches in DEMO_TICKS, and one more
 
 
