@@ -52,9 +52,9 @@ from jaxplan.transport import (
 from jaxplan.transport.spillage import evaluate_route
 
 __all__ = ["BLOCKED", "PLAN_CHUNK", "RATE_CHUNK", "Attempts", "Candidates", "Task", "assign_each", "assign_greedy",
-           "assign_planned", "bits_at", "failure_rank", "footprint_free", "footprint_relations", "greedy_choice",
-           "no_attempts", "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve", "rovers_inside",
-           "unpack_bits", "wanted_candidates"]
+           "assign_planned", "bits_at", "clear_of", "failure_rank", "footprint_free", "footprint_relations",
+           "greedy_choice", "no_attempts", "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve",
+           "rovers_in", "rovers_inside", "unpack_bits", "wanted_candidates"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
@@ -278,12 +278,24 @@ def bits_at(words, flat):
     return ((words[flat // 32] >> (flat % 32).astype(jnp.uint32)) & 1).astype(bool)
 
 
+def clear_of(words, owner):
+    """bool[M]: which of M packed footprint masks (u32[M, ceil(H W / 32)], ``pack_bits``) meet no
+    cell of ``owner`` (i32[H, W], -1 free), compared 32 cells to a word."""
+    reserved = pack_bits((owner >= 0)[None])[0]
+    return ~jnp.any((words & reserved[None]) != 0, 1)
+
+
+def rovers_in(words, pos, width: int):
+    """bool[M, N]: which rovers (cells ``pos: i32[N, 2]``) stand in each of M packed footprint masks
+    of a grid ``width`` cells wide."""
+    return jax.vmap(lambda row: bits_at(row, pos[:, 0] * width + pos[:, 1]))(words)
+
+
 def footprint_relations(words, usable, owner):
     """``(clear bool[M], overlap bool[M, M])`` of M packed footprint masks (u32[M, ceil(H W / 32)],
     ``pack_bits``): whether each meets no cell of ``owner`` (i32[H, W], -1 free), and which pairs
     share a cell (unusable slots share none), compared 32 cells to a word."""
-    reserved = pack_bits((owner >= 0)[None])[0]
-    clear = ~jnp.any((words & reserved[None]) != 0, 1)
+    clear = clear_of(words, owner)
     overlap = jax.vmap(lambda row: jnp.any((words & row[None]) != 0, 1))(words)
     return clear, overlap & usable[:, None] & usable[None]
 
@@ -344,7 +356,7 @@ def greedy_choice(pos, idle, owner, budget, usable, tasks: Task, relations):
     n = pos.shape[0]
     m = usable.shape[0]
     h, w = owner.shape
-    inside = jax.vmap(lambda words: bits_at(words, pos[:, 0] * w + pos[:, 1]))(tasks.footprint).T   # [N, M]
+    inside = rovers_in(tasks.footprint, pos, w).T                                                  # [N, M]
     crowd = jnp.sum(inside, 0)
     alone = (crowd == 0)[None] | ((crowd == 1)[None] & inside)
     approach = jnp.max(jnp.abs(pos[:, None, :] - tasks.source[None]), -1)

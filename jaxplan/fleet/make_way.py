@@ -15,7 +15,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxplan.fleet.assign import Candidates, bits_at, pack_bits, unpack_bits
+from jaxplan.fleet.assign import Candidates, clear_of, rovers_in, unpack_bits
 
 __all__ = ["blocking_candidate", "make_way", "new_homes"]
 
@@ -31,9 +31,8 @@ def blocking_candidate(planned: Candidates, owner, pos, parked, wanted):
     """
     words = planned.tasks.footprint
     w = owner.shape[1]
-    inside = jax.vmap(lambda row: bits_at(row, pos[:, 0] * w + pos[:, 1]))(words)          # [M, N]
-    reserved = pack_bits((owner >= 0)[None])[0]
-    clear = ~jnp.any((words & reserved[None]) != 0, 1)
+    inside = rovers_in(words, pos, w)                                                     # [M, N]
+    clear = clear_of(words, owner)
     held = jnp.any(inside & parked[None], 1) & ~jnp.any(inside & ~parked[None], 1)
     ok = planned.exists & planned.usable & clear & held & wanted
     score = planned.tasks.predicted / jnp.maximum(planned.tasks.steps, 1).astype(jnp.float32)
