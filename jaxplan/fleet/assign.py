@@ -39,22 +39,27 @@ from jaxplan.transport import (
     RUNNING,
     SPLINE_CHUNK,
     WALK_CAP,
+    FabricChanges,
+    PlanReads,
     Route,
     choose_source,
     connector_walk,
     plan_code,
     plan_for_source,
+    plan_reads,
     plan_with_connector,
+    plans_unchanged,
     source_anchors,
     waypoint_pickup,
     waypoints,
 )
 from jaxplan.transport.spillage import evaluate_route
 
-__all__ = ["BLOCKED", "PLAN_CHUNK", "RATE_CHUNK", "Attempts", "Candidates", "Task", "assign_each", "assign_greedy",
-           "assign_planned", "bits_at", "clear_of", "failure_rank", "footprint_free", "footprint_relations",
-           "greedy_choice", "no_attempts", "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve",
-           "rovers_in", "rovers_inside", "unpack_bits", "wanted_candidates"]
+__all__ = ["Attempts", "BLOCKED", "Candidates", "PLAN_CHUNK", "RATE_BLOCK", "RATE_BLOCKS", "RATE_CHUNK", "RATE_REACH",
+           "Task", "assign_each", "assign_greedy", "assign_planned", "bits_at", "clear_of", "failure_rank",
+           "footprint_free", "footprint_relations", "greedy_choice", "keep_only", "no_attempts", "overlap_rows",
+           "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve", "rovers_in", "rovers_inside",
+           "unchanged_tasks", "unpack_bits", "wanted_candidates"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
@@ -62,7 +67,13 @@ stop code "no_reachable_task" when nothing else runs)."""
 PLAN_CHUNK = 8
 """Candidates planned together (one ``vmap``) by ``plan_candidates``."""
 RATE_CHUNK = 8
-"""Rovers whose rates ``rate_sources`` scores together."""
+"""Rovers whose rates ``rate_sources`` scores together over the whole grid."""
+RATE_BLOCK = 16
+"""Side of the tiles whose bounds let ``rate_sources`` score a few tiles per rover, not the grid."""
+RATE_BLOCKS = 8
+"""Tiles ``rate_sources`` scores per rover before it checks that no other tile could beat them."""
+RATE_REACH = (0, 4, 8, 16, 32, 64, 128, 256, 512)
+"""Distances at which ``rate_sources`` bounds each tile's rates (the nearest not beyond a rover's)."""
 
 
 class Task(NamedTuple):
@@ -135,15 +146,19 @@ def _source_score(scene, fabric, rule: str):
 
 
 class Candidates(NamedTuple):
-    """The coordinated strategy's planned candidates (M of them), valid while the fabric and the
-    reserved footprints they were planned on stay the same.
+    """The coordinated strategy's planned candidates (M of them). A task stays what planning its
+    source again would give while the fabric and counts it read stay the same (``reads``,
+    ``unchanged_tasks``); the footprint relations, while the reservations stay the same too.
 
     tasks: Task[M], whose ``footprint`` holds each mask packed 32 cells to a word (``pack_bits``:
     u32[M, ceil(H W / 32)], an eighth of the bytes, copied and compared word by word); exists:
-    bool[M] the slot holds an occupied source; usable: bool[M] it holds a pushable task. What the
+    bool[M] the slot holds an occupied source's task, planned on the current fabric or on one that
+    differs from it nowhere the task read; usable: bool[M] it holds a pushable task. What the
     greedy rounds need of the footprints, computed once when planned, so that an assignment on
     cached candidates does no whole-grid work: clear: bool[M] the footprint meets no reservation it
-    was planned with; overlap: bool[M, M] two footprints share a cell.
+    was planned with; overlap: bool[M, M] two footprints share a cell. reads: PlanReads[M] what each
+    task's plan read (``transport.plan_reads``), to tell after a refresh which tasks it left
+    unchanged (``unchanged_tasks``).
     """
 
     tasks: Task
@@ -151,27 +166,36 @@ class Candidates(NamedTuple):
     usable: jax.Array
     clear: jax.Array
     overlap: jax.Array
+    reads: PlanReads
 
 
-def rate_sources(fabric, owner, pos, idle, m: int, cell_size, per_rover: int = 2):
+def rate_sources(fabric, owner, pos, idle, m: int, cell_size, per_rover: int = 2, block: int | None = None,
+                 blocks: int = RATE_BLOCKS):
     """``(flat i32[m], ok bool[m])``: each idle rover's ``per_rover`` best sources by the rate the
     fabric promises it, ``J / (Chebyshev distance from the rover + route length in cells + 1)``,
     among occupied cells outside every footprint; rank by rank (every idle rover's best, then every
-    second best, ...), each cell once, the first m kept. The rovers are scored ``RATE_CHUNK`` at a
-    time, so the grids alive at once do not grow with N."""
+    second best, ...), each cell once, the first m kept.
+
+    block, blocks (static): the grid is cut into ``block`` x ``block`` tiles (default ``RATE_BLOCK``
+    on grids at least ``4 RATE_BLOCK`` cells a side, else none, and every rover is scored over the
+    whole grid, ``RATE_CHUNK`` at a time). A tile's rates are bounded by its best ``J / (d + route
+    length + 1)`` at a distance d no farther than the rover's least distance to the tile
+    (``RATE_REACH``), so each rover scores the cells of its ``blocks`` best-bounded tiles only, and
+    its sources are the grid's when its ``per_rover``-th best there beats every other tile's bound;
+    a rover whose does not is scored over the whole grid. The same sources either way (ties to the
+    lowest flat index)."""
     h, w = owner.shape
-    rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
     allowed = fabric.occupied & (owner < 0)
     cells_long = fabric.length / cell_size
-
-    def best_of(rover):
-        here, may = rover
-        far = jnp.maximum(jnp.abs(rows - here[0]), jnp.abs(cols - here[1]))
-        rate = jnp.where(allowed & may, fabric.value / (far + cells_long + 1.0), -jnp.inf)
-        return jax.lax.top_k(rate.reshape(-1), per_rover)
-
-    best, flat = jax.lax.map(best_of, (pos, idle), batch_size=min(RATE_CHUNK, pos.shape[0]))
-    best, flat = best.T.reshape(-1), flat.T.reshape(-1).astype(jnp.int32)       # rank-major
+    if block is None:
+        block = RATE_BLOCK if min(h, w) >= 4 * RATE_BLOCK else 0
+    if block and blocks * block * block < h * w:
+        best, flat = _rates_by_tile(fabric.value, cells_long, allowed, pos, idle, per_rover, block, blocks)
+    else:
+        best, flat = jax.lax.map(lambda r: _best_on_grid(fabric.value, cells_long, allowed, *r, per_rover),
+                                 (pos, idle), batch_size=min(RATE_CHUNK, pos.shape[0]))
+    best, flat = best.T.reshape(-1), flat.T.reshape(-1)       # rank-major
+    flat = jnp.where(best > -jnp.inf, flat, 0)
     k = flat.shape[0]
     earlier = jnp.tril(flat[:, None] == flat[None], -1)
     ok = (best > -jnp.inf) & ~jnp.any(earlier, 1)
@@ -180,6 +204,80 @@ def rate_sources(fabric, owner, pos, idle, m: int, cell_size, per_rover: int = 2
     if k < m:
         flat, ok = jnp.pad(flat, (0, m - k)), jnp.pad(ok, (0, m - k))
     return flat[:m], ok[:m]
+
+
+def _rate(value, far, cells_long):
+    """The rate of cells with J ``value``, Chebyshev distance ``far`` and route length ``cells_long``."""
+    return value / (far + cells_long + 1.0)
+
+
+def _best_on_grid(value, cells_long, allowed, here, may, per_rover: int):
+    """``(best f32[per_rover], flat i32[per_rover])``: one rover's best rates over the whole grid."""
+    h, w = allowed.shape
+    rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    far = jnp.maximum(jnp.abs(rows - here[0]), jnp.abs(cols - here[1]))
+    rate = jnp.where(allowed & may, _rate(value, far, cells_long), -jnp.inf)
+    best, flat = jax.lax.top_k(rate.reshape(-1), per_rover)
+    return best, flat.astype(jnp.int32)
+
+
+def _top_by_rate(rate, flat, k: int):
+    """``(best f32[k], flat i32[k])``: the k best of ``rate: f32[C]`` at the cells ``flat: i32[C]``
+    (distinct), ties to the lowest flat index (``lax.top_k`` on the grid's row-major order)."""
+    def pick(rate, _):
+        best = jnp.max(rate)
+        first = jnp.min(jnp.where(rate == best, flat, jnp.iinfo(jnp.int32).max))
+        return jnp.where(flat == first, -jnp.inf, rate), (best, first)
+
+    _, (best, first) = jax.lax.scan(pick, rate, None, length=k)
+    return best, first.astype(jnp.int32)
+
+
+def _rates_by_tile(value, cells_long, allowed, pos, idle, per_rover: int, block: int, blocks: int):
+    """``(best f32[N, per_rover], flat i32[N, per_rover])``: every rover's best rates over the cells of
+    its ``blocks`` best-bounded tiles, over the whole grid for a rover where another tile's bound
+    reaches its ``per_rover``-th (``rate_sources``)."""
+    h, w = allowed.shape
+    hb, wb = -(-h // block), -(-w // block)
+    pad = ((0, hb * block - h), (0, wb * block - w))
+    reach = jnp.asarray(RATE_REACH, jnp.float32)
+    # envelope[d, tile]: the tile's best J / (reach[d] + length + 1), for reach[d] <= the rover's distance
+    # J clipped at 0 so that a farther cell can never rate higher than its bound
+    rate_at = jnp.where(allowed[None], _rate(jnp.maximum(value, 0.0)[None], reach[:, None, None], cells_long[None]),
+                        -jnp.inf)
+    envelope = jnp.pad(rate_at, ((0, 0),) + pad, constant_values=-jnp.inf).reshape(
+        len(RATE_REACH), hb, block, wb, block).max((2, 4)).reshape(len(RATE_REACH), -1)
+    first_row, first_col = jnp.arange(hb) * block, jnp.arange(wb) * block
+    inner = jnp.arange(block)
+
+    def best_of(here, may):
+        near_r = jnp.maximum(jnp.maximum(first_row - here[0], here[0] - (first_row + block - 1)), 0)
+        near_c = jnp.maximum(jnp.maximum(first_col - here[1], here[1] - (first_col + block - 1)), 0)
+        near = jnp.maximum(near_r[:, None], near_c[None]).reshape(-1)
+        level = jnp.sum(near[None] >= reach[:, None], 0) - 1
+        bound = jnp.where(may, jnp.take_along_axis(envelope, level[None], 0)[0], -jnp.inf)
+        _, chosen = jax.lax.top_k(bound, blocks)
+        rest = jnp.max(bound.at[chosen].set(-jnp.inf))
+        rows = (chosen // wb)[:, None, None] * block + inner[None, :, None]
+        cols = (chosen % wb)[:, None, None] * block + inner[None, None, :]
+        rows, cols = jnp.broadcast_to(rows, (blocks, block, block)), jnp.broadcast_to(cols, (blocks, block, block))
+        flat = (rows * w + cols).reshape(-1)
+        r, c = flat // w, flat % w
+        inside = (r < h) & (c < w)
+        r, c = jnp.minimum(r, h - 1), jnp.minimum(c, w - 1)
+        far = jnp.maximum(jnp.abs(r - here[0]), jnp.abs(c - here[1]))
+        rate = jnp.where(inside & allowed[r, c] & may, _rate(value[r, c], far, cells_long[r, c]), -jnp.inf)
+        best, first = _top_by_rate(rate, flat, per_rover)
+        return best, first, (best[-1] > rest) | (rest == -jnp.inf)
+
+    best, flat, ok = jax.vmap(best_of)(pos, idle)
+
+    def settle(rover):
+        here, may, good, b, f = rover
+        return jax.lax.cond(good, lambda: (b, f), lambda: _best_on_grid(value, cells_long, allowed, here, may,
+                                                                          per_rover))
+
+    return jax.lax.map(settle, (pos, idle, ok, best, flat))
 
 
 def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int, cap: int, evaluator,
@@ -217,10 +315,12 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
         before = jnp.where(previous.exists, previous.tasks.source[:, 0] * w + previous.tasks.source[:, 1], -1)
         match = (idx[:, None] == before[None]) & exists[:, None]
         kept = jnp.any(match, 1)
-        reused = jax.tree.map(lambda a: a[jnp.argmax(match, 1)], previous.tasks)
+        was = jnp.argmax(match, 1)
+        reused = jax.tree.map(lambda a: a[was], (previous.tasks, previous.reads))
     need = exists & ~kept
     # the sources to plan first, in slot order; the rest of the list is padding (slot m)
     order = jnp.nonzero(need, size=m, fill_value=m)[0]
+    slots = order
     n_need = jnp.sum(need, dtype=jnp.int32)
     safe = jnp.minimum(order, m - 1)
     todo = jnp.arange(m) < n_need
@@ -237,7 +337,8 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
         tasks = jax.vmap(lambda s, e, a, c: plan_task(
             scene, params, ep, spill, fabric, s, e, cap, evaluator, clearance, connector=(a, c)))(
             sources, exists, anchors, conns)
-        return tasks._replace(footprint=pack_bits(tasks.footprint))
+        reads = jax.vmap(lambda s, a: plan_reads(scene, params, fabric, s, a, cap))(sources, anchors)
+        return tasks._replace(footprint=pack_bits(tasks.footprint)), reads
 
     chunk = min(PLAN_CHUNK, m)
     pad = -m % chunk
@@ -250,12 +351,31 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
                           (starts, args))
     planned = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:])[:m], planned)
     # back to slot order: slot order[i] gets planned[i]
-    tasks = jax.tree.map(lambda a: jnp.zeros_like(a).at[order].set(a, mode="drop"), planned)
+    tasks, reads = jax.tree.map(lambda a: jnp.zeros_like(a).at[order].set(a, mode="drop"), planned)
     if reused is not None:
-        tasks = jax.tree.map(lambda new, old: jnp.where(kept.reshape((-1,) + (1,) * (new.ndim - 1)), old, new),
-                             tasks, reused)
+        tasks, reads = jax.tree.map(
+            lambda new, old: jnp.where(kept.reshape((-1,) + (1,) * (new.ndim - 1)), old, new), (tasks, reads), reused)
     usable = exists & (tasks.code == RUNNING)
-    return Candidates(tasks, exists, usable, *footprint_relations(tasks.footprint, usable, owner))
+    if previous is None:
+        return Candidates(tasks, exists, usable, *footprint_relations(tasks.footprint, usable, owner), reads)
+    # two kept tasks overlap as they did: only the new tasks' rows are compared
+    rows = overlap_rows(tasks.footprint, slots, n_need)
+    overlap = jnp.where(kept[:, None] & kept[None], previous.overlap[was][:, was], rows | rows.T)
+    return Candidates(tasks, exists, usable, clear_of(tasks.footprint, owner), overlap & usable[:, None] & usable[None],
+                      reads)
+
+
+def unchanged_tasks(candidates: Candidates, scene, params, old, new, changes: FabricChanges):
+    """bool[M]: which candidates' tasks planning their sources again on the fabric ``new``, refreshed
+    from ``old`` (``changes``: ``transport.fabric_changes``; ``scene`` has the new counts), would give
+    the same: those whose plans read nothing that changed (``transport.plans_unchanged``)."""
+    return plans_unchanged(scene, params, candidates.reads, old, new, changes)
+
+
+def keep_only(candidates: Candidates, kept) -> Candidates:
+    """The candidates with only the tasks ``kept: bool[M]``, so that the next planning plans the other
+    sources again."""
+    return candidates._replace(exists=candidates.exists & kept, usable=candidates.usable & kept)
 
 
 def pack_bits(masks):
@@ -289,6 +409,24 @@ def rovers_in(words, pos, width: int):
     """bool[M, N]: which rovers (cells ``pos: i32[N, 2]``) stand in each of M packed footprint masks
     of a grid ``width`` cells wide."""
     return jax.vmap(lambda row: bits_at(row, pos[:, 0] * width + pos[:, 1]))(words)
+
+
+def overlap_rows(words, slots, n: int):
+    """bool[M, M]: which of M packed footprint masks (u32[M, ceil(H W / 32)]) share a cell with each
+    of the first ``n`` (i32[]) of ``slots`` (i32[M], slot indices, padded with M), in those rows;
+    the other rows False. ``PLAN_CHUNK`` rows at a time, chunks past the n-th skipped."""
+    m = words.shape[0]
+    chunk = min(PLAN_CHUNK, m)
+    padded = jnp.pad(slots, (0, -m % chunk), constant_values=m).reshape(-1, chunk)
+
+    def rows_of(chunk_slots):
+        return jax.vmap(lambda i: jnp.any((words & words[jnp.minimum(i, m - 1)][None]) != 0, 1))(chunk_slots)
+
+    starts = jnp.arange(padded.shape[0]) * chunk
+    rows = jax.lax.map(lambda x: jax.lax.cond(x[0] < n, rows_of, lambda _: jnp.zeros((chunk, m), bool), x[1]),
+                       (starts, padded))
+    first = jnp.arange(padded.size) < n
+    return jnp.zeros((m + 1, m), bool).at[jnp.where(first, padded.reshape(-1), m)].set(rows.reshape(-1, m))[:m]
 
 
 def footprint_relations(words, usable, owner):

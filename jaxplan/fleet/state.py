@@ -69,6 +69,7 @@ from jaxplan.transport import (
     default_walk_cap,
     estimate_build_bytes,
     execute_push,
+    fabric_changes,
     outside_mass,
     quantize,
     require_hard,
@@ -78,8 +79,8 @@ from jaxplan.transport import STOP_REASONS as EPISODE_STOP_REASONS
 from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill, evaluator_for
 
 __all__ = ["DEADLOCK", "MAX_STEPS", "NO_REACHABLE", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord",
-           "FleetState", "Rovers", "Totals", "advance", "estimate_fleet_bytes", "fleet_rebuild", "max_rovers",
-           "refresh", "reset", "rollout", "step"]
+           "FleetState", "Rovers", "Totals", "advance", "estimate_fleet_bytes", "fleet_rebuild", "keep_tasks",
+           "max_rovers", "refresh", "reset", "rollout", "step", "unchanged_tasks"]
 
 STRATEGIES = ("coordinated", "independent", "partitioned")
 # Stop codes (``Totals.stop``, ``FleetRecord.stop`` and ``failure``), indices into STOP_REASONS: the
@@ -349,7 +350,8 @@ def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) 
     ``candidates_by="rate"``, the distance and rate grids of ``assign.RATE_CHUNK`` rovers at a time
     (8 B each). Per route slot (S = ``route_slots``): N (+ M) routes x 8 B twice, and for the
     coordinated strategy the ``PLAN_CHUNK`` candidates planned at once (``PLANNED_SLOT_BYTES``: 340
-    + 29 K each, K = ``params.k``, default ``FabricParams()``)."""
+    + 29 K each, K = ``params.k``, default ``FabricParams()``) and the K + 1 walks of walk_cap + 1 cells
+    each of the M cached tasks read (``transport.PlanReads``; i32 pairs, twice)."""
     k = int((FabricParams() if params is None else params).k)
     cfg = config.resolved(shape)
     h, w = (int(v) for v in shape)
@@ -363,6 +365,7 @@ def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) 
     else:
         per_cell += 8 * min(n, assign.RATE_CHUNK) if cfg.candidates_by == "rate" else 0
         per_slot += min(assign.PLAN_CHUNK, m) * (PLANNED_SLOT_BYTES[0] + PLANNED_SLOT_BYTES[1] * k)
+        per_slot += m * (k + 1) * 8        # the walks each cached task read (PlanReads), half a slot's cells each
     return per_cell * h * w + packed + per_slot * route_slots(cfg, shape)
 
 
@@ -668,9 +671,27 @@ def _stop(totals: Totals, scene, phase, parked, made_way, assigned, dropped, mov
 def _expire(candidates, fresh, assigned, dropped, ended):
     """``(candidates, fresh)`` after the step: no longer fresh once a task started or was dropped or a
     push ended. A task depends on the fabric and its source only: the next planning keeps the cached
-    ones (``plan_candidates``'s previous) until a push ends and the fabric changes."""
+    ones (``plan_candidates``'s previous); when a push ended, the refresh keeps those whose plans read
+    nothing it changed (``keep_tasks``)."""
     fresh = fresh & ~(jnp.any(assigned) | jnp.any(dropped) | jnp.any(ended))
-    return candidates._replace(exists=candidates.exists & ~jnp.any(ended)), fresh
+    return candidates, fresh
+
+
+def unchanged_tasks(state: FleetState, params: FabricParams, old: Fabric, before):
+    """bool[M]: which cached tasks a refresh of the state's fabric from ``old`` (built for the counts
+    ``before``: f32[H, W]) to ``state.fabric`` left as planning them again would give
+    (``assign.unchanged_tasks``). Pure and jittable."""
+    changes = fabric_changes(before, state.scene.obj, old, state.fabric)
+    return assign.unchanged_tasks(state.candidates, state.scene, params, old, state.fabric, changes)
+
+
+def keep_tasks(state: FleetState, params: FabricParams, old: Fabric, before) -> FleetState:
+    """The state after its fabric was refreshed from ``old`` (built for the counts ``before``) to
+    ``state.fabric``, with only the cached tasks the refresh left unchanged (``unchanged_tasks``), so
+    that the next planning plans just the others' sources again. Pure and jittable."""
+    if state.candidates.exists.shape[0] == 0:
+        return state
+    return state._replace(candidates=assign.keep_only(state.candidates, unchanged_tasks(state, params, old, before)))
 
 
 def fleet_rebuild(rebuild: str) -> str:
@@ -701,12 +722,13 @@ def _live(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig,
 def refresh(state: FleetState, params: FabricParams, episode: EpisodeParams, before) -> FleetState:
     """The shared fabric brought up to the state's counts after ``advance``: rebuilt when the counts
     differ from ``before`` (f32[H, W], the counts it was built for), by ``fleet_rebuild(episode.rebuild)``
-    (the same fabric either way). Pure and jittable."""
-    changed = jnp.any(state.scene.obj != before)
-    fabric = jax.lax.cond(changed, lambda s: _refresh(s, params, state.fabric, before,
-                                                      fleet_rebuild(episode.rebuild)),
-                          lambda s: state.fabric, state.scene)
-    return state._replace(fabric=fabric)
+    (the same fabric either way), and the cached tasks it did not change kept (``keep_tasks``). Pure
+    and jittable."""
+    def rebuilt(state):
+        fabric = _refresh(state.scene, params, state.fabric, before, fleet_rebuild(episode.rebuild))
+        return keep_tasks(state._replace(fabric=fabric), params, state.fabric, before)
+
+    return jax.lax.cond(jnp.any(state.scene.obj != before), rebuilt, lambda s: s, state)
 
 
 def advance(state: FleetState, params: FabricParams, spill: SpillParams, episode: EpisodeParams,

@@ -65,14 +65,19 @@ from jaxplan.transport.maps import read_movingai_map, site_from_map
 from jaxplan.transport.obstacles import NO_DETOUR, corner_free, detour_hops, jump_clear, obstacle_geometry
 from jaxplan.transport.params import K_MAX, FabricParams, validate_params
 from jaxplan.transport.plan import (
+    FabricChanges,
     Plan,
+    PlanReads,
     anchor_connector,
     choose_source,
     connector_walk,
+    fabric_changes,
     plan_episode_tick,
     plan_for_source,
+    plan_reads,
     plan_tick,
     plan_with_connector,
+    plans_unchanged,
     source_anchor,
     source_anchors,
 )
@@ -96,17 +101,18 @@ from jaxplan.transport.viz import (
 )
 
 __all__ = ["Affected", "BUDGET", "BUILTIN_SCENES", "CLEARED", "Connectors", "DEFAULT_SCENE", "DONE", "Episode",
-           "EpisodeParams", "EpisodeState", "Fabric", "FabricParams", "K_MAX", "MAX_FILE_SIDE", "MAX_PUSHES",
-           "NO_DETOUR", "NO_MATERIAL", "NO_ROUTE", "PALETTE", "Paths", "Plan", "Push", "RUNNING", "Route",
-           "SELECTIVE_MIN_CELLS", "SPLINE_CHUNK", "STOP_REASONS", "Scene", "Selection", "SoftFabric", "SpillParams",
-           "StepRecord", "Table", "WALK_CAP", "act", "anchor_connector", "animate_episode", "blocked_handle",
-           "blocked_of", "box", "build_fabric", "builtin_scene", "cell_edges", "check_build_memory", "choose_source",
-           "circle", "connector_walk", "corner_free", "count_table_hops", "default_walk_cap", "detour_hops",
-           "draw_blocked", "estimate_build_bytes", "execute_jit", "execute_push", "extract_paths", "fabric_of",
-           "finite_max", "highways", "jump_clear", "obstacle_geometry", "outside_mass", "plan_code", "plan_connectors",
-           "plan_episode_tick", "plan_for_source", "plan_tick", "plan_with_connector", "plot_episode", "plot_fabric",
-           "polygon_rings", "quantize", "random_scene", "read_movingai_map", "rebuild_mode", "refresh_connectors",
-           "require_hard", "reselect", "reselect_jit", "reset", "rollout_scenes_jit", "route_from_path",
-           "routes_from_paths", "run_episode", "select_routes", "selective_rebuild", "site_from_map", "slot_anchors",
-           "source_anchor", "source_anchors", "spill_cells", "stack_scenes", "step", "validate_episode_params",
-           "validate_params", "waypoint_pickup", "waypoints"]
+           "EpisodeParams", "EpisodeState", "Fabric", "FabricChanges", "FabricParams", "K_MAX", "MAX_FILE_SIDE",
+           "MAX_PUSHES", "NO_DETOUR", "NO_MATERIAL", "NO_ROUTE", "PALETTE", "Paths", "Plan", "PlanReads", "Push",
+           "RUNNING", "Route", "SELECTIVE_MIN_CELLS", "SPLINE_CHUNK", "STOP_REASONS", "Scene", "Selection",
+           "SoftFabric", "SpillParams", "StepRecord", "Table", "WALK_CAP", "act", "anchor_connector", "animate_episode",
+           "blocked_handle", "blocked_of", "box", "build_fabric", "builtin_scene", "cell_edges", "check_build_memory",
+           "choose_source", "circle", "connector_walk", "corner_free", "count_table_hops", "default_walk_cap",
+           "detour_hops", "draw_blocked", "estimate_build_bytes", "execute_jit", "execute_push", "extract_paths",
+           "fabric_changes", "fabric_of", "finite_max", "highways", "jump_clear", "obstacle_geometry", "outside_mass",
+           "plan_code", "plan_connectors", "plan_episode_tick", "plan_for_source", "plan_reads", "plan_tick",
+           "plan_with_connector", "plans_unchanged", "plot_episode", "plot_fabric", "polygon_rings", "quantize",
+           "random_scene", "read_movingai_map", "rebuild_mode", "refresh_connectors", "require_hard", "reselect",
+           "reselect_jit", "reset", "rollout_scenes_jit", "route_from_path", "routes_from_paths", "run_episode",
+           "select_routes", "selective_rebuild", "site_from_map", "slot_anchors", "source_anchor", "source_anchors",
+           "spill_cells", "stack_scenes", "step", "validate_episode_params", "validate_params", "waypoint_pickup",
+           "waypoints"]

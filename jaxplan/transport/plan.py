@@ -194,3 +194,95 @@ def plan_episode_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spi
     if ep.reselect and spill.enabled:
         fabric = selection.reselect(scene, params, fabric, spill, max_steps=cap, evaluator=evaluator)
     return plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap, evaluator=evaluator), fabric
+
+
+class PlanReads(NamedTuple):
+    """The cells and entries of the fabric and the counts that ``plan_for_source`` read for one source,
+    so that a refresh of the fabric can tell whether it changed the plan (``plans_unchanged``).
+    K table entries; S = max_steps + 1.
+
+    source: i32[2]; anchor: i32[] its highway anchor (flat, -1 none); walks: i32[K + 1, S, 2] the
+    cells of the walks it read (its Eq. 6 candidate entries', then the anchor's selected path; -1
+    padded); window: i32[4] first row, last row, first column, last column of the cells its connector
+    DP read (an empty box, first > last, without an anchor).
+    """
+
+    source: jax.Array
+    anchor: jax.Array
+    walks: jax.Array
+    window: jax.Array
+
+
+def plan_reads(scene, params: FabricParams, fabric: Fabric, source, anchor, max_steps: int) -> PlanReads:
+    """``PlanReads`` of ``plan_with_connector`` from ``source: i32[2]`` with its ``anchor`` (i32[], flat;
+    ``source_anchor``). Every walk reads the table's ``next_dir`` and ``next_rank`` and, for the spill
+    model's pickup, the counts at the cells it visits; with the monotone rule the connector DP reads
+    only the disc of radius d(source, anchor) around the anchor, its corner cells one beyond
+    (``connectors.connector_walks``), without it the whole grid. max_steps: static, as in
+    ``plan_for_source``."""
+    h, w = scene.shape
+    source = jnp.asarray(source, jnp.int32)
+    k = fabric.table.raw.shape[-1]
+    candidate = selection.candidate_mask(fabric.table.raw[source[0], source[1]], params.slack_tau)
+    walks = jax.vmap(lambda r: walk_table(fabric.table, source, r, max_steps, scene.detour).cells)(
+        jnp.arange(k, dtype=jnp.int32))
+    walks = jnp.where(candidate[:, None, None], walks, -1)
+    safe = jnp.maximum(anchor, 0)
+    anchor_rc = jnp.stack([safe // w, safe % w]).astype(jnp.int32)
+    tail = walk_table(fabric.table, anchor_rc, fabric.selected[anchor_rc[0], anchor_rc[1]], max_steps, scene.detour)
+    walks = jnp.concatenate([walks, jnp.where(anchor >= 0, tail.cells, -1)[None]])
+    if params.monotone:
+        reach = jnp.ceil(jnp.sqrt(jnp.sum((source - anchor_rc) ** 2.0))).astype(jnp.int32) + 2
+        lo, hi = jnp.maximum(anchor_rc - reach, 0), jnp.minimum(anchor_rc + reach, jnp.asarray([h - 1, w - 1]))
+    else:
+        lo, hi = jnp.zeros(2, jnp.int32), jnp.asarray([h - 1, w - 1], jnp.int32)
+    window = jnp.where(anchor >= 0, jnp.stack([lo[0], hi[0], lo[1], hi[1]]), jnp.asarray([1, 0, 1, 0]))
+    return PlanReads(source, jnp.asarray(anchor, jnp.int32), walks, window.astype(jnp.int32))
+
+
+class FabricChanges(NamedTuple):
+    """Where a refresh changed what plans read (``fabric_changes``). H x W grid.
+
+    walked: bool[H, W] cells whose table continuations (``next_dir``, ``next_rank``, any entry) or counts
+    changed; counts: i32[H + 1, W + 1] the summed-area table of the cells whose counts changed (entry
+    [r, c]: how many in rows < r and columns < c).
+    """
+
+    walked: jax.Array
+    counts: jax.Array
+
+
+def fabric_changes(before_obj, obj, old: Fabric, new: Fabric) -> FabricChanges:
+    """``FabricChanges`` from the counts ``before_obj`` and fabric ``old`` to ``obj`` and ``new``
+    (f32[H, W] each)."""
+    moved = before_obj != obj
+    table = jnp.any((old.table.next_dir != new.table.next_dir) | (old.table.next_rank != new.table.next_rank), -1)
+    counts = jnp.pad(jnp.cumsum(jnp.cumsum(moved.astype(jnp.int32), 0), 1), ((1, 0), (1, 0)))
+    return FabricChanges(table | moved, counts)
+
+
+def plans_unchanged(scene, params: FabricParams, reads: PlanReads, old: Fabric, new: Fabric,
+                    changes: FabricChanges):
+    """bool[B]: which of B plans (``reads``: ``PlanReads[B]``, read on ``old``) ``plan_for_source``
+    would make again, the same, on ``new`` (``changes``: ``fabric_changes(..., old, new)``): the
+    source's anchor is the same, the table entries and occupancy read at the source and the anchor
+    are the same, no walked cell changed and no count in the connector's window did."""
+    src, anchor = reads.source, reads.anchor
+    h, w = scene.shape
+    same_anchor = source_anchors(scene, params, new, src) == anchor
+    at_src = lambda a: a[src[:, 0], src[:, 1]]  # noqa: E731
+    same_source = (jnp.all(at_src(old.table.raw) == at_src(new.table.raw), -1)
+                   & jnp.all(at_src(old.table.length) == at_src(new.table.length), -1)
+                   & (at_src(old.occupied) == at_src(new.occupied)))
+    safe = jnp.maximum(anchor, 0)
+    ar, ac = safe // w, safe % w
+    entry = old.selected[ar, ac]
+    same_tail = (anchor < 0) | ((entry == new.selected[ar, ac])
+                                & (old.table.raw[ar, ac, entry] == new.table.raw[ar, ac, entry]))
+    cells = jnp.maximum(reads.walks, 0)
+    walked = jnp.any(changes.walked[cells[..., 0], cells[..., 1]] & (reads.walks[..., 0] >= 0), (1, 2))
+    r0, r1, c0, c1 = (reads.window[:, i] for i in range(4))
+    box = lambda r, c: changes.counts[jnp.clip(r, 0, h), jnp.clip(c, 0, w)]  # noqa: E731
+    in_window = box(r1 + 1, c1 + 1) - box(r0, c1 + 1) - box(r1 + 1, c0) + box(r0, c0)
+    in_window = jnp.where((r0 <= r1) & (c0 <= c1), in_window, 0)
+    return same_anchor & same_source & same_tail & ~walked & (in_window == 0)

@@ -151,6 +151,40 @@ def test_what_is_not_planned_again_changes_nothing(traced_run, strategy):
     assert reused > 0
 
 
+def test_tasks_kept_across_a_refresh_equal_tasks_planned_again(traced_run):
+    """After a push ends and the fabric is refreshed, the cached tasks the refresh left unchanged
+    (``keep_tasks``) are the tasks planning their sources again on the new fabric gives, and their
+    footprints overlap as recomputed; the refresh keeps some and drops others."""
+    from jaxplan.fleet import assign
+    from jaxplan.transport import spillage
+
+    config, ep = traced_run["config"], traced_run["ep"]
+    state = reset(site(3, SITES[2], "two_targets"), PARAMS, SPILL, ep, config, max_steps=400, max_pushes=40)
+    cap = config.resolved(SITES[2]).walk_cap
+    again = jax.jit(jax.vmap(lambda scene, fabric, source: assign.plan_task(
+        scene, PARAMS, ep, SPILL, fabric, source, True, cap, spillage.curvature_spill, config.clearance),
+        in_axes=(None, None, 0)))
+    kept = dropped = 0
+    while not bool(state.totals.done):
+        cached = np.asarray(state.candidates.exists)
+        state, record = traced_run["jitted"](state, PARAMS, SPILL, ep, config=config)
+        candidates = state.candidates
+        exists = np.asarray(candidates.exists)
+        _, overlap = assign.footprint_relations(candidates.tasks.footprint, candidates.usable, state.owner)
+        pairs = exists[:, None] & exists[None]
+        np.testing.assert_array_equal(np.asarray(candidates.overlap) & pairs, np.asarray(overlap) & pairs)
+        if not np.any(np.asarray(record.ended)) or not exists.any():
+            continue
+        dropped += int(np.sum(cached & ~exists))
+        fresh = again(state.scene, state.fabric, candidates.tasks.source)
+        fresh = fresh._replace(footprint=assign.pack_bits(fresh.footprint))
+        for name in ("route", "mode", "code", "predicted", "steps", "footprint"):
+            _same_tasks(name, jax.tree.map(lambda a: a[exists], getattr(candidates.tasks, name)),
+                        jax.tree.map(lambda a: a[exists], getattr(fresh, name)))
+        kept += int(exists.sum())
+    assert kept > 0 and dropped > 0
+
+
 def _same_tasks(name, got, want):
     """The same tasks: equal routes, modes, codes, steps and footprints; the predicted mass, summed by
     XLA in another batch, within a unit in its last place or two."""

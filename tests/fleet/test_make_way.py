@@ -46,7 +46,7 @@ def _inputs(rng):
 @jax.jit
 def _kernel(footprints, exists, usable, predicted, steps, owner, pos, home, parked, wanted, blocked, target, obj):
     tasks = _Tasks(pack_bits(footprints), predicted, steps)
-    planned = Candidates(tasks, exists, usable, jnp.ones_like(exists), jnp.zeros((M, M), bool))
+    planned = Candidates(tasks, exists, usable, jnp.ones_like(exists), jnp.zeros((M, M), bool), reads=None)
     return make_way.make_way(planned, owner, pos, home, parked, wanted, _Scene(blocked, target, obj))
 
 

@@ -290,13 +290,16 @@ def test_the_checker_finds_every_kind_of_violation():
     assert conflicts(pos[:2], [(1, 0, 1, [(5, 5)])]) == []        # a rover in its own footprint is fine
 
 
-_rate = jax.jit(assign.rate_sources, static_argnums=4)
+_rate = jax.jit(assign.rate_sources, static_argnums=4, static_argnames=("block", "blocks"))
 _RateFields = collections.namedtuple("_RateFields", "value length occupied")   # what rate_sources reads
 
 
 @SETTINGS
-@given(seed=st.integers(0, 2 ** 31 - 1), m=st.integers(1, 2 * N + 2))
-def test_rate_sources_equal_the_serial_ranking(seed, m):
+@given(seed=st.integers(0, 2 ** 31 - 1), m=st.integers(1, 2 * N + 2), tiles=st.sampled_from([(None, 4), (2, 1),
+                                                                                            (3, 2), (4, 1)]))
+def test_rate_sources_equal_the_serial_ranking(seed, m, tiles):
+    """Over the whole grid, and by tiles (2 x 2 to 4 x 4 cells, one or two scored per rover before the
+    check, which falls back to the grid when it fails): the serial ranking."""
     rng = np.random.default_rng(seed)
     occupied = rng.random(SHAPE) < 0.4
     value = np.where(occupied, rng.integers(1, 40, SHAPE), 0).astype(np.float32)      # ties happen
@@ -306,7 +309,9 @@ def test_rate_sources_equal_the_serial_ranking(seed, m):
     idle = rng.random(N) < 0.7
 
     fabric = _RateFields(jnp.asarray(value), jnp.asarray(length), jnp.asarray(occupied))
-    flat, ok = _rate(fabric, jnp.asarray(owner), jnp.asarray(pos), jnp.asarray(idle), m, 1.0)
+    block, blocks = tiles
+    flat, ok = _rate(fabric, jnp.asarray(owner), jnp.asarray(pos), jnp.asarray(idle), m, 1.0, block=block,
+                     blocks=blocks)
     want = ref.rate_sources(value, length, occupied, owner, pos, idle, m, 1.0)
     assert np.asarray(flat)[np.asarray(ok)].tolist() == want
     assert not np.any(np.asarray(ok)[len(want):])
