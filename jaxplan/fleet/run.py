@@ -239,7 +239,7 @@ def _refresh_fabric(state, params: FabricParams, rebuild: str, before):
 _unchanged_tasks_jit = grid_jit(unchanged_tasks)
 
 
-def _warm_build_ms(scene, params: FabricParams, repeats: int = 3) -> float:
+def _warm_build_ms(scene, params: FabricParams, repeats: int = 7) -> float:
     """Median wall ms of a full build of ``scene``'s fabric, compiled first."""
     jax.block_until_ready(build_fabric(scene, params))
     runs = []
