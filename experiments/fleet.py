@@ -45,6 +45,8 @@ def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="ra
             "conflicts": s["conflicts"], "step_ms": s["step_ms"], "plan_ms": s["plan_ms"],
             "refresh_ms": s["refresh_ms"], "full_build_ms": s["full_build_ms"],
             "idle_fraction_mean": statistics.fmean(s["idle_fraction"]), "made_way": s["made_way"],
+            "tasks_planned": s["tasks_planned"], "plan_ms_planning": s["plan_ms_planning"],
+            "plan_ms_not_planning": s["plan_ms_not_planning"],
             "stop_reason": s["stop_reason"], "wall_s": round(wall, 2)}
 
 
@@ -53,18 +55,24 @@ def _rate(r) -> float:
     return r["delivered"] / max(r["steps"], 1)
 
 
+def _median(d) -> str:
+    return "-" if d["median"] is None else f"{d['median']:.1f}"
+
+
 def _markdown(rows, meta) -> str:
     t90_one = {(r["site"], r["strategy"]): r["T90"] for r in rows if r["rovers"] == 1}
     one = {(r["site"], r["strategy"]): r for r in rows if r["rovers"] == 1}
     lines = [f"# Fleet: T90, speed-up and planning time\n\n{meta}\n",
              "S(N) = T90(1) / T90(N); rate x = objects delivered per step against one rover's, both over "
              "their whole runs (the speed-up where a run stopped at the step limit before T90); plan / 1: "
-             "median plan ms against one rover's.\n",
+             "median plan ms against one rover's; tasks planned / push: the tasks the coordinated assignments "
+             "planned per push applied; plan ms planning / not: median plan ms of the steps that planned a task "
+             "and of the others.\n",
              "| site | strategy | N | steps | delivered | T50 | T90 | S(N) | rate x | delivered / rover-step | "
              "idle (mean) | made way | conflicts | step ms (median, p95) | plan ms (median, p95) | "
              "refresh ms (median, p95) | "
-             "full build ms | plan / build | plan / 1 | stop |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+             "full build ms | plan / build | plan / 1 | tasks planned / push | plan ms planning / not | stop |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
 
     def both(d):
         return "-" if d["median"] is None else f"{d['median']:.1f}, {d['p95']:.1f}"
@@ -78,13 +86,17 @@ def _markdown(rows, meta) -> str:
         per_one = "-" if r["plan_ms"]["median"] is None or not alone else f"{r['plan_ms']['median'] / alone:.2f}"
         build = r["full_build_ms"]
         ratio = "-" if r["plan_ms"]["median"] is None or not build else f"{r['plan_ms']['median'] / build:.2f}"
+        per_push = f"{r['tasks_planned'] / r['pushes']:.2f}" if r.get("tasks_planned") is not None and r["pushes"] \
+            else "-"
+        split = "-" if "plan_ms_planning" not in r else \
+            f"{_median(r['plan_ms_planning'])} / {_median(r['plan_ms_not_planning'])}"
         lines.append(f"| {r['site']} | {r['strategy']} | {r['rovers']} | {r['steps']} | {r['delivered']:.0f} | "
                      f"{r['T50'] or '-'} | {r['T90'] or '-'} | {speed} | {rate} | "
                      f"{r['delivered_per_rover_step']:.3f} | {r['idle_fraction_mean']:.0%} | "
                      f"{r.get('made_way', '-')} | "
                      f"{r['conflicts']} | "
                      f"{both(r['step_ms'])} | {both(r['plan_ms'])} | {both(r['refresh_ms'])} | {build or 0:.2f} | "
-                     f"{ratio} | {per_one} | {r['stop_reason']} |")
+                     f"{ratio} | {per_one} | {per_push} | {split} | {r['stop_reason']} |")
     return "\n".join(lines) + "\n"
 
 

@@ -57,9 +57,9 @@ from jaxplan.transport.spillage import evaluate_route
 
 __all__ = ["Attempts", "BLOCKED", "Candidates", "PLAN_CHUNK", "RATE_BLOCK", "RATE_BLOCKS", "RATE_CHUNK", "RATE_REACH",
            "Task", "assign_each", "assign_greedy", "assign_planned", "bits_at", "clear_of", "failure_rank",
-           "footprint_free", "footprint_relations", "greedy_choice", "keep_only", "no_attempts", "overlap_rows",
-           "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve", "rovers_in", "rovers_inside",
-           "unchanged_tasks", "unpack_bits", "wanted_candidates"]
+           "footprint_free", "footprint_relations", "greedy_choice", "keep_only", "newly_planned", "no_attempts",
+           "overlap_rows", "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve", "rovers_in",
+           "rovers_inside", "unchanged_tasks", "unpack_bits", "wanted_candidates"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
@@ -370,6 +370,14 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     overlap = jnp.where(kept[:, None] & kept[None], previous.overlap[was][:, was], rows | rows.T)
     return Candidates(tasks, exists, usable, clear_of(tasks.footprint, owner), overlap & usable[:, None] & usable[None],
                       reads)
+
+
+def newly_planned(planned: Candidates, previous: Candidates):
+    """i32[]: tasks of ``planned`` whose sources ``previous`` (the candidates it was planned from) held
+    no task for: the tasks that planning planned rather than kept."""
+    same = jnp.all(planned.tasks.source[:, None] == previous.tasks.source[None], -1)
+    held = jnp.any(same & previous.exists[None], 1)
+    return jnp.sum(planned.exists & ~held, dtype=jnp.int32)
 
 
 def unchanged_tasks(candidates: Candidates, scene, params, old, new, changes: FabricChanges):

@@ -104,7 +104,9 @@ def summary_of(run: FleetRun) -> dict:
     step, ``{"median", "p95"}`` (None without steps): the whole step, everything but the fabric's
     refresh, and the refresh (0 in steps where no push ended). full_build_ms: one warm full build of
     the site's initial fabric, measured in the same process (None when not measured). dropped: tasks
-    dropped as unreachable; made_way: parked rovers sent out of a task's footprint.
+    dropped as unreachable; made_way: parked rovers sent out of a task's footprint. tasks_planned: the
+    tasks the coordinated assignments planned, in all; plan_ms_planning / plan_ms_not_planning:
+    ``plan_ms`` over the steps that planned a task and over the others (``{"median", "p95"}``).
     """
     t, n = _check_run(run)
     delivered = float(run.delivered[-1]) - float(run.delivered[0])
@@ -132,6 +134,9 @@ def summary_of(run: FleetRun) -> dict:
         "full_build_ms": None if run.full_build_ms is None else _float_or_none(run.full_build_ms),
         "dropped": int(run.dropped),
         "made_way": int(run.made_way),
+        "tasks_planned": int(sum(run.tasks_planned)),
+        "plan_ms_planning": _median_p95([ms for ms, k in zip(run.plan_ms, run.tasks_planned) if k > 0]),
+        "plan_ms_not_planning": _median_p95([ms for ms, k in zip(run.plan_ms, run.tasks_planned) if k == 0]),
         "conflicts": int(run.conflicts),
         "stop_reason": str(run.stop_reason),
         "message": str(run.message),

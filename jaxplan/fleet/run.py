@@ -77,6 +77,7 @@ class FleetRun:
     was sent to a new home, out of a task's footprint (coordinated; ``jaxplan.fleet.make_way``).
     scene_name: the name of the scene the run was given (``scene`` is the compiled step's copy, which
     carries no name); None when it had none. summary.json's ``scene`` (``report.summary_of``).
+    tasks_planned: i32 per step, the tasks the coordinated assignment planned (``FleetRecord.planned``).
     """
 
     scene: Scene
@@ -104,6 +105,7 @@ class FleetRun:
     step_ms: list = dataclasses.field(default_factory=list)
     refresh_ms: list = dataclasses.field(default_factory=list)
     full_build_ms: float | None = None
+    tasks_planned: list = dataclasses.field(default_factory=list)
 
 
 def validate_fleet_inputs(scene, n_rovers, strategy, params, spill, episode, max_steps, starts,
@@ -236,6 +238,7 @@ def _refresh_fabric(state, params: FabricParams, rebuild: str, before):
     return state._replace(fabric=jax.block_until_ready(fabric))
 
 
+# only the mask is computed jitted: a jitted keep_tasks would return (and so copy) the whole state
 _unchanged_tasks_jit = grid_jit(unchanged_tasks)
 
 
@@ -318,7 +321,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
     initial_mass, initial_outside = float(first.totals.initial_mass), float(first.totals.initial_outside)
     done_at_start = bool(first.totals.done)
     del first                        # the host copy of the start state (fabric, distance fields)
-    plan_ms, refresh_ms, step_ms, pushes, reservations = [], [], [], [], []
+    plan_ms, refresh_ms, step_ms, tasks_planned, pushes, reservations = [], [], [], [], [], []
     open_tasks: dict[int, dict] = {}
     kernel_conflicts = dropped = made_way = 0
     kernel = config.kernel()
@@ -358,6 +361,7 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
             outside.append(float(rec.outside))
             kernel_conflicts += int(rec.conflicts)
             made_way += int(np.asarray(rec.made_way).sum())
+            tasks_planned.append(int(rec.planned))
             assigned, ended, gone = np.asarray(rec.assigned), np.asarray(rec.ended), np.asarray(rec.dropped)
             if assigned.any():
                 routes = jax.device_get(state.rovers.route)
@@ -399,5 +403,6 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
         plan_ms=plan_ms, conflicts=len(conflicts(pos, reservations)), stop_reason=reason,
         message=_message(reason, final, episode, int(max_steps)), frames=frames,
         kernel_conflicts=kernel_conflicts, dropped=dropped, made_way=made_way, scene_name=getattr(scene, "name", None),
-        step_ms=step_ms, refresh_ms=refresh_ms, full_build_ms=full_build_ms)
+        step_ms=step_ms, refresh_ms=refresh_ms, full_build_ms=full_build_ms,
+        tasks_planned=tasks_planned)
 

@@ -38,8 +38,9 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
 
 Each step is a function of ``_advance`` (``advance``; ``step`` is ``advance`` then ``refresh``):
 ``_assign``, ``_take_tasks`` and ``_make_way`` (1), ``_fields`` and ``_drop_unreachable`` (2),
-``_move`` (3), ``_apply_pushes`` (4, the rebuild in ``refresh``), ``_stop`` (5); then ``_expire``
-marks the cached tasks the step outdated. ``FleetState`` holds the shared scene and fabric,
+``_move`` (3), ``_apply_pushes`` (4, the rebuild in ``refresh``, which keeps the cached tasks the
+rebuild left unchanged: ``keep_tasks``), ``_stop`` (5); then ``_expire`` marks the cached tasks no
+longer fresh. ``FleetState`` holds the shared scene and fabric,
 the footprints and cached tasks, every rover's row in ``Rovers`` and the scalars in ``Totals``.
 
 A finished state's step is a no-op, so ``rollout`` (``lax.scan``) may run past the end. Counts stay
@@ -253,8 +254,9 @@ class FleetState(NamedTuple):
       ownership map (no push ended, no task started or was dropped since), so the next assignment
       reuses them instead of planning again: the same tasks, at the cost of the greedy rounds only.
       When only the ownership changed, the next planning keeps the tasks of the sources it planned
-      before and plans the new ones; when a push ended, every slot's ``exists`` is cleared (the
-      fabric changed) and all are planned again.
+      before and plans the new ones; when a push ended, the refresh clears ``exists`` of the tasks
+      whose plans read something the new fabric or counts changed (``keep_tasks``), and the next
+      planning plans those sources again with the new ones.
     attempts: ``assign.Attempts`` (N rovers for ``independent`` and ``partitioned``, none for
       ``coordinated``): each rover's last failed attempt, not planned again while fresh and no rover
       moved through the footprints it tried.
@@ -281,7 +283,9 @@ class FleetRecord(NamedTuple):
     collected, delivered, spilled: f32[N] objects of the pushes applied (0 elsewhere).
     delivered_total: f32[] objects delivered by all pushes so far. outside, inside: f32[] objects
     outside / inside the targets after the step. mass: f32[] the grid's total. made_way: bool[N]
-    parked rovers sent to a new home, out of a task's footprint (``make_way``). conflicts: i32[]
+    parked rovers sent to a new home, out of a task's footprint (``make_way``). planned: i32[] tasks
+    the coordinated assignment planned (sources not kept from its last planning; 0 when it reused
+    fresh candidates, ran none, or for the other strategies). conflicts: i32[]
     invariant violations of this step found in the step itself (two rovers in one cell, a swap, a
     rover in another's footprint); must be 0. failure: i32[] why an assignment found nothing
     (``STOP_REASONS`` code, 0 when it did or none ran). stop: i32[] the stop code after the step.
@@ -301,6 +305,7 @@ class FleetRecord(NamedTuple):
     inside: jax.Array
     mass: jax.Array
     made_way: jax.Array
+    planned: jax.Array
     conflicts: jax.Array
     failure: jax.Array
     stop: jax.Array
@@ -454,7 +459,8 @@ def _idle_record(state: FleetState) -> FleetRecord:
     inside = jnp.sum(jnp.where(scene.target_mask, scene.obj, 0.0))
     return FleetRecord(pos=rovers.pos, phase=rovers.phase, assigned=b, dropped=b, ended=b, collected=f, delivered=f,
                        spilled=f, delivered_total=totals.delivered, outside=totals.outside, inside=_f32(inside),
-                       mass=_f32(jnp.sum(scene.obj)), made_way=b, conflicts=_i32(0), failure=_i32(RUNNING),
+                       mass=_f32(jnp.sum(scene.obj)), made_way=b, planned=_i32(0), conflicts=_i32(0),
+                       failure=_i32(RUNNING),
                        stop=totals.stop, valid=jnp.bool_(False))
 
 
@@ -464,9 +470,10 @@ def _select_rows(mask, new, old):
 
 
 def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
-    """Step 1: ``(route, mode, assigned bool[N], owner, failure, candidates, attempts, fresh)``
-    (``assign.assign_greedy`` on the cached candidates while they are fresh, or ``assign_each``);
-    nothing runs when no rover is idle or the budget is spent."""
+    """Step 1: ``(route, mode, assigned bool[N], owner, failure, candidates, attempts, fresh, planned)``
+    (``assign.assign_greedy`` on the cached candidates while they are fresh, or ``assign_each``;
+    planned: i32[] tasks the coordinated planning planned); nothing runs when no rover is idle or the
+    budget is spent."""
     rovers = state.rovers
     idle = rovers.phase == IDLE
     budget = state.totals.max_pushes - state.totals.started
@@ -479,17 +486,18 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
                 evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates),
                 by_rate=(rovers.base, idle) if cfg.candidates_by == "rate" else None, previous=state.candidates),
                 None)
+            count = jnp.where(state.fresh, 0, assign.newly_planned(planned, state.candidates))
             return assign.assign_planned(planned, rovers.pos, idle, state.owner, budget,
-                                         rovers.route) + (planned, state.attempts, jnp.bool_(True))
+                                         rovers.route) + (planned, state.attempts, jnp.bool_(True), count)
         *out, attempts = assign.assign_each(scene, params, ep, spill, state.fabric, rovers.pos, idle, state.owner,
                                             budget, rovers.route, state.region, state.attempts, state.fresh,
                                             retries=cfg.retries, cap=cfg.walk_cap, evaluator=evaluator,
                                             clearance=cfg.clearance)
-        return (*out, state.candidates, attempts, jnp.bool_(True))
+        return (*out, state.candidates, attempts, jnp.bool_(True), _i32(0))
 
     def skip(_):
         return (rovers.route, rovers.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING),
-                state.candidates, state.attempts, state.fresh)
+                state.candidates, state.attempts, state.fresh, _i32(0))
 
     return jax.lax.cond(jnp.any(idle) & (budget > 0), run, skip, None)
 
@@ -735,7 +743,9 @@ def advance(state: FleetState, params: FabricParams, spill: SpillParams, episode
             config: FleetConfig, evaluator: Evaluator | None = None):
     """A live state's step without the fabric's refresh: ``(state, FleetRecord)``, whose fabric is still
     that of the counts before the step. ``step`` is ``advance`` then ``refresh``; a host driver may
-    refresh on its own (``run_fleet`` times the two apart). Pure and jittable; config and evaluator
+    refresh on its own (``run_fleet`` times the two apart), and then keeps only the cached tasks the
+    new fabric left unchanged (``keep_tasks``, or ``unchanged_tasks`` and ``assign.keep_only``).
+    Pure and jittable; config and evaluator
     static (None: the model ``spill`` is for, ``evaluator_for(spill)``). The state must not be done."""
     _check_static(params, episode, config, "advance")
     evaluator = evaluator_for(spill) if evaluator is None else evaluator
@@ -745,7 +755,7 @@ def advance(state: FleetState, params: FabricParams, spill: SpillParams, episode
 def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
     blocked = state.scene.blocked
     # 1. assign
-    route, mode, assigned, owner, failure, candidates, attempts, fresh = _assign(
+    route, mode, assigned, owner, failure, candidates, attempts, fresh, planned = _assign(
         state, params, spill, ep, cfg, evaluator)
     rovers = _take_tasks(state.rovers, assigned, route, mode, state.totals.t + 1)
     if cfg.strategy == "coordinated":
@@ -771,7 +781,8 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
     record = FleetRecord(pos=rovers.pos, phase=rovers.phase, assigned=assigned, dropped=dropped, ended=ended,
                          collected=collected, delivered=delivered, spilled=spilled, delivered_total=totals.delivered,
                          outside=totals.outside, inside=_f32(jnp.sum(jnp.where(scene.target_mask, scene.obj, 0.0))),
-                         mass=_f32(jnp.sum(scene.obj)), made_way=made_way, conflicts=conflicts, failure=_i32(failure),
+                         mass=_f32(jnp.sum(scene.obj)), made_way=made_way, planned=_i32(planned),
+                         conflicts=conflicts, failure=_i32(failure),
                          stop=totals.stop, valid=jnp.bool_(True))
     return new, record
 

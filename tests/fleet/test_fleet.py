@@ -154,7 +154,8 @@ def test_what_is_not_planned_again_changes_nothing(traced_run, strategy):
 def test_tasks_kept_across_a_refresh_equal_tasks_planned_again(traced_run):
     """After a push ends and the fabric is refreshed, the cached tasks the refresh left unchanged
     (``keep_tasks``) are the tasks planning their sources again on the new fabric gives, and their
-    footprints overlap as recomputed; the refresh keeps some and drops others."""
+    footprints overlap as recomputed; the refresh keeps some and drops others; the record counts the
+    tasks planned."""
     from jaxplan.fleet import assign
     from jaxplan.transport import spillage
 
@@ -164,10 +165,12 @@ def test_tasks_kept_across_a_refresh_equal_tasks_planned_again(traced_run):
     again = jax.jit(jax.vmap(lambda scene, fabric, source: assign.plan_task(
         scene, PARAMS, ep, SPILL, fabric, source, True, cap, spillage.curvature_spill, config.clearance),
         in_axes=(None, None, 0)))
-    kept = dropped = 0
+    kept = dropped = planned = 0
     while not bool(state.totals.done):
-        cached = np.asarray(state.candidates.exists)
+        cached, was_fresh = np.asarray(state.candidates.exists), bool(state.fresh)
         state, record = traced_run["jitted"](state, PARAMS, SPILL, ep, config=config)
+        assert int(record.planned) == 0 or not was_fresh          # fresh candidates are reused, not planned
+        planned += int(record.planned)
         candidates = state.candidates
         exists = np.asarray(candidates.exists)
         _, overlap = assign.footprint_relations(candidates.tasks.footprint, candidates.usable, state.owner)
@@ -182,7 +185,7 @@ def test_tasks_kept_across_a_refresh_equal_tasks_planned_again(traced_run):
             _same_tasks(name, jax.tree.map(lambda a: a[exists], getattr(candidates.tasks, name)),
                         jax.tree.map(lambda a: a[exists], getattr(fresh, name)))
         kept += int(exists.sum())
-    assert kept > 0 and dropped > 0
+    assert kept > 0 and dropped > 0 and planned > 0
 
 
 def _same_tasks(name, got, want):
