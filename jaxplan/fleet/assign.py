@@ -426,7 +426,7 @@ def rovers_in(words, pos, width: int):
     return jax.vmap(lambda row: bits_at(row, pos[:, 0] * width + pos[:, 1]))(words)
 
 
-def overlap_rows(words, slots, n: int):
+def overlap_rows(words, slots, n):
     """bool[M, M]: which of M packed footprint masks (u32[M, ceil(H W / 32)]) share a cell with each
     of the first ``n`` (i32[]) of ``slots`` (i32[M], slot indices, padded with M), in those rows;
     the other rows False. ``PLAN_CHUNK`` rows at a time, chunks past the n-th skipped."""
