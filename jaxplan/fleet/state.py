@@ -676,13 +676,12 @@ def _stop(totals: Totals, scene, phase, parked, made_way, assigned, dropped, mov
                            stop=stop)
 
 
-def _expire(candidates, fresh, assigned, dropped, ended):
-    """``(candidates, fresh)`` after the step: no longer fresh once a task started or was dropped or a
-    push ended. A task depends on the fabric and its source only: the next planning keeps the cached
-    ones (``plan_candidates``'s previous); when a push ended, the refresh keeps those whose plans read
-    nothing it changed (``keep_tasks``)."""
-    fresh = fresh & ~(jnp.any(assigned) | jnp.any(dropped) | jnp.any(ended))
-    return candidates, fresh
+def _expire(fresh, assigned, dropped, ended):
+    """bool[]: whether the cached candidates are still fresh after the step: not once a task started or
+    was dropped or a push ended. A task depends on the fabric and its source only: the next planning
+    keeps the cached ones (``plan_candidates``'s previous); when a push ended, the refresh keeps those
+    whose plans read nothing it changed (``keep_tasks``)."""
+    return fresh & ~(jnp.any(assigned) | jnp.any(dropped) | jnp.any(ended))
 
 
 def unchanged_tasks(state: FleetState, params: FabricParams, old: Fabric, before):
@@ -774,7 +773,7 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
     totals = _stop(state.totals, scene, rovers.phase, _parked(rovers.pos, rovers.home, rovers.phase), made_way,
                    assigned, dropped, moved, ended, applied, failure, cfg.stall_steps)
     # what the step outdated for the next: the cached candidates
-    candidates, fresh = _expire(candidates, fresh, assigned, dropped, ended)
+    fresh = _expire(fresh, assigned, dropped, ended)
     new = state._replace(scene=scene, rovers=rovers, fields=fields, owner=owner, candidates=candidates,
                          attempts=attempts, fresh=fresh, totals=totals)
     collected, delivered, spilled = applied
