@@ -143,6 +143,21 @@ def cell_centers(shape, cell_size, origin):
     return jnp.stack([x, y], axis=-1)
 
 
+def centers_at(cells, shape, cell_size, origin):
+    """``f32[..., 2]`` world (x, y) centre of the cells at flat indices ``cells: i32[...]``, rounded as
+    ``cell_centers`` rounds them."""
+    w = shape[1]
+    x = ((cells % w).astype(jnp.float32) + 0.5) * cell_size + origin[0]
+    y = ((cells // w).astype(jnp.float32) + 0.5) * cell_size + origin[1]
+    return jnp.stack([x, y], axis=-1)
+
+
+def norm_and_unit(delta):
+    """Length ``[...]`` and unit vector ``[..., 2]`` of ``delta: [..., 2]`` (zero vector for zero length)."""
+    norm = jnp.linalg.norm(delta, axis=-1)
+    return norm, jnp.where(norm[..., None] > 0, delta / jnp.maximum(norm, 1e-30)[..., None], 0.0)
+
+
 def neighbour_index(direction):
     """``i32[..., 2]`` (row, col) of the neighbour in ``direction`` (i32[H, W, ...], 0-7; other
     values give the cell itself shifted by direction 0 and must be masked by the caller)."""

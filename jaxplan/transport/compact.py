@@ -72,6 +72,18 @@ def gather(g, cells, table_raw, table_len) -> Buffer:
                   clean(table_raw, -jnp.inf), clean(table_len, jnp.inf))
 
 
+def closed_buffer(g, cells, nb_pos, k: int) -> Buffer:
+    """The ``Buffer`` of cells ``cells: i32[C]`` (flat, ``H*W`` for padding) closed under successor
+    steps: every feasible step enters a listed cell or a goal cell, so no table outside is read.
+    g: their successor rows (fields ``[C]`` / ``[8, C]``); nb_pos: i32[8, C] where each neighbour
+    is listed, C where it is not; k: table entries."""
+    capacity = cells.shape[0]
+    nb_dirty = nb_pos < capacity
+    return Buffer(cells, jnp.any(g.feasible, axis=0) | g.fallback, g.obj, g.fallback, g.fallback_len, g.feasible,
+                  g.enters_goal, jnp.asarray(g.step_len), nb_dirty, jnp.minimum(nb_pos, capacity - 1),
+                  jnp.full((lattice.N_DIRS, k, capacity), -jnp.inf), jnp.full((lattice.N_DIRS, k, capacity), jnp.inf))
+
+
 def _neighbours(b: Buffer):
     """``(raw, length) -> neighbour(d, r)``: entry r of each buffer cell's direction-d neighbour, from
     the buffer's planes ``f32[C]`` when that neighbour is dirty, from its old table when not (the

@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.core import grid_jit, lattice
+from jaxplan.transport import connector_closure
+from jaxplan.transport.connector_closure import CLOSURE_CAPACITY
 from jaxplan.transport.fabric import Fabric, Paths, Table, continuation_dp, walk_table
 from jaxplan.transport.params import FabricParams, validate_params
 
@@ -157,6 +159,20 @@ def _window_start(anchor, side: int, size: int):
     return jnp.clip(anchor - size // 2, 0, side - size)
 
 
+def _closure_of(scene, fabric: Fabric, params: FabricParams, sources, mine, anchor_flat, capacity: int):
+    """``connector_closure.downstream_cells`` of the ``mine`` rows of ``sources: i32[B, 2]`` toward
+    ``anchor_flat`` (a cell): the steps into the anchor end there."""
+    h, w = fabric.occupied.shape
+    n = h * w
+
+    def successors(head):
+        g = connector_closure.connector_lanes(scene, fabric, params, head, anchor_flat)
+        return jnp.where(g.feasible & ~g.enters_goal, lattice.lane_neighbours(head, (h, w)), n)
+
+    seeds = jnp.where(mine, sources[:, 0] * w + sources[:, 1], n)
+    return connector_closure.downstream_cells(successors, seeds, n, capacity)
+
+
 def _walks_on(scene, fabric: Fabric, params: FabricParams, sources, mine, anchor_flat, max_steps: int,
               size: tuple[int, int] | None) -> Paths:
     """``Paths[B]``: the connector walks of ``sources`` (i32[B, 2]; rows where ``mine`` is False walk
@@ -185,7 +201,7 @@ def _walks_on(scene, fabric: Fabric, params: FabricParams, sources, mine, anchor
 
 
 def connector_walks(scene, fabric: Fabric, params: FabricParams, sources, anchors, max_steps: int,
-                    levels: tuple[int, ...] | None = None) -> Paths:
+                    levels: tuple[int, ...] | None = None, closure: int = CLOSURE_CAPACITY) -> Paths:
     """``Paths[B]``: each source's connector path to its anchor, ``walk_table(connector_table(scene,
     fabric, params, anchors[i]), sources[i], 0, max_steps)``, the same paths.
 
@@ -195,7 +211,10 @@ def connector_walks(scene, fabric: Fabric, params: FabricParams, sources, anchor
     d(source, h*) around h* (their corner cells one cell beyond): each distinct anchor's DP runs on
     the smallest window of ``levels`` (static; default ``window_levels``) around it that holds the
     discs of all its sources, and on the whole grid when none does (or without the monotone rule).
-    The anchors run one after another (``lax.map``), so a window's DP costs its own cells only.
+    Before any window, the cells its sources' connectors can visit are listed
+    (``connector_closure.downstream_cells``): when at most ``closure`` (static; 0: never) they are,
+    the DP runs on them alone (``connector_closure.closure_walks``), the same paths again.
+    The anchors run one after another (``lax.map``), so a DP costs its own cells only.
     """
     h, w = fabric.occupied.shape
     levels = window_levels((h, w)) if levels is None else tuple(s for s in levels if s < max(h, w))
@@ -219,11 +238,18 @@ def connector_walks(scene, fabric: Fabric, params: FabricParams, sources, anchor
                 for start in [jnp.stack([_window_start(here[0], h, size[0]), _window_start(here[1], w, size[1])])]]
         # the first level that holds every disc; the whole grid when none does; 0 for no anchor
         level = jnp.argmax(jnp.asarray(fits + [True]))
-        case = jnp.where(anchor < 0, 0, 1 + level)
         branches = [functools.partial(_walks_on, scene, fabric, params, sources, mine, safe, max_steps, size)
                     for size in sizes + [None]]
         empty = lambda: jax.tree.map(jnp.zeros_like, jax.eval_shape(branches[-1]))  # noqa: E731
-        return jax.lax.switch(case, [empty] + branches)
+        if not (closure and params.monotone):
+            return jax.lax.switch(jnp.where(anchor < 0, 0, 1 + level), [empty] + branches)
+        cells, count = jax.lax.cond(
+            anchor >= 0, lambda: _closure_of(scene, fabric, params, sources, mine, safe, closure),
+            lambda: (jnp.full(closure, h * w, jnp.int32), jnp.int32(0)))
+        on_closure = functools.partial(connector_closure.closure_walks, scene, fabric, params, sources, safe, cells,
+                                       max_steps)
+        case = jnp.where(anchor < 0, 0, jnp.where(count <= closure, 1, 2 + level))
+        return jax.lax.switch(case, [empty, on_closure] + branches)
 
     walks = jax.lax.map(one_anchor, distinct)                                   # [B anchors, B sources]
     slot = jnp.argmax(distinct[None] == anchors[:, None], -1)
@@ -236,15 +262,9 @@ def connector_walks(scene, fabric: Fabric, params: FabricParams, sources, anchor
                  jnp.where(none, False, mine.fallback), jnp.where(none, True, mine.complete))
 
 
-def _norm_and_unit(delta):
-    """Length ``[...]`` and unit vector ``[..., 2]`` of ``delta: [..., 2]`` (zero vector for zero length)."""
-    norm = jnp.linalg.norm(delta, axis=-1)
-    return norm, jnp.where(norm[..., None] > 0, delta / jnp.maximum(norm, 1e-30)[..., None], 0.0)
-
-
 def _toward(centers, anchor_flat):
     """Distance ``f32[H, W]`` and unit vector ``f32[H, W, 2]`` from every centre to one anchor."""
-    return _norm_and_unit(centers.reshape(-1, 2)[jnp.maximum(anchor_flat, 0)] - centers)
+    return lattice.norm_and_unit(centers.reshape(-1, 2)[jnp.maximum(anchor_flat, 0)] - centers)
 
 
 def anchor_frame(centers, anchor_flat):
@@ -304,7 +324,7 @@ def assemble(scene, fabric: Fabric, anchor_flat, anchors, tables: Table) -> Conn
     first_hop = jnp.where(steps[..., None], lattice.neighbour_index(safe_dir), -1)
     a_flat = jnp.maximum(anchor_flat, 0)
     # a straight fallback connector points from the root straight at its anchor
-    _, straight = _norm_and_unit(centers.reshape(-1, 2)[a_flat] - centers)
+    _, straight = lattice.norm_and_unit(centers.reshape(-1, 2)[a_flat] - centers)
     heading = jnp.where(steps[..., None], jnp.asarray(lattice.STEP_UNIT)[safe_dir],
                         jnp.where(has[..., None], straight, 0.0))
     anchor_rc = jnp.where((anchor_flat >= 0)[..., None], jnp.stack([a_flat // w, a_flat % w], -1), -1)

@@ -140,23 +140,27 @@ def successor_lanes(cells, obj, occupied, goal, dist, tvec, theta_tol_deg, cell_
     successors); the grids as in ``successor_graph``. Costs O(C), not O(H W)."""
     nb = lattice.lane_neighbours(cells, obj.shape)
     at = lambda a, where, fill: lattice.take_cells(a, where, fill)  # noqa: E731
-    occ = at(occupied, cells, False)
-    enterable = at(occupied, nb, False) | at(goal, nb, False)
-    alignment = cone_alignment(at(tvec, cells, 0.0))
-    own_dist = at(dist, cells, 0.0)
-    nb_dist = at(dist, nb, jnp.inf) if monotone else None
-    corner = True if blocked is None else obstacles.corner_free_of(at(blocked, nb, False))
-    feasible = (nb < obj.size) & step_feasible(
-        occ[None], enterable, alignment, own_dist[None], nb_dist, cone_cos(theta_tol_deg), monotone, cell_size,
-        corner)
-    return SuccessorGraph(
-        obj=at(jnp.asarray(obj, jnp.float32), cells, 0.0),
-        feasible=feasible,
-        enters_goal=feasible & at(goal, nb, False),
-        fallback=occ & ~jnp.any(feasible, axis=0),
-        fallback_len=own_dist,
-        step_len=jnp.asarray(lattice.STEP_CELLS) * cell_size,
-    )
+    return lane_graph(at(jnp.asarray(obj, jnp.float32), cells, 0.0), at(occupied, cells, False),
+                      at(occupied, nb, False) | at(goal, nb, False), at(goal, nb, False), at(tvec, cells, 0.0),
+                      at(dist, cells, 0.0), at(dist, nb, jnp.inf), theta_tol_deg, cell_size, monotone,
+                      None if blocked is None else at(blocked, nb, False))
+
+
+def lane_graph(obj, occupied, enterable, goal_nb, tvec, dist, nb_dist, theta_tol_deg, cell_size, monotone: bool,
+               blocked_nb=None) -> SuccessorGraph:
+    """The ``SuccessorGraph`` rows of C listed cells from their own and their neighbours' values:
+    obj: f32[C]; occupied: bool[C]; enterable, goal_nb: bool[8, C] the neighbour is occupied or a goal
+    cell (False off the grid, so that no step leaves it), a goal cell; tvec: f32[C, 2]; dist: f32[C];
+    nb_dist: f32[8, C] (inf off the grid); blocked_nb: optional bool[8, C] the neighbour is blocked.
+    For callers that compute these per cell (``connector_closure``) rather than read them from grids
+    (``successor_lanes``)."""
+    corner = True if blocked_nb is None else obstacles.corner_free_of(blocked_nb)
+    feasible = step_feasible(
+        occupied[None], enterable, cone_alignment(tvec), dist[None], nb_dist if monotone else None,
+        cone_cos(theta_tol_deg), monotone, cell_size, corner)
+    return SuccessorGraph(obj=obj, feasible=feasible, enters_goal=feasible & goal_nb,
+                          fallback=occupied & ~jnp.any(feasible, axis=0), fallback_len=dist,
+                          step_len=jnp.asarray(lattice.STEP_CELLS) * cell_size)
 
 
 def graph_at(graph: SuccessorGraph, cells) -> SuccessorGraph:

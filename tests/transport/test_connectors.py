@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from jaxplan import FabricParams, Scene, build_fabric, builtin_scene, circle, plan_connectors
 from jaxplan.core import lattice
+from jaxplan.transport.connector_closure import CLOSURE_CAPACITY
 from jaxplan.transport.connectors import anchor_for, anchors_for, connector_table, connector_walks
 from jaxplan.transport.fabric import walk_table
 from tests._scenes import has_borderline_step, random_blocked, reference_of, scenes
@@ -117,22 +118,24 @@ def _window_scene(seed: int, blocked: bool):
 
 
 @functools.cache
-def _walks():
+def _walks(closure: int):
     cap = 2 * (WINDOW_SHAPE[0] + WINDOW_SHAPE[1])
     windowed = jax.jit(lambda scene, fabric, sources, anchors: connector_walks(
-        scene, fabric, PARAMS, sources, anchors, cap, levels=LEVELS))
+        scene, fabric, PARAMS, sources, anchors, cap, levels=LEVELS, closure=closure))
     whole = jax.jit(jax.vmap(lambda scene, fabric, source, anchor: walk_table(
         connector_table(scene, fabric, PARAMS, anchor), source, jnp.int32(0), cap), in_axes=(None, None, 0, 0)))
     return windowed, whole
 
 
 @pytest.mark.parametrize("blocked", [False, True])
-def test_connectors_on_their_anchors_windows_are_the_whole_grids(blocked):
+@pytest.mark.parametrize("closure", [0, 12, CLOSURE_CAPACITY])
+def test_connectors_on_their_anchors_windows_are_the_whole_grids(blocked, closure):
     """Eight sources at a time, some sharing an anchor: near it (their DP on an 8 x 8 or 16 x 16
     window around it), far from it (the whole grid), or without one: the same walks, cell by cell,
     with the same collected mass and length. An anchor need not be a highway cell: any cell may end
-    a connector."""
-    windowed, whole = _walks()
+    a connector. With a closure buffer the DP runs on the cells the connectors can visit when they fit
+    (``closure`` 12: some fit, some overflow to the windows; 512: all fit; 0: never)."""
+    windowed, whole = _walks(closure)
     for seed in range(4):
         scene, rng = _window_scene(seed, blocked)
         fabric = build_fabric(scene, PARAMS)
@@ -173,3 +176,44 @@ def test_anchors_of_many_roots_equal_one_at_a_time():
     for size in (4, 64, WINDOW_SHAPE[0] * WINDOW_SHAPE[1]):
         many = anchors_for(fabric.heat, fabric.highways, fabric.occupied, centers, 0.5, roots, max_candidates=size)
         np.testing.assert_array_equal(np.asarray(many), np.asarray(one), err_msg=f"list of {size}")
+
+
+@functools.cache
+def _closure_walks(cap: int):
+    """Jitted connector walks on closures only (no window levels) and on the whole grid."""
+    on_closure = jax.jit(lambda scene, fabric, sources, anchors: connector_walks(
+        scene, fabric, PARAMS, sources, anchors, cap, levels=(), closure=CLOSURE_CAPACITY))
+    whole = jax.jit(jax.vmap(lambda scene, fabric, source, anchor: walk_table(
+        connector_table(scene, fabric, PARAMS, anchor), source, jnp.int32(0), cap), in_axes=(None, None, 0, 0)))
+    return on_closure, whole
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scene=scenes(max_side=16, integer_counts=False, blocked=True), cell_size=st.sampled_from((0.37, 1.0, 2.5)),
+       origin=st.tuples(st.sampled_from((-3.1, 0.0, 12.7)), st.sampled_from((-0.4, 0.0, 5.3))),
+       seed=st.integers(0, 2**31 - 1))
+def test_connectors_on_their_closures_are_the_whole_grids(scene, cell_size, origin, seed):
+    """The connector DP solved on the cells its sources can visit gives the whole grid's walks, cell
+    by cell, with the same mass, length, fallback and completion: random scenes with blocked cells,
+    cell sizes and origins (the distances to the anchor computed per cell round as the grid's do),
+    sources on and off the material, two of them sharing an anchor, one its own anchor."""
+    h, w = scene.shape
+    obj, mask = np.asarray(scene.obj), np.array(scene.blocked)
+    target = circle((origin[0] + cell_size * w / 2, origin[1] + cell_size * h / 2), cell_size * max(min(h, w) / 4, 1.0))
+    grid = Scene.from_arrays(obj, target, cell_size=cell_size, origin=origin)
+    mask &= ~np.asarray(grid.target_mask)
+    scene = Scene.from_arrays(np.where(mask, 0.0, obj), target, cell_size=cell_size, origin=origin, blocked=mask)
+    fabric = build_fabric(scene, PARAMS)
+    rng = np.random.default_rng(seed)
+    free = np.flatnonzero(~mask.reshape(-1))
+    sources = rng.choice(free, 6)
+    anchors = rng.choice(free, 6)
+    anchors[1] = anchors[0]
+    anchors[5] = sources[5]
+    sources = np.stack([sources // w, sources % w], -1).astype(np.int32)
+    cap = 2 * (h + w)
+    on_closure, whole = _closure_walks(cap)
+    got = on_closure(scene, fabric, jnp.asarray(sources), jnp.asarray(anchors, jnp.int32))
+    want = whole(scene, fabric, jnp.asarray(sources), jnp.asarray(anchors, jnp.int32))
+    for name in got._fields:
+        np.testing.assert_array_equal(np.asarray(getattr(got, name)), np.asarray(getattr(want, name)), err_msg=name)
