@@ -56,7 +56,8 @@ from jaxplan.transport import (
 from jaxplan.transport.spillage import evaluate_route
 
 __all__ = ["Attempts", "BLOCKED", "Candidates", "PLAN_CHUNK", "RATE_BLOCK", "RATE_BLOCKS", "RATE_CHUNK", "RATE_REACH",
-           "Task", "assign_each", "assign_greedy", "assign_planned", "bits_at", "clear_of", "failure_rank",
+           "RATE_WIDEN", "Task", "assign_each", "assign_greedy", "assign_planned", "bits_at", "clear_of",
+           "failure_rank",
            "footprint_free", "footprint_relations", "greedy_choice", "keep_only", "newly_planned", "no_attempts",
            "overlap_rows", "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve", "rovers_in",
            "rovers_inside", "unchanged_tasks", "unpack_bits", "wanted_candidates"]
@@ -74,6 +75,9 @@ RATE_BLOCK = 16
 """Side of the tiles whose bounds let ``rate_sources`` score a few tiles per rover, not the grid."""
 RATE_BLOCKS = 8
 """Tiles ``rate_sources`` scores per rover before it checks that no other tile could beat them."""
+RATE_WIDEN = 8
+"""A rover whose ``RATE_BLOCKS`` best tiles do not settle its sources scores this many times more
+before the whole grid."""
 RATE_REACH = (0, 4, 8, 16, 32, 64, 128, 256, 512)
 """Distances at which ``rate_sources`` bounds each tile's rates (the nearest not beyond a rover's)."""
 
@@ -184,8 +188,8 @@ def rate_sources(fabric, owner, pos, idle, m: int, cell_size, per_rover: int = 2
     length + 1)`` at a distance d no farther than the rover's least distance to the tile
     (``RATE_REACH``), so each rover scores the cells of its ``blocks`` best-bounded tiles only, and
     its sources are the grid's when its ``per_rover``-th best there beats every other tile's bound;
-    a rover whose does not is scored over the whole grid. The same sources either way (ties to the
-    lowest flat index)."""
+    a rover whose does not scores ``RATE_WIDEN`` times as many tiles the same way, then the whole
+    grid. The same sources either way (ties to the lowest flat index)."""
     h, w = owner.shape
     allowed = fabric.occupied & (owner < 0)
     cells_long = fabric.length / cell_size
@@ -252,7 +256,7 @@ def _rates_by_tile(value, cells_long, allowed, pos, idle, per_rover: int, block:
     first_row, first_col = jnp.arange(hb) * block, jnp.arange(wb) * block
     inner = jnp.arange(block)
 
-    def best_of(here, may):
+    def best_of(here, may, blocks: int):
         near_r = jnp.maximum(jnp.maximum(first_row - here[0], here[0] - (first_row + block - 1)), 0)
         near_c = jnp.maximum(jnp.maximum(first_col - here[1], here[1] - (first_col + block - 1)), 0)
         near = jnp.maximum(near_r[:, None], near_c[None]).reshape(-1)
@@ -272,12 +276,16 @@ def _rates_by_tile(value, cells_long, allowed, pos, idle, per_rover: int, block:
         best, first = _top_by_rate(rate, flat, per_rover)
         return best, first, (best[-1] > rest) | (rest == -jnp.inf)
 
-    best, flat, ok = jax.vmap(best_of)(pos, idle)
+    best, flat, ok = jax.vmap(lambda here, may: best_of(here, may, blocks))(pos, idle)
+
+    def wider(here, may):
+        b, f, good = best_of(here, may, min(blocks * RATE_WIDEN, hb * wb))
+        return jax.lax.cond(good, lambda: (b, f), lambda: _best_on_grid(value, cells_long, allowed, here, may,
+                                                                          per_rover))
 
     def settle(rover):
         here, may, good, b, f = rover
-        return jax.lax.cond(good, lambda: (b, f), lambda: _best_on_grid(value, cells_long, allowed, here, may,
-                                                                          per_rover))
+        return jax.lax.cond(good, lambda: (b, f), lambda: wider(here, may))
 
     return jax.lax.map(settle, (pos, idle, ok, best, flat))
 
@@ -437,11 +445,17 @@ def overlap_rows(words, slots, n):
     def rows_of(chunk_slots):
         return jax.vmap(lambda i: jnp.any((words & words[jnp.minimum(i, m - 1)][None]) != 0, 1))(chunk_slots)
 
-    starts = jnp.arange(padded.shape[0]) * chunk
-    rows = jax.lax.map(lambda x: jax.lax.cond(x[0] < n, rows_of, lambda _: jnp.zeros((chunk, m), bool), x[1]),
-                       (starts, padded))
-    first = jnp.arange(padded.size) < n
-    return jnp.zeros((m + 1, m), bool).at[jnp.where(first, padded.reshape(-1), m)].set(rows.reshape(-1, m))[:m]
+    first = (jnp.arange(padded.size) < n).reshape(padded.shape)
+    into = jnp.where(first, padded, m)
+
+    def one_chunk(carry):
+        # a loop over the chunks to compute only: a map with a skipping branch copied the masks each chunk
+        k, rows = carry
+        return k + 1, rows.at[into[k]].set(rows_of(padded[k]), mode="drop")
+
+    _, rows = jax.lax.while_loop(lambda carry: carry[0] * chunk < n, one_chunk,
+                                 (jnp.int32(0), jnp.zeros((m, m), bool)))
+    return rows
 
 
 def footprint_relations(words, usable, owner):

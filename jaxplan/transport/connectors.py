@@ -19,6 +19,8 @@ CONNECTOR_WINDOW = 64
 (``connector_walks``); the next ones double it."""
 ANCHOR_LIST = 8192
 """Anchor candidates ``anchors_for`` scores as a list (more: cell by cell over the grid)."""
+ANCHOR_SHORT_LIST = 1024
+"""The shorter list ``anchors_for`` scores when the candidates fit in it."""
 
 
 class Connectors(NamedTuple):
@@ -112,17 +114,18 @@ def connector_table(scene, fabric: Fabric, params: FabricParams, anchor_flat):
     return _connector_table(scene, fabric, params, anchor_flat, centers)
 
 
-def anchors_for(heat, highways, occupied, centers, anchor_lambda, roots, max_candidates: int = ANCHOR_LIST):
+def anchors_for(heat, highways, occupied, centers, anchor_lambda, roots, max_candidates: int = ANCHOR_LIST,
+                short_candidates: int = ANCHOR_SHORT_LIST):
     """``i32[M]``: ``anchor_for`` of each of the roots ``roots: i32[M, 2]``, the same anchors. When the
-    candidates (occupied highway cells) fit in a list of ``max_candidates`` (static; in row-major
-    order, so ties still go to the lowest index) every root is scored against the list, O(M x list);
-    otherwise one root at a time over the grid."""
+    candidates (occupied highway cells) fit in a list of ``short_candidates`` or of ``max_candidates``
+    (static; in row-major order, so ties still go to the lowest index) every root is scored against
+    the shorter list that holds them, O(M x list); otherwise one root at a time over the grid."""
     h, w = heat.shape
     candidate = (highways & occupied).reshape(-1)
     size = min(h * w, int(max_candidates))
 
-    def listed(_):
-        index = jnp.nonzero(candidate, size=size, fill_value=h * w)[0]
+    def listed(size: int):
+        index = lattice.true_indices(candidate, size)
         valid = index < h * w
         safe = jnp.minimum(index, h * w - 1)
         cand_heat = jnp.where(valid, heat.reshape(-1)[safe], -jnp.inf)
@@ -136,12 +139,14 @@ def anchors_for(heat, highways, occupied, centers, anchor_lambda, roots, max_can
 
         return jax.vmap(one)(roots)
 
-    def each(_):
+    def each():
         return jax.lax.map(lambda r: anchor_for(heat, highways, occupied, centers, anchor_lambda, r), roots)
 
-    if size == h * w:
-        return listed(None)
-    return jax.lax.cond(jnp.sum(candidate) <= size, listed, each, None)
+    # the shortest list that holds the candidates: a root's score costs the list's length
+    sizes = sorted({min(size, int(short_candidates)), size})
+    count = jnp.sum(candidate)
+    branches = [functools.partial(listed, s) for s in sizes] + ([] if size == h * w else [each])
+    return jax.lax.switch(jnp.sum(count > jnp.asarray(sizes)), branches)
 
 
 def window_levels(shape, smallest: int = CONNECTOR_WINDOW) -> tuple[int, ...]:

@@ -299,7 +299,8 @@ _RateFields = collections.namedtuple("_RateFields", "value length occupied")   #
                                                                                             (3, 2), (4, 1)]))
 def test_rate_sources_equal_the_serial_ranking(seed, m, tiles):
     """Over the whole grid, and by tiles (2 x 2 to 4 x 4 cells, one or two scored per rover before the
-    check, which falls back to the grid when it fails): the serial ranking."""
+    check, which falls back to ``RATE_WIDEN`` times as many tiles, then to the grid): the serial
+    ranking."""
     rng = np.random.default_rng(seed)
     occupied = rng.random(SHAPE) < 0.4
     value = np.where(occupied, rng.integers(1, 40, SHAPE), 0).astype(np.float32)      # ties happen

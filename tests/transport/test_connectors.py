@@ -164,8 +164,8 @@ def test_connectors_on_their_anchors_windows_are_the_whole_grids(blocked, closur
 
 
 def test_anchors_of_many_roots_equal_one_at_a_time():
-    """``anchors_for`` scoring a list of the candidates, or (a list too short) the grid root by root:
-    the anchors ``anchor_for`` gives each root."""
+    """``anchors_for`` scoring a list of the candidates (the shorter of two that holds them), or (both
+    too short) the grid root by root: the anchors ``anchor_for`` gives each root."""
     scene, rng = _window_scene(5, False)
     fabric = build_fabric(scene, PARAMS)
     centers = lattice.cell_centers(scene.shape, scene.cell_size, scene.origin)
@@ -173,9 +173,10 @@ def test_anchors_of_many_roots_equal_one_at_a_time():
                         jnp.int32)
     one = jax.vmap(lambda r: anchor_for(fabric.heat, fabric.highways, fabric.occupied, centers, 0.5, r))(roots)
     assert int(jnp.sum(fabric.highways & fabric.occupied)) > 4 and bool(jnp.any(one >= 0))
-    for size in (4, 64, WINDOW_SHAPE[0] * WINDOW_SHAPE[1]):
-        many = anchors_for(fabric.heat, fabric.highways, fabric.occupied, centers, 0.5, roots, max_candidates=size)
-        np.testing.assert_array_equal(np.asarray(many), np.asarray(one), err_msg=f"list of {size}")
+    for short, size in ((2, 4), (4, 64), (64, 128), (8, WINDOW_SHAPE[0] * WINDOW_SHAPE[1])):
+        many = anchors_for(fabric.heat, fabric.highways, fabric.occupied, centers, 0.5, roots, max_candidates=size,
+                           short_candidates=short)
+        np.testing.assert_array_equal(np.asarray(many), np.asarray(one), err_msg=f"lists of {short} and {size}")
 
 
 @functools.cache
