@@ -57,10 +57,9 @@ from jaxplan.transport.spillage import evaluate_route
 
 __all__ = ["Attempts", "BLOCKED", "Candidates", "PLAN_CHUNK", "RATE_BLOCK", "RATE_BLOCKS", "RATE_CHUNK", "RATE_REACH",
            "RATE_WIDEN", "Task", "assign_each", "assign_greedy", "assign_planned", "bits_at", "clear_of",
-           "failure_rank",
-           "footprint_free", "footprint_relations", "greedy_choice", "keep_only", "newly_planned", "no_attempts",
-           "overlap_rows", "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve", "rovers_in",
-           "rovers_inside", "unchanged_tasks", "unpack_bits", "wanted_candidates"]
+           "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "keep_only", "newly_planned",
+           "no_attempts", "overlap_rows", "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve",
+           "rovers_in", "rovers_inside", "unchanged_tasks", "unpack_bits", "wanted_candidates"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's

@@ -356,7 +356,7 @@ def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) 
     (8 B each). Per route slot (S = ``route_slots``): N (+ M) routes x 8 B twice, and for the
     coordinated strategy the ``PLAN_CHUNK`` candidates planned at once (``PLANNED_SLOT_BYTES``: 340
     + 29 K each, K = ``params.k``, default ``FabricParams()``) and the K + 1 walks of walk_cap + 1 cells
-    each of the M cached tasks read (``transport.PlanReads``; i32 pairs, twice)."""
+    each of the M cached tasks read (``transport.PlanReads``; i32 flat indices, twice)."""
     k = int((FabricParams() if params is None else params).k)
     cfg = config.resolved(shape)
     h, w = (int(v) for v in shape)
@@ -370,7 +370,7 @@ def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) 
     else:
         per_cell += 8 * min(n, assign.RATE_CHUNK) if cfg.candidates_by == "rate" else 0
         per_slot += min(assign.PLAN_CHUNK, m) * (PLANNED_SLOT_BYTES[0] + PLANNED_SLOT_BYTES[1] * k)
-        per_slot += m * (k + 1) * 8        # the walks each cached task read (PlanReads), half a slot's cells each
+        per_slot += m * (k + 1) * 4        # the walks each cached task read (PlanReads), half a slot's cells each
     return per_cell * h * w + packed + per_slot * route_slots(cfg, shape)
 
 

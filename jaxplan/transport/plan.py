@@ -201,10 +201,10 @@ class PlanReads(NamedTuple):
     so that a refresh of the fabric can tell whether it changed the plan (``plans_unchanged``).
     K table entries; S = max_steps + 1.
 
-    source: i32[2]; anchor: i32[] its highway anchor (flat, -1 none); walks: i32[K + 1, S, 2] the
-    cells of the walks it read (its Eq. 6 candidate entries', then the anchor's selected path; -1
-    padded); window: i32[4] first row, last row, first column, last column of the cells its connector
-    DP read (an empty box, first > last, without an anchor).
+    source: i32[2]; anchor: i32[] its highway anchor (flat, -1 none); walks: i32[K + 1, S] the flat
+    (row-major) indices of the cells of the walks it read (its Eq. 6 candidate entries', then the
+    anchor's selected path; -1 padded); window: i32[4] first row, last row, first column, last
+    column of the cells its connector DP read (an empty box, first > last, without an anchor).
     """
 
     source: jax.Array
@@ -226,11 +226,13 @@ def plan_reads(scene, params: FabricParams, fabric: Fabric, source, anchor, max_
     candidate = selection.candidate_mask(fabric.table.raw[source[0], source[1]], params.slack_tau)
     walks = jax.vmap(lambda r: walk_table(fabric.table, source, r, max_steps, scene.detour).cells)(
         jnp.arange(k, dtype=jnp.int32))
-    walks = jnp.where(candidate[:, None, None], walks, -1)
     safe = jnp.maximum(anchor, 0)
     anchor_rc = jnp.stack([safe // w, safe % w]).astype(jnp.int32)
     tail = walk_table(fabric.table, anchor_rc, fabric.selected[anchor_rc[0], anchor_rc[1]], max_steps, scene.detour)
-    walks = jnp.concatenate([walks, jnp.where(anchor >= 0, tail.cells, -1)[None]])
+    read = jnp.concatenate([candidate, (anchor >= 0)[None]])
+    walks = jnp.concatenate([walks, tail.cells[None]])
+    # flat indices: half the bytes of (row, col) pairs for every cached task
+    walks = jnp.where(read[:, None] & (walks[..., 0] >= 0), walks[..., 0] * w + walks[..., 1], -1)
     if params.monotone:
         reach = jnp.ceil(jnp.sqrt(jnp.sum((source - anchor_rc) ** 2.0))).astype(jnp.int32) + 2
         lo, hi = jnp.maximum(anchor_rc - reach, 0), jnp.minimum(anchor_rc + reach, jnp.asarray([h - 1, w - 1]))
@@ -279,8 +281,7 @@ def plans_unchanged(scene, params: FabricParams, reads: PlanReads, old: Fabric, 
     entry = old.selected[ar, ac]
     same_tail = (anchor < 0) | ((entry == new.selected[ar, ac])
                                 & (old.table.raw[ar, ac, entry] == new.table.raw[ar, ac, entry]))
-    cells = jnp.maximum(reads.walks, 0)
-    walked = jnp.any(changes.walked[cells[..., 0], cells[..., 1]] & (reads.walks[..., 0] >= 0), (1, 2))
+    walked = jnp.any(changes.walked.reshape(-1)[jnp.maximum(reads.walks, 0)] & (reads.walks >= 0), (1, 2))
     r0, r1, c0, c1 = (reads.window[:, i] for i in range(4))
     box = lambda r, c: changes.counts[jnp.clip(r, 0, h), jnp.clip(c, 0, w)]  # noqa: E731
     in_window = box(r1 + 1, c1 + 1) - box(r0, c1 + 1) - box(r1 + 1, c0) + box(r0, c0)

@@ -128,13 +128,14 @@ def _walks(closure: int):
 
 
 @pytest.mark.parametrize("blocked", [False, True])
-@pytest.mark.parametrize("closure", [0, 12, CLOSURE_CAPACITY])
+@pytest.mark.parametrize("closure", [0, 12])
 def test_connectors_on_their_anchors_windows_are_the_whole_grids(blocked, closure):
     """Eight sources at a time, some sharing an anchor: near it (their DP on an 8 x 8 or 16 x 16
     window around it), far from it (the whole grid), or without one: the same walks, cell by cell,
     with the same collected mass and length. An anchor need not be a highway cell: any cell may end
     a connector. With a closure buffer the DP runs on the cells the connectors can visit when they fit
-    (``closure`` 12: some fit, some overflow to the windows; 512: all fit; 0: never)."""
+    (``closure`` 12: some fit, some overflow to the windows; 0: never; every closure fitting is the
+    next test's case)."""
     windowed, whole = _walks(closure)
     for seed in range(4):
         scene, rng = _window_scene(seed, blocked)
@@ -189,7 +190,7 @@ def _closure_walks(cap: int):
     return on_closure, whole
 
 
-@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scene=scenes(max_side=16, integer_counts=False, blocked=True), cell_size=st.sampled_from((0.37, 1.0, 2.5)),
        origin=st.tuples(st.sampled_from((-3.1, 0.0, 12.7)), st.sampled_from((-0.4, 0.0, 5.3))),
        seed=st.integers(0, 2**31 - 1))

@@ -104,8 +104,8 @@ def test_a_change_far_from_a_plan_keeps_it_and_one_on_its_route_does_not():
     # one count changed where a plan read nothing: some plans are kept
     for i in range(SOURCES):
         read = np.zeros(SHAPE, bool)
-        walks = np.asarray(reads.walks[i]).reshape(-1, 2)
-        read[tuple(walks[walks[:, 0] >= 0].T)] = True
+        walks = np.asarray(reads.walks[i]).reshape(-1)
+        read.reshape(-1)[walks[walks >= 0]] = True
         r0, r1, c0, c1 = np.asarray(reads.window[i])
         read[r0:r1 + 1, c0:c1 + 1] = True
         far = np.argwhere(~read & ~np.asarray(scene.target_mask) & (np.asarray(scene.obj) > 0))
