@@ -25,6 +25,7 @@ import jax.numpy as jnp
 
 from jaxplan.core import lattice
 from jaxplan.transport import kbest
+from jaxplan.transport.fabric import make_table, ranks_from_directions
 
 
 class Buffer(NamedTuple):
@@ -157,3 +158,12 @@ def kbest_rows(b: Buffer, best_raw, best_len, policy, k: int, cell_size):
                   for r in range(1, k)]
     return kbest.kbest_levels(best_raw, best_len, policy, b, b.occupied, pointer, _neighbours(b), k, cell_size,
                                downstream=(beyond_raw, beyond_len))
+
+
+def solve_rows(b: Buffer, warm_policy, k: int, cell_size, max_iterations: int):
+    """``(rows, iterations)``: the buffer cells' K-best table rows, a ``Table`` of fields ``[C, K]``
+    (``best_paths`` from ``warm_policy``, then ``kbest_rows``), and the policy iterations run."""
+    best_raw, best_len, policy, iterations = best_paths(b, warm_policy, cell_size, max_iterations)
+    raw, length, direction = kbest_rows(b, best_raw, best_len, policy, k, cell_size)
+    rank = ranks_from_directions(direction[..., None])[..., 0]
+    return make_table(raw, length, direction, rank, b.enters_goal), iterations

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 
 from jaxplan.core import lattice
 from jaxplan.transport import compact, visibility
-from jaxplan.transport.fabric import Fabric, Paths, make_table, ranks_from_directions
+from jaxplan.transport.fabric import Fabric, Paths, follow_entries
 from jaxplan.transport.params import FabricParams
 
 __all__ = ["CLOSURE_CAPACITY", "CLOSURE_ROUND", "closure_walks", "connector_lanes", "downstream_cells"]
@@ -32,11 +32,12 @@ CLOSURE_ROUND = 16
 """Listed cells whose successors one round of ``downstream_cells`` appends."""
 
 
-def connector_lanes(scene, fabric: Fabric, params: FabricParams, cells, anchor_flat) -> visibility.SuccessorGraph:
-    """The rows of ``cells: i32[C]`` (flat, ``H*W`` for padding) in the connector successor graph
-    toward ``anchor_flat`` (i32[], a cell): the rows ``connectors.connector_table``'s DP builds (the
-    anchor the goal, the fabric's occupied cells but the anchor expandable), the distance and
-    direction to the anchor computed per cell, O(C)."""
+def connector_lanes(scene, fabric: Fabric, params: FabricParams, cells, anchor_flat):
+    """``(SuccessorGraph, nb i32[8, C])``: the rows of ``cells: i32[C]`` (flat, ``H*W`` for padding) in
+    the connector successor graph toward ``anchor_flat`` (i32[], a cell), the rows
+    ``connectors.connector_table``'s DP builds (the anchor the goal, the fabric's occupied cells but
+    the anchor expandable), the distance and direction to the anchor computed per cell, O(C); and
+    the cells' neighbours (``lattice.lane_neighbours``)."""
     h, w = fabric.occupied.shape
     n = h * w
     nb = lattice.lane_neighbours(cells, (h, w))
@@ -53,7 +54,7 @@ def connector_lanes(scene, fabric: Fabric, params: FabricParams, cells, anchor_f
     nb_dist = jnp.where(nb < n, toward(nb)[0], jnp.inf)
     return visibility.lane_graph(lattice.take_cells(jnp.asarray(scene.obj, jnp.float32), cells, 0.0), occupied,
                                  enterable, goal_nb, unit, dist, nb_dist, params.theta_tol_deg, scene.cell_size,
-                                 params.monotone, lattice.take_cells(scene.blocked, nb, False))
+                                 params.monotone, lattice.take_cells(scene.blocked, nb, False)), nb
 
 
 def downstream_cells(successors, seeds, n: int, capacity: int, per_round: int = CLOSURE_ROUND):
@@ -105,14 +106,10 @@ def closure_walks(scene, fabric: Fabric, params: FabricParams, sources, anchor_f
     max_steps: static."""
     h, w = fabric.occupied.shape
     n = h * w
-    g = connector_lanes(scene, fabric, params, cells, anchor_flat)
-    nb = lattice.lane_neighbours(cells, (h, w))
+    g, nb = connector_lanes(scene, fabric, params, cells, anchor_flat)
     b = compact.closed_buffer(g, cells, _positions(cells, nb, n), 1)
-    best_raw, best_len, policy, _ = compact.best_paths(b, jnp.full(cells.shape, -1, jnp.int32), scene.cell_size,
-                                                       params.resolved_max_hops((h, w)))
-    raw, length, direction = compact.kbest_rows(b, best_raw, best_len, policy, 1, scene.cell_size)
-    rank = ranks_from_directions(direction[..., None])[..., 0]
-    rows = make_table(raw, length, direction, rank, b.enters_goal)           # fields [C, 1]
+    rows, _ = compact.solve_rows(b, jnp.full(cells.shape, -1, jnp.int32), 1, scene.cell_size,
+                                 params.resolved_max_hops((h, w)))            # fields [C, 1]
     start = _positions(cells, jnp.asarray(sources, jnp.int32)[None, :, 0] * w + sources[None, :, 1], n)[0]
     return jax.vmap(lambda s, p: _walk_rows(rows, b, s, p, max_steps))(jnp.asarray(sources, jnp.int32), start)
 
@@ -120,27 +117,7 @@ def closure_walks(scene, fabric: Fabric, params: FabricParams, sources, anchor_f
 def _walk_rows(rows, b: compact.Buffer, source, position, max_steps: int) -> Paths:
     """``walk_table`` over a buffer's K = 1 rows (``rows``: a Table of fields [C, 1]) from ``source:
     i32[2]`` listed at ``position`` (i32[])."""
-    dirs = jnp.asarray(lattice.DIRS_ARRAY)
-    capacity = b.idx.shape[0]
-
-    def more(carry):
-        return (carry[0] < max_steps) & ~carry[3]
-
-    def body(carry):
-        i, at, rc, done, fell_back, cells = carry
-        d = rows.next_dir[at, 0]
-        falls = fell_back | (d == lattice.FALLBACK)
-        moves = (~done) & (d >= 0) & (d < lattice.FALLBACK)
-        nxt = jnp.where(falls, 0, rows.next_rank[at, 0])
-        step = jnp.clip(d, 0, 7)
-        new_rc = jnp.where(moves, rc + dirs[step], rc)
-        fell_back = fell_back | ((~done) & falls)
-        done = done | ~moves | (nxt < 0)
-        at = jnp.where(moves, b.nb_pos[step, at], at)
-        return i + 1, at, new_rc, done, fell_back, cells.at[i + 1].set(jnp.where(moves, new_rc, -1))
-
-    at = jnp.minimum(position, capacity - 1)
-    cells = jnp.full((max_steps + 1, 2), -1, jnp.int32).at[0].set(source)
-    _, _, _, done, fell_back, cells = jax.lax.while_loop(
-        more, body, (jnp.int32(0), at, source, jnp.bool_(False), jnp.bool_(False), cells))
+    at = jnp.minimum(position, b.idx.shape[0] - 1)
+    cells, done, fell_back = follow_entries(lambda at, rk: (rows.next_dir[at, rk], rows.next_rank[at, rk]),
+                                            lambda at, new_rc, d: b.nb_pos[d, at], source, at, 0, max_steps)
     return Paths(cells, jnp.sum(cells[:, 0] >= 0), rows.raw[at, 0], rows.length[at, 0], fell_back, done)

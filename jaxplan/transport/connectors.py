@@ -171,8 +171,8 @@ def _closure_of(scene, fabric: Fabric, params: FabricParams, sources, mine, anch
     n = h * w
 
     def successors(head):
-        g = connector_closure.connector_lanes(scene, fabric, params, head, anchor_flat)
-        return jnp.where(g.feasible & ~g.enters_goal, lattice.lane_neighbours(head, (h, w)), n)
+        g, nb = connector_closure.connector_lanes(scene, fabric, params, head, anchor_flat)
+        return jnp.where(g.feasible & ~g.enters_goal, nb, n)
 
     seeds = jnp.where(mine, sources[:, 0] * w + sources[:, 1], n)
     return connector_closure.downstream_cells(successors, seeds, n, capacity)

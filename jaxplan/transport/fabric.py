@@ -406,36 +406,50 @@ def walk_table(table: Table, source, rank, max_steps: int, detour=None) -> Paths
     from there. Traceable: ``extract_paths`` is its batched, jitted form. The walk stops when the
     path ends, so it costs the path's steps, not ``max_steps`` (batched, the longest path's).
     """
+    source = source.astype(jnp.int32)
+    cells, done, fell_back = follow_entries(
+        lambda rc, rk: (table.next_dir[rc[0], rc[1], rk], table.next_rank[rc[0], rc[1], rk]),
+        lambda rc, new_rc, d: new_rc, source, source, rank, max_steps, detour)
+    n = jnp.sum(cells[:, 0] >= 0)
+    r, c = source[0], source[1]
+    return Paths(cells, n, table.raw[r, c, rank], table.length[r, c, rank], fell_back, done)
+
+
+def follow_entries(entry, advance, source, at, rank, max_steps: int, detour=None):
+    """``walk_table``'s walk over any store of table rows: ``(cells i32[max_steps + 1, 2], complete
+    bool[], fell_back bool[])``. entry(at, rank) -> ``(next_dir, next_rank)`` of the row the walk is at
+    (``at``: any key, starting at ``at``); advance(at, new_rc, d) -> the key of the cell ``new_rc``
+    that step ``d`` entered. source: i32[2] the first cell; rank, detour as in ``walk_table``."""
     dirs = jnp.asarray(lattice.DIRS_ARRAY)
 
     def step(carry):
-        rc, rk, done, fell_back = carry
-        d = table.next_dir[rc[0], rc[1], rk]
+        rc, at, rk, done, fell_back = carry
+        d, next_rank = entry(at, rk)
         falls = fell_back | (d == lattice.FALLBACK)          # on the fallback leg: detour steps, then straight
         if detour is not None:
             d = jnp.where(falls, jnp.where(detour[rc[0], rc[1]] >= 0, detour[rc[0], rc[1]], lattice.FALLBACK), d)
         moves = (~done) & (d >= 0) & (d < lattice.FALLBACK)
-        nxt_rk = jnp.where(falls, 0, table.next_rank[rc[0], rc[1], rk])
-        new_rc = jnp.where(moves, rc + dirs[jnp.clip(d, 0, 7)], rc)
+        nxt_rk = jnp.where(falls, 0, next_rank)
+        way = jnp.clip(d, 0, 7)
+        new_rc = jnp.where(moves, rc + dirs[way], rc)
+        at = jnp.where(moves, advance(at, new_rc, way), at)
         fell_back = fell_back | ((~done) & falls)
         done = done | ~moves | (nxt_rk < 0)
-        return (new_rc, jnp.where(moves, jnp.maximum(nxt_rk, 0), rk), done, fell_back), \
+        return (new_rc, at, jnp.where(moves, jnp.maximum(nxt_rk, 0), rk), done, fell_back), \
             jnp.where(moves, new_rc, -1)
 
     def more(carry):
-        return (carry[0] < max_steps) & ~carry[1][2]
+        return (carry[0] < max_steps) & ~carry[1][3]
 
     def body(carry):
         i, walk, cells = carry
         walk, visited = step(walk)
         return i + 1, walk, cells.at[i + 1].set(visited)
 
-    start = (source.astype(jnp.int32), rank.astype(jnp.int32), jnp.bool_(False), jnp.bool_(False))
-    cells = jnp.full((max_steps + 1, 2), -1, jnp.int32).at[0].set(source.astype(jnp.int32))
-    _, (_, _, done, fell_back), cells = jax.lax.while_loop(more, body, (jnp.int32(0), start, cells))
-    n = jnp.sum(cells[:, 0] >= 0)
-    r, c = source[0], source[1]
-    return Paths(cells, n, table.raw[r, c, rank], table.length[r, c, rank], fell_back, done)
+    start = (source, at, jnp.asarray(rank, jnp.int32), jnp.bool_(False), jnp.bool_(False))
+    cells = jnp.full((max_steps + 1, 2), -1, jnp.int32).at[0].set(source)
+    _, (_, _, _, done, fell_back), cells = jax.lax.while_loop(more, body, (jnp.int32(0), start, cells))
+    return cells, done, fell_back
 
 
 def count_table_hops(table: Table, detour=None):

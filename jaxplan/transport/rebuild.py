@@ -44,9 +44,7 @@ from jaxplan.transport.fabric import (
     highways_of,
     hop_lengths,
     hops_from_steps,
-    make_table,
     own_fields,
-    ranks_from_directions,
     with_flow,
 )
 from jaxplan.transport.params import FabricParams
@@ -151,10 +149,7 @@ def _compact_dp(g: visibility.SuccessorGraph, table: Table, cells, cell_size, ma
     k = table.raw.shape[-1]
     b = compact.gather(g, cells, table.raw, table.length)
     warm = lattice.take_cells(table.next_dir[..., 0], cells, -1)
-    best_raw, best_len, policy, rounds = compact.best_paths(b, warm, cell_size, max_rounds)
-    raw, length, direction = compact.kbest_rows(b, best_raw, best_len, policy, k, cell_size)
-    rank = ranks_from_directions(direction[..., None])[..., 0]
-    rows = make_table(raw, length, direction, rank, b.enters_goal)    # fields [C, K]
+    rows, rounds = compact.solve_rows(b, warm, k, cell_size, max_rounds)    # fields [C, K]
     return Table(*(_put_rows(a, cells, new) for a, new in zip(table, rows))), rounds
 
 
