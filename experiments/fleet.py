@@ -32,13 +32,14 @@ from jaxplan.transport import EpisodeParams
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 
-def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="rate") -> dict:
+def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="rate", set_aside=True) -> dict:
     start = time.perf_counter()
-    config = FleetConfig(n, strategy, candidates_by=candidates_by)
+    config = FleetConfig(n, strategy, candidates_by=candidates_by, set_aside=set_aside)
     run = run_fleet(scene, n, strategy, params, episode=episode, max_steps=max_steps, progress=True, config=config)
     wall = time.perf_counter() - start
     s = summary_of(run)
-    label = strategy if strategy != "coordinated" else f"coordinated ({candidates_by})"
+    label = strategy if strategy != "coordinated" else \
+        f"coordinated ({candidates_by}{'' if set_aside else ', no set-aside'})"
     return {"site": name, "rovers": n, "strategy": label, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
             "pushes": s["pushes"], "delivered": s["delivered"], "outside_start": s["initial_outside"],
             "delivered_per_rover_step": s["delivered_per_rover_step"],
@@ -100,6 +101,13 @@ def _markdown(rows, meta) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _set_aside_modes(choice: str, strategy: str) -> tuple:
+    """The ``FleetConfig.set_aside`` values to run: the other strategies plan no candidates."""
+    if strategy != "coordinated":
+        return (True,)
+    return {"on": (True,), "off": (False,), "both": (True, False)}[choice]
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m experiments.fleet", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -111,6 +119,9 @@ def main(argv=None) -> None:
     parser.add_argument("--strategies", nargs="+", default=list(STRATEGIES), choices=STRATEGIES)
     parser.add_argument("--candidates-by", choices=("value", "rate"), default="rate",
                         help="the coordinated strategy's candidates (FleetConfig.candidates_by); default rate")
+    parser.add_argument("--set-aside", choices=("on", "off", "both"), default="on",
+                        help="the coordinated strategy's set-aside list (FleetConfig.set_aside); both: a run "
+                             "with and one without, side by side; default on")
     parser.add_argument("--max-steps", type=int, default=20_000, help="step limit per run; default 20000")
     parser.add_argument("--stop-fraction", type=float, default=0.02,
                         help="stop once this fraction of the mass that started outside the targets is left; "
@@ -131,9 +142,11 @@ def main(argv=None) -> None:
     for name, scene in scenes.items():
         for strategy in args.strategies:
             for n in args.rovers:
-                rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps, args.candidates_by))
-                # rewritten after every run: an interrupted benchmark keeps the rows it finished
-                write_results(RESULTS_DIR, args.name, {"meta": meta, "rows": rows}, _markdown(rows, meta))
+                for aside in _set_aside_modes(args.set_aside, strategy):
+                    rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps, args.candidates_by,
+                                     aside))
+                    # rewritten after every run: an interrupted benchmark keeps the rows it finished
+                    write_results(RESULTS_DIR, args.name, {"meta": meta, "rows": rows}, _markdown(rows, meta))
 
 
 if __name__ == "__main__":

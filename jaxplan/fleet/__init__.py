@@ -4,6 +4,7 @@ reserving its footprint; idle rovers get tasks by a strategy (``coordinated``, `
 
 Modules: ``footprint`` (a task's cells and push path), ``motion`` (distance fields, the one-step
 move), ``assign`` (the strategies), ``make_way`` (parked rovers leave a task's footprint),
+``set_aside`` (sources whose tasks met a running task, kept out of the candidates),
 ``state`` (``FleetConfig``, ``FleetState`` with its ``Rovers`` and ``Totals``, ``reset``, ``step``,
 ``rollout``), ``run`` (``run_fleet``, the host driver, and ``FleetRun``), ``generators`` (the
 built-in sites ``site128``, ``site256``, ``site512``, ``site1024``), ``report`` (a run's summary,

@@ -56,10 +56,10 @@ from jaxplan.transport import (
 from jaxplan.transport.spillage import evaluate_route
 
 __all__ = ["Attempts", "BLOCKED", "Candidates", "PLAN_CHUNK", "RATE_BLOCK", "RATE_BLOCKS", "RATE_CHUNK", "RATE_REACH",
-           "RATE_WIDEN", "Task", "assign_each", "assign_greedy", "assign_planned", "bits_at", "clear_of",
-           "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "keep_only", "newly_planned",
-           "no_attempts", "overlap_rows", "pack_bits", "plan_candidates", "plan_task", "rate_sources", "reserve",
-           "rovers_in", "rovers_inside", "unchanged_tasks", "unpack_bits", "wanted_candidates"]
+           "RATE_WIDEN", "Task", "assign_each", "assign_greedy", "assign_planned", "bits_at", "choose_sources",
+           "clear_of", "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "keep_only",
+           "newly_planned", "no_attempts", "overlap_rows", "pack_bits", "plan_candidates", "plan_task", "rate_sources",
+           "reserve", "rovers_in", "rovers_inside", "unchanged_tasks", "unpack_bits", "wanted_candidates"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
@@ -289,15 +289,36 @@ def _rates_by_tile(value, cells_long, allowed, pos, idle, per_rover: int, block:
     return jax.lax.map(settle, (pos, idle, ok, best, flat))
 
 
+def choose_sources(scene, ep, fabric, owner, m: int, wanted=None, by_rate=None, withheld=None):
+    """``(flat i32[m], exists bool[m])``: the sources ``plan_candidates`` plans (its arguments of the
+    same names): the top m by the source rule's score, or by rate (``by_rate``), among the occupied
+    cells outside every footprint and not ``withheld``, the first ``wanted`` of them."""
+    wanted = m if wanted is None else jnp.clip(wanted, 1, m)
+    # withheld cells count as taken for the choice of sources only, not for the footprints
+    taken = owner if withheld is None else jnp.where(withheld, jnp.maximum(owner, 0), owner)
+    if by_rate is None:
+        score_src = _source_score(scene, fabric, ep.source_rule)
+        vals = jnp.where(fabric.occupied & (taken < 0), score_src, -jnp.inf).reshape(-1)
+        top, idx = jax.lax.top_k(vals, m)
+        found = top > -jnp.inf
+    else:
+        idx, found = rate_sources(fabric, taken, *by_rate, m, scene.cell_size)
+    return idx, found & (jnp.arange(m) < wanted)
+
+
 def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int, cap: int, evaluator,
-                    clearance: int, wanted=None, by_rate=None, previous: Candidates | None = None) -> Candidates:
+                    clearance: int, wanted=None, by_rate=None, previous: Candidates | None = None,
+                    withheld=None, chosen=None) -> Candidates:
     """The top ``M = candidates`` sources by the source rule's score among the occupied cells outside
     every footprint (``owner: i32[H, W]``, -1 free); the first ``wanted`` of them (i32[], default M)
     planned as ``Task`` s, the others left empty (``exists`` False). by_rate: optional ``(cells
     i32[N, 2], idle bool[N])``: the candidates are the idle rovers' best sources by rate instead
     (``rate_sources``). previous: candidates planned on this same fabric (``exists`` False where
     not): a source planned there keeps its task, which depends on the fabric and the source only,
-    so that only new sources are planned; the result is the same as planning them all.
+    so that only new sources are planned; the result is the same as planning them all. withheld:
+    optional bool[H, W] cells that are no sources this time (``set_aside``). chosen: the sources
+    ``choose_sources`` chose with these arguments, or a subset of them (``exists`` cleared), instead
+    of choosing them here.
 
     The sources to plan are packed and planned ``PLAN_CHUNK`` at a time, chunks past the last one
     skipped, so a few new sources cost a few chunks whatever M is. The sources are grouped by
@@ -307,15 +328,9 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     """
     h, w = scene.shape
     m = min(int(candidates), h * w)
-    wanted = m if wanted is None else jnp.clip(wanted, 1, m)
-    if by_rate is None:
-        score_src = _source_score(scene, fabric, ep.source_rule)
-        vals = jnp.where(fabric.occupied & (owner < 0), score_src, -jnp.inf).reshape(-1)
-        top, idx = jax.lax.top_k(vals, m)
-        found = top > -jnp.inf
-    else:
-        idx, found = rate_sources(fabric, owner, *by_rate, m, scene.cell_size)
-    exists = found & (jnp.arange(m) < wanted)
+    if chosen is None:
+        chosen = choose_sources(scene, ep, fabric, owner, m, wanted, by_rate, withheld)
+    idx, exists = chosen
     sources = jnp.stack([idx // w, idx % w], -1).astype(jnp.int32)
     if previous is None:
         kept = jnp.zeros(m, bool)

@@ -6,8 +6,9 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    push budget lasts (tasks started < ``FleetState.totals.max_pushes``, which ``reset`` takes from
    ``EpisodeParams.max_pushes``, so that the compiled step does not depend on the budget, a static
    field of ``EpisodeParams``: ``step`` ignores ``episode.max_pushes``). A rover already on its task's
-   start pushes at once, the others approach. Coordinated, parked rovers that hold up the best free
-   task are sent to new homes (``make_way``).
+   start pushes at once, the others approach. Coordinated, sources whose tasks meet a running
+   task's footprint are set aside while it runs (``set_aside``), and parked rovers that hold up the
+   best free task are sent to new homes (``make_way``).
 2. **Distance fields**: a rover that drives (approaching its task's start, or idle and driving back
    to its home cell, its start cell) goes by the Chebyshev distance to its goal, which no other
    rover's reservation outdates (``motion.approach_distance``). Only a rover that waited
@@ -37,7 +38,7 @@ One ``step`` is one unit of simulated time (docs/fleet.md, "One step"):
    dropping unreachable tasks, or could not get home); the step limit ("max_steps").
 
 Each step is a function of ``_advance`` (``advance``; ``step`` is ``advance`` then ``refresh``):
-``_assign``, ``_take_tasks`` and ``_make_way`` (1), ``_fields`` and ``_drop_unreachable`` (2),
+``_assign`` (``_plan_setting_aside``), ``_take_tasks`` and ``_make_way`` (1), ``_fields`` and ``_drop_unreachable`` (2),
 ``_move`` (3), ``_apply_pushes`` (4, the rebuild in ``refresh``, which keeps the cached tasks the
 rebuild left unchanged: ``keep_tasks``), ``_stop`` (5); then ``_expire`` marks the cached tasks no
 longer fresh. ``FleetState`` holds the shared scene and fabric,
@@ -54,10 +55,11 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.fleet import assign, footprint, make_way, motion, sectors
+from jaxplan.fleet import assign, footprint, make_way, motion, sectors, set_aside
 from jaxplan.fleet.motion import APPROACH, FAR, IDLE, PUSH
 from jaxplan.transport import (
     BUDGET,
+    CLEARED,
     DONE,
     NO_MATERIAL,
     RUNNING,
@@ -126,7 +128,9 @@ class FleetConfig:
     (``footprint``). candidates_by: the coordinated strategy's candidates, "rate" (default: each
     idle rover's two best sources by the rate the fabric promises it, ``assign.rate_sources``; it
     reached T90 sooner than "value" at every fleet size from 4 to 64 measured on site128 and
-    site256, docs/benchmarks.md) or "value" (the top sources by the source rule).
+    site256, docs/benchmarks.md) or "value" (the top sources by the source rule). set_aside: the
+    coordinated planning sets aside the sources whose tasks meet a running task's footprint while
+    that task runs (``set_aside``; default True; False plans them again at every planning).
 
     ``step`` reads only whether the strategy is "coordinated": independent and partitioned fleets
     differ in their state (``FleetState.region`` and ``rovers.home``, made by ``reset``), so both run
@@ -141,6 +145,7 @@ class FleetConfig:
     retries: int = 3
     clearance: int = 0
     candidates_by: str = "rate"
+    set_aside: bool = True
 
     def resolved(self, shape) -> FleetConfig:
         """This config with every None replaced by its value for a grid of ``shape``."""
@@ -177,6 +182,8 @@ class FleetConfig:
         if self.clearance not in footprint.CLEARANCES:
             raise ValueError(f"FleetConfig.clearance: {self.clearance!r} is not allowed; use one of "
                              f"{footprint.CLEARANCES} (cells reserved around a route).")
+        if not isinstance(self.set_aside, bool):
+            raise ValueError(f"FleetConfig.set_aside: {self.set_aside!r} is not a bool; use True or False.")
 
 
 class Rovers(NamedTuple):
@@ -257,6 +264,9 @@ class FleetState(NamedTuple):
       before and plans the new ones; when a push ended, the refresh clears ``exists`` of the tasks
       whose plans read something the new fabric or counts changed (``keep_tasks``), and the next
       planning plans those sources again with the new ones.
+    aside: ``set_aside.SetAside`` (``set_aside.CAPACITY`` slots for ``coordinated``, none otherwise):
+      sources whose planned tasks met a running task's footprint, not offered as candidates while that
+      task runs.
     attempts: ``assign.Attempts`` (N rovers for ``independent`` and ``partitioned``, none for
       ``coordinated``): each rover's last failed attempt, not planned again while fresh and no rover
       moved through the footprints it tried.
@@ -270,6 +280,7 @@ class FleetState(NamedTuple):
     owner: jax.Array
     region: jax.Array
     candidates: assign.Candidates
+    aside: set_aside.SetAside
     attempts: assign.Attempts
     fresh: jax.Array
     totals: Totals
@@ -356,7 +367,9 @@ def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) 
     (8 B each). Per route slot (S = ``route_slots``): N (+ M) routes x 8 B twice, and for the
     coordinated strategy the ``PLAN_CHUNK`` candidates planned at once (``PLANNED_SLOT_BYTES``: 340
     + 29 K each, K = ``params.k``, default ``FabricParams()``) and the K + 1 walks of walk_cap + 1 cells
-    each of the M cached tasks read (``transport.PlanReads``; i32 flat indices, twice)."""
+    each of the M cached tasks read (``transport.PlanReads``; i32 flat indices, twice); with
+    ``set_aside``, the withheld cells (1 B per cell), the M screened sources' walks and the list
+    (three i32 per slot, twice)."""
     k = int((FabricParams() if params is None else params).k)
     cfg = config.resolved(shape)
     h, w = (int(v) for v in shape)
@@ -371,7 +384,11 @@ def rover_bytes(shape, config: FleetConfig, params: FabricParams | None = None) 
         per_cell += 8 * min(n, assign.RATE_CHUNK) if cfg.candidates_by == "rate" else 0
         per_slot += min(assign.PLAN_CHUNK, m) * (PLANNED_SLOT_BYTES[0] + PLANNED_SLOT_BYTES[1] * k)
         per_slot += m * (k + 1) * 4        # the walks each cached task read (PlanReads), half a slot's cells each
-    return per_cell * h * w + packed + per_slot * route_slots(cfg, shape)
+        if cfg.set_aside:
+            per_cell += 1                  # the withheld sources
+            per_slot += m * 4              # the screened sources' walks, half a slot's cells each
+    listed = 2 * 3 * 4 * _aside_slots(cfg, shape)
+    return per_cell * h * w + packed + per_slot * route_slots(cfg, shape) + listed
 
 
 def estimate_fleet_bytes(shape, config: FleetConfig, params: FabricParams | None = None) -> int:
@@ -437,6 +454,7 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
     return FleetState(scene=scene, fabric=fabric, rovers=rovers, fields=motion.empty_pool(field_slots(n), shape),
                       owner=jnp.full(shape, -1, jnp.int32), region=region,
                       candidates=_no_candidates(scene, params, ep, spill, fabric, cfg),
+                      aside=set_aside.empty(_aside_slots(cfg, shape)),
                       attempts=assign.no_attempts(0 if cfg.strategy == "coordinated" else n, shape),
                       fresh=jnp.bool_(False), totals=totals)
 
@@ -450,6 +468,14 @@ def _no_candidates(scene, params, ep, spill, fabric, cfg: FleetConfig) -> assign
         cap=cfg.walk_cap, evaluator=curvature_spill, clearance=cfg.clearance))
     # every leaf leads with M (overlap is [M, M]); the strategies that do not cache keep 0 slots
     return jax.tree.map(lambda a: jnp.zeros((m,) + a.shape[1:], a.dtype), shapes)
+
+
+def _aside_slots(cfg: FleetConfig, shape) -> int:
+    """T: slots of the set-aside list, at least M (one planning's candidates); 0 for the strategies
+    that plan no candidates."""
+    if cfg.strategy != "coordinated" or not cfg.set_aside:
+        return 0
+    return max(set_aside.CAPACITY, min(cfg.candidates, shape[0] * shape[1]))
 
 
 def _idle_record(state: FleetState) -> FleetRecord:
@@ -470,7 +496,7 @@ def _select_rows(mask, new, old):
 
 
 def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
-    """Step 1: ``(route, mode, assigned bool[N], owner, failure, candidates, attempts, fresh, planned)``
+    """Step 1: ``(route, mode, assigned bool[N], owner, failure, candidates, aside, attempts, fresh, planned)``
     (``assign.assign_greedy`` on the cached candidates while they are fresh, or ``assign_each``;
     planned: i32[] tasks the coordinated planning planned); nothing runs when no rover is idle or the
     budget is spent."""
@@ -481,25 +507,57 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
 
     def run(_):
         if cfg.strategy == "coordinated":
-            planned = jax.lax.cond(state.fresh, lambda _: state.candidates, lambda _: assign.plan_candidates(
-                scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
-                evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates),
-                by_rate=(rovers.base, idle) if cfg.candidates_by == "rate" else None, previous=state.candidates),
-                None)
+            planned, aside, fresh = jax.lax.cond(state.fresh, lambda: (state.candidates, state.aside, state.fresh),
+                                                 lambda: _plan_setting_aside(state, params, spill, ep, cfg, evaluator))
             count = jnp.where(state.fresh, 0, assign.newly_planned(planned, state.candidates))
-            return assign.assign_planned(planned, rovers.pos, idle, state.owner, budget,
-                                         rovers.route) + (planned, state.attempts, jnp.bool_(True), count)
+            route, mode, assigned, owner, failure = assign.assign_planned(planned, rovers.pos, idle, state.owner,
+                                                                          budget, rovers.route)
+            # sources set aside wait for a running task: the site is not cleared
+            waiting = jnp.any(set_aside.holding(aside, rovers.phase, rovers.task_step))
+            failure = jnp.where((failure == CLEARED) & waiting, assign.BLOCKED, failure)
+            return route, mode, assigned, owner, failure, planned, aside, state.attempts, fresh, count
         *out, attempts = assign.assign_each(scene, params, ep, spill, state.fabric, rovers.pos, idle, state.owner,
                                             budget, rovers.route, state.region, state.attempts, state.fresh,
                                             retries=cfg.retries, cap=cfg.walk_cap, evaluator=evaluator,
                                             clearance=cfg.clearance)
-        return (*out, state.candidates, attempts, jnp.bool_(True), _i32(0))
+        return (*out, state.candidates, state.aside, attempts, jnp.bool_(True), _i32(0))
 
     def skip(_):
         return (rovers.route, rovers.mode, jnp.zeros(idle.shape, bool), state.owner, _i32(RUNNING),
-                state.candidates, state.attempts, state.fresh, _i32(0))
+                state.candidates, state.aside, state.attempts, state.fresh, _i32(0))
 
     return jax.lax.cond(jnp.any(idle) & (budget > 0), run, skip, None)
+
+
+def _plan_setting_aside(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
+    """The coordinated planning: ``(candidates, aside, fresh bool[])``. The sources set aside are not
+    planned; the candidates whose tasks meet a reservation are set aside in turn, and then the
+    candidates are not fresh, so that the next step offers their rovers other sources."""
+    rovers, shape = state.rovers, state.owner.shape
+    idle = rovers.phase == IDLE
+    if not cfg.set_aside:
+        return assign.plan_candidates(
+            state.scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
+            evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates),
+            by_rate=(rovers.base, idle) if cfg.candidates_by == "rate" else None,
+            previous=state.candidates), state.aside, jnp.bool_(True)
+    holds = set_aside.holding(state.aside, rovers.phase, rovers.task_step)
+    m = state.candidates.exists.shape[0]
+    flat, exists = assign.choose_sources(
+        state.scene, ep, state.fabric, state.owner, m, assign.wanted_candidates(idle, cfg.candidates),
+        (rovers.base, idle) if cfg.candidates_by == "rate" else None, set_aside.withheld(state.aside, holds, shape))
+    met = set_aside.path_blockers(state.scene, state.fabric, state.owner, flat, exists, cfg.walk_cap)
+    screened = met >= 0
+    aside = set_aside.add(state.aside, flat, met, screened, rovers.task_step)
+    planned = assign.plan_candidates(
+        state.scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
+        evaluator=evaluator, clearance=cfg.clearance, previous=state.candidates, chosen=(flat, exists & ~screened))
+    blocked = planned.usable & ~planned.clear
+    cells = planned.tasks.source[:, 0] * shape[1] + planned.tasks.source[:, 1]
+    aside = jax.lax.cond(jnp.any(blocked), lambda: set_aside.add(
+        aside, cells, set_aside.blockers(planned.tasks.footprint, state.owner), blocked, rovers.task_step),
+        lambda: aside)
+    return planned, aside, ~jnp.any(blocked | screened)
 
 
 def _take_tasks(rovers: Rovers, assigned, route, mode, step_no) -> Rovers:
@@ -754,7 +812,7 @@ def advance(state: FleetState, params: FabricParams, spill: SpillParams, episode
 def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
     blocked = state.scene.blocked
     # 1. assign
-    route, mode, assigned, owner, failure, candidates, attempts, fresh, planned = _assign(
+    route, mode, assigned, owner, failure, candidates, aside, attempts, fresh, planned = _assign(
         state, params, spill, ep, cfg, evaluator)
     rovers = _take_tasks(state.rovers, assigned, route, mode, state.totals.t + 1)
     if cfg.strategy == "coordinated":
@@ -775,7 +833,7 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
     # what the step outdated for the next: the cached candidates
     fresh = _expire(fresh, assigned, dropped, ended)
     new = state._replace(scene=scene, rovers=rovers, fields=fields, owner=owner, candidates=candidates,
-                         attempts=attempts, fresh=fresh, totals=totals)
+                         aside=aside, attempts=attempts, fresh=fresh, totals=totals)
     collected, delivered, spilled = applied
     record = FleetRecord(pos=rovers.pos, phase=rovers.phase, assigned=assigned, dropped=dropped, ended=ended,
                          collected=collected, delivered=delivered, spilled=spilled, delivered_total=totals.delivered,

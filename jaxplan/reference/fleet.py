@@ -7,6 +7,7 @@ at a time, written from docs/fleet.md.
 - ``greedy_assign``: the coordinated strategy's greedy choice over (idle rover, candidate) pairs.
 - ``rate_sources``: the idle rovers' best sources by rate (``FleetConfig.candidates_by="rate"``).
 - ``make_way``: parked rovers that hold up the best free candidate sent to new homes.
+- ``first_blocker``, ``path_blocker``: the rover a footprint, or a source's fabric path, meets first.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from collections import deque
 
 import numpy as np
 
+from jaxplan.reference.heatmap import table_path
 from jaxplan.reference.visibility import DIRS
 
 FAR = 2 ** 30          # as jaxplan.fleet.motion.FAR
@@ -206,3 +208,23 @@ def make_way(footprints, exists, usable, predicted, steps, owner, pos, home, par
             home[r] = min(ranked)[2]
             taken.add(home[r])
     return np.asarray(home), np.asarray(moved)
+
+
+def first_blocker(mask, owner) -> int:
+    """The rover holding the first cell (row-major) of ``mask: bool[H, W]`` that ``owner: int[H, W]``
+    reserves (-1 free); -1 when the mask meets no reservation (``set_aside.blockers``)."""
+    for r, c in zip(*np.nonzero(np.asarray(mask))):
+        if owner[r, c] >= 0:
+            return int(owner[r, c])
+    return -1
+
+
+def path_blocker(next_dir, next_rank, selected, owner, source) -> int:
+    """The rover holding the first reserved cell on the walk of ``source``'s selected table entry,
+    the source first (``table_path``); -1 when it meets none (``set_aside.path_blockers`` on a
+    scene without detours)."""
+    r, c = int(source[0]), int(source[1])
+    for cell in table_path(np.asarray(next_dir), np.asarray(next_rank), (r, c), int(selected[r, c])):
+        if owner[cell] >= 0:
+            return int(owner[cell])
+    return -1

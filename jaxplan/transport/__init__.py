@@ -58,6 +58,7 @@ from jaxplan.transport.fabric import (
     estimate_build_bytes,
     extract_paths,
     fabric_of,
+    walk_table,
 )
 from jaxplan.transport.generators import BUILTIN_SCENES, DEFAULT_SCENE, builtin_scene, random_scene
 from jaxplan.transport.heatmap import highways
@@ -114,5 +115,5 @@ __all__ = ["Affected", "BUDGET", "BUILTIN_SCENES", "CLEARED", "Connectors", "DEF
            "random_scene", "read_movingai_map", "rebuild_mode", "refresh_connectors", "require_hard", "reselect",
            "reselect_jit", "reset", "rollout_scenes_jit", "route_from_path", "routes_from_paths", "run_episode",
            "select_routes", "selective_rebuild", "site_from_map", "slot_anchors", "source_anchor", "source_anchors",
-           "spill_cells", "stack_scenes", "step", "validate_episode_params", "validate_params", "waypoint_pickup",
-           "waypoints"]
+           "spill_cells", "stack_scenes", "step", "validate_episode_params", "validate_params", "walk_table",
+           "waypoint_pickup", "waypoints"]

@@ -130,10 +130,11 @@ def test_rollout_scans_the_same_steps(traced_run):
 @pytest.mark.parametrize("strategy", ["coordinated", "partitioned"])
 def test_what_is_not_planned_again_changes_nothing(traced_run, strategy):
     """A longer run, once reusing fresh candidates (coordinated) or failed attempts (the others) and
-    once planning at every assignment: the same positions, counts and reservations at every step."""
-    config, ep = FleetConfig(2, strategy), traced_run["ep"]
-    jitted = traced_run["jitted"] if strategy == "coordinated" else \
-        jax.jit(step, static_argnames=("config", "evaluator"))
+    once planning at every assignment: the same positions, counts and reservations at every step.
+    Without the set-aside list, since with it a waiting rover's sources change at most steps and the
+    candidates are rarely fresh."""
+    config, ep = FleetConfig(2, strategy, set_aside=False), traced_run["ep"]
+    jitted = jax.jit(step, static_argnames=("config", "evaluator"))
     kept = planned = reset(site(3, SITES[2], "two_targets"), PARAMS, SPILL, ep, config, max_steps=400,
                            max_pushes=40)
     reused = 0
@@ -165,7 +166,7 @@ def test_tasks_kept_across_a_refresh_equal_tasks_planned_again(traced_run):
     again = jax.jit(jax.vmap(lambda scene, fabric, source: assign.plan_task(
         scene, PARAMS, ep, SPILL, fabric, source, True, cap, spillage.curvature_spill, config.clearance),
         in_axes=(None, None, 0)))
-    kept = dropped = planned = 0
+    kept = dropped = planned = set_aside_held = 0
     while not bool(state.totals.done):
         cached, was_fresh = np.asarray(state.candidates.exists), bool(state.fresh)
         state, record = traced_run["jitted"](state, PARAMS, SPILL, ep, config=config)
@@ -173,6 +174,7 @@ def test_tasks_kept_across_a_refresh_equal_tasks_planned_again(traced_run):
         planned += int(record.planned)
         candidates = state.candidates
         exists = np.asarray(candidates.exists)
+        set_aside_held += _assert_no_free_candidate_is_set_aside(state)
         _, overlap = assign.footprint_relations(candidates.tasks.footprint, candidates.usable, state.owner)
         pairs = exists[:, None] & exists[None]
         np.testing.assert_array_equal(np.asarray(candidates.overlap) & pairs, np.asarray(overlap) & pairs)
@@ -185,7 +187,22 @@ def test_tasks_kept_across_a_refresh_equal_tasks_planned_again(traced_run):
             _same_tasks(name, jax.tree.map(lambda a: a[exists], getattr(candidates.tasks, name)),
                         jax.tree.map(lambda a: a[exists], getattr(fresh, name)))
         kept += int(exists.sum())
-    assert kept > 0 and dropped > 0 and planned > 0
+    assert kept > 0 and dropped > 0 and planned > 0 and set_aside_held > 0
+
+
+def _assert_no_free_candidate_is_set_aside(state) -> int:
+    """No candidate whose footprint is free is a source set aside, and every entry that holds names a
+    rover on a task; returns the entries that hold."""
+    from jaxplan.fleet import set_aside
+
+    rovers, candidates = state.rovers, state.candidates
+    holds = np.asarray(set_aside.holding(state.aside, rovers.phase, rovers.task_step))
+    held = set(np.asarray(state.aside.cells)[holds].tolist())
+    source = np.asarray(candidates.tasks.source)
+    free = np.asarray(candidates.usable & candidates.clear)
+    assert not held & set((source[free, 0] * state.owner.shape[1] + source[free, 1]).tolist())
+    assert np.all(np.asarray(rovers.phase)[np.asarray(state.aside.rover)[holds]] != IDLE)
+    return int(holds.sum())
 
 
 def _same_tasks(name, got, want):
