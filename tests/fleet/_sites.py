@@ -46,3 +46,13 @@ def _with_buildings(scene: Scene, seed: int) -> Scene:
     blocked &= ~np.asarray(scene.target_mask)
     obj = np.where(blocked, 0.0, np.asarray(scene.obj))
     return Scene.from_arrays(obj, scene.target, blocked=blocked, name=f"buildings_{seed}")
+
+
+def owner_map(rng, shape, n_rovers: int):
+    """i32[H, W]: up to three random rectangles (1 to 4 cells a side) given to random rovers of
+    ``n_rovers``; -1 elsewhere."""
+    owner = np.full(shape, -1, np.int32)
+    for _ in range(rng.integers(0, 4)):
+        r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+        owner[r:r + rng.integers(1, 5), c:c + rng.integers(1, 5)] = rng.integers(0, n_rovers)
+    return owner

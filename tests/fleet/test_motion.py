@@ -19,6 +19,8 @@ from jaxplan.reference import fleet as ref
 from jaxplan.reference.visibility import DIRS
 from jaxplan.transport import corner_free, execute
 
+from ._sites import owner_map
+
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 SHAPE = (10, 12)
 N = 5          # rovers
@@ -42,12 +44,7 @@ def _distinct_cells(rng, n):
 
 
 def _owner_map(rng):
-    """Random rectangles given to random rovers (-1 elsewhere)."""
-    owner = np.full(SHAPE, -1, np.int32)
-    for _ in range(rng.integers(0, 4)):
-        r, c = rng.integers(0, SHAPE[0]), rng.integers(0, SHAPE[1])
-        owner[r:r + rng.integers(1, 5), c:c + rng.integers(1, 5)] = rng.integers(0, N)
-    return owner
+    return owner_map(rng, SHAPE, N)
 
 
 @SETTINGS

@@ -14,7 +14,7 @@ from jaxplan.fleet import assign, set_aside
 from jaxplan.fleet.motion import APPROACH, IDLE, PUSH
 from jaxplan.reference import fleet as ref
 
-from ._sites import site
+from ._sites import owner_map, site
 
 SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 SHAPE = (9, 11)              # 99 cells: the last packed word is partly padding
@@ -24,21 +24,12 @@ _blockers = jax.jit(set_aside.blockers)
 _path_blockers = jax.jit(set_aside.path_blockers, static_argnums=5)
 
 
-def _owner_map(rng, shape):
-    """Random rectangles given to random rovers (-1 elsewhere)."""
-    owner = np.full(shape, -1, np.int32)
-    for _ in range(rng.integers(0, 4)):
-        r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
-        owner[r:r + rng.integers(1, 4), c:c + rng.integers(1, 4)] = rng.integers(0, N)
-    return owner
-
-
 @SETTINGS
 @given(seed=st.integers(0, 2 ** 31 - 1), density=st.sampled_from((0.02, 0.2, 0.6)))
 def test_blockers_equal_the_serial_first_blocker(seed, density):
     rng = np.random.default_rng(seed)
     masks = rng.random((6,) + SHAPE) < density
-    owner = _owner_map(rng, SHAPE)
+    owner = owner_map(rng, SHAPE, N)
     got = np.asarray(_blockers(assign.pack_bits(jnp.asarray(masks)), jnp.asarray(owner)))
     np.testing.assert_array_equal(got, [ref.first_blocker(m, owner) for m in masks])
 
@@ -49,7 +40,7 @@ def test_path_blockers_equal_the_serial_walk(seed, layout):
     scene = site(seed % 3, (12, 12), layout)
     fabric = build_fabric(scene)
     rng = np.random.default_rng(seed)
-    owner = _owner_map(rng, scene.shape)
+    owner = owner_map(rng, scene.shape, N)
     flat = rng.choice(scene.shape[0] * scene.shape[1], 8, replace=False).astype(np.int32)
     todo = rng.random(8) < 0.75
     got = np.asarray(_path_blockers(scene, fabric, jnp.asarray(owner), jnp.asarray(flat), jnp.asarray(todo), 200))
