@@ -59,7 +59,8 @@ __all__ = ["Attempts", "BLOCKED", "Candidates", "PLAN_CHUNK", "RATE_BLOCK", "RAT
            "RATE_WIDEN", "Task", "assign_each", "assign_greedy", "assign_planned", "bits_at", "choose_sources",
            "clear_of", "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "keep_only",
            "newly_planned", "no_attempts", "overlap_rows", "pack_bits", "plan_candidates", "plan_task", "rate_sources",
-           "reserve", "rovers_in", "rovers_inside", "unchanged_tasks", "unpack_bits", "wanted_candidates"]
+           "reserve", "rovers_in", "rovers_inside", "select_rows", "unchanged_tasks", "unpack_bits",
+           "wanted_candidates"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
@@ -502,21 +503,23 @@ def wanted_candidates(idle, candidates: int):
     return jnp.clip(2 * jnp.sum(idle, dtype=jnp.int32), min(PLAN_CHUNK, candidates), candidates)
 
 
-def assign_planned(planned: Candidates, pos, idle, owner, budget, routes):
+def assign_planned(planned: Candidates, pos, idle, owner, budget, routes, waiting=False):
     """``assign_greedy`` on candidates already planned (``plan_candidates`` on this fabric and this
-    ``owner``); the same results."""
+    ``owner``); the same results. waiting: bool[] sources were left out of the candidates because they
+    wait for a running task (``set_aside``): when no candidate is left, the footprints are taken
+    (``BLOCKED``), not the site cleared."""
     tasks = planned.tasks
     choice, owner, count = greedy_choice(pos, idle, owner, budget, planned.usable, tasks,
                                          (planned.clear, planned.overlap))
     assigned = choice >= 0
     mine = jax.tree.map(lambda a: a[jnp.maximum(choice, 0)], (tasks.route, tasks.mode))
-    route, mode = _keep_rows(assigned, mine, (routes, jnp.zeros(pos.shape[0], jnp.int32)))
-    failure = jnp.select([count > 0, ~jnp.any(planned.exists), ~jnp.any(planned.usable)],
-                         [RUNNING, CLEARED, tasks.code[0]], BLOCKED)
+    route, mode = select_rows(assigned, mine, (routes, jnp.zeros(pos.shape[0], jnp.int32)))
+    failure = jnp.select([count > 0, ~jnp.any(planned.exists) & ~waiting, ~jnp.any(planned.exists),
+                          ~jnp.any(planned.usable)], [RUNNING, CLEARED, BLOCKED, tasks.code[0]], BLOCKED)
     return route, mode, assigned, owner, failure.astype(jnp.int32)
 
 
-def _keep_rows(mask, new, old):
+def select_rows(mask, new, old):
     """``new`` where ``mask: bool[N]`` else ``old``, leaf by leaf (leading axis N)."""
     return jax.tree.map(lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
 

@@ -59,7 +59,6 @@ from jaxplan.fleet import assign, footprint, make_way, motion, sectors, set_asid
 from jaxplan.fleet.motion import APPROACH, FAR, IDLE, PUSH
 from jaxplan.transport import (
     BUDGET,
-    CLEARED,
     DONE,
     NO_MATERIAL,
     RUNNING,
@@ -490,11 +489,6 @@ def _idle_record(state: FleetState) -> FleetRecord:
                        stop=totals.stop, valid=jnp.bool_(False))
 
 
-def _select_rows(mask, new, old):
-    """``new`` where ``mask: bool[N]`` else ``old``, leaf by leaf (leading axis N)."""
-    return jax.tree.map(lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
-
-
 def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfig, evaluator):
     """Step 1: ``(route, mode, assigned bool[N], owner, failure, candidates, aside, attempts, fresh, planned)``
     (``assign.assign_greedy`` on the cached candidates while they are fresh, or ``assign_each``;
@@ -510,11 +504,9 @@ def _assign(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConfi
             planned, aside, fresh = jax.lax.cond(state.fresh, lambda: (state.candidates, state.aside, state.fresh),
                                                  lambda: _plan_setting_aside(state, params, spill, ep, cfg, evaluator))
             count = jnp.where(state.fresh, 0, assign.newly_planned(planned, state.candidates))
-            route, mode, assigned, owner, failure = assign.assign_planned(planned, rovers.pos, idle, state.owner,
-                                                                          budget, rovers.route)
-            # sources set aside wait for a running task: the site is not cleared
             waiting = jnp.any(set_aside.holding(aside, rovers.phase, rovers.task_step))
-            failure = jnp.where((failure == CLEARED) & waiting, assign.BLOCKED, failure)
+            route, mode, assigned, owner, failure = assign.assign_planned(planned, rovers.pos, idle, state.owner,
+                                                                          budget, rovers.route, waiting)
             return route, mode, assigned, owner, failure, planned, aside, state.attempts, fresh, count
         *out, attempts = assign.assign_each(scene, params, ep, spill, state.fabric, rovers.pos, idle, state.owner,
                                             budget, rovers.route, state.region, state.attempts, state.fresh,
@@ -563,7 +555,7 @@ def _plan_setting_aside(state: FleetState, params, spill, ep: EpisodeParams, cfg
 def _take_tasks(rovers: Rovers, assigned, route, mode, step_no) -> Rovers:
     """Step 1's tasks given to the ``assigned: bool[N]`` rovers (``route``, ``mode``: the assignment's,
     every rover's row): a rover already on its task's start pushes at once, the others approach."""
-    route = _select_rows(assigned, route, rovers.route)
+    route = assign.select_rows(assigned, route, rovers.route)
     at_start = jnp.all(rovers.pos == route.cells[:, 0], -1)
     return rovers._replace(route=route, phase=jnp.where(assigned, jnp.where(at_start, PUSH, APPROACH), rovers.phase),
                            mode=jnp.where(assigned, mode, rovers.mode),

@@ -70,3 +70,30 @@ def test_entries_hold_while_their_rover_runs_the_task_they_met():
                           jnp.ones(3, bool), task_step)
     np.testing.assert_array_equal(np.asarray(aside.cells), [60, 30, 40, 50])
     assert int(aside.next) == 1
+
+
+def test_no_candidate_left_is_a_cleared_site_unless_sources_wait():
+    """``assign.assign_planned`` with no candidate: the site is cleared, unless sources set aside wait
+    for a running task; then the footprints are taken (``BLOCKED``)."""
+    from jaxplan.transport import CLEARED, Route
+
+    m, n, slots = 2, 3, 5
+
+    def routes(k):
+        return Route(cells=jnp.full((k, slots, 2), -1, jnp.int32), n_cells=jnp.ones(k, jnp.int32),
+                     fallback=jnp.zeros(k, bool), end=jnp.zeros((k, 2), jnp.float32))
+
+    tasks = assign.Task(source=jnp.zeros((m, 2), jnp.int32), route=routes(m), mode=jnp.zeros(m, jnp.int32),
+                        code=jnp.full(m, CLEARED, jnp.int32), predicted=jnp.zeros(m, jnp.float32),
+                        steps=jnp.ones(m, jnp.int32), footprint=jnp.zeros((m, 4), jnp.uint32))
+    none = jnp.zeros(m, bool)
+    planned = assign.Candidates(tasks, none, none, none, jnp.zeros((m, m), bool), reads=None)
+    pos = jnp.asarray([[0, 0], [1, 1], [2, 2]], jnp.int32)
+
+    def failure(waiting):
+        return assign.assign_planned(planned, pos, jnp.ones(n, bool), jnp.full(SHAPE, -1, jnp.int32), jnp.int32(5),
+                                     routes(n), waiting)[4]
+
+    for run in (failure, jax.jit(failure)):
+        assert int(run(jnp.bool_(False))) == CLEARED
+        assert int(run(jnp.bool_(True))) == assign.BLOCKED
