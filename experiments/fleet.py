@@ -32,14 +32,17 @@ from jaxplan.transport import EpisodeParams
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 
-def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="rate", set_aside=True) -> dict:
+def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="rate", set_aside=True,
+         walk_cap=None) -> dict:
     start = time.perf_counter()
-    config = FleetConfig(n, strategy, candidates_by=candidates_by, set_aside=set_aside)
+    config = FleetConfig(n, strategy, candidates_by=candidates_by, set_aside=set_aside, walk_cap=walk_cap)
     run = run_fleet(scene, n, strategy, params, episode=episode, max_steps=max_steps, progress=True, config=config)
     wall = time.perf_counter() - start
     s = summary_of(run)
     label = strategy if strategy != "coordinated" else \
         f"coordinated ({candidates_by}{'' if set_aside else ', no set-aside'})"
+    if walk_cap is not None:
+        label += f", walk cap {walk_cap}"
     return {"site": name, "rovers": n, "strategy": label, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
             "pushes": s["pushes"], "delivered": s["delivered"], "outside_start": s["initial_outside"],
             "delivered_per_rover_step": s["delivered_per_rover_step"],
@@ -122,6 +125,9 @@ def main(argv=None) -> None:
     parser.add_argument("--set-aside", choices=("on", "off", "both"), default="on",
                         help="the coordinated strategy's set-aside list (FleetConfig.set_aside); both: a run "
                              "with and one without, side by side; default on")
+    parser.add_argument("--walk-cap", nargs="+", default=["default"],
+                        help="static walk lengths of the fleet's plans (FleetConfig.walk_cap), each run side by "
+                             "side; 'default': episode.default_walk_cap, 4 (H + W) on large grids; default: default")
     parser.add_argument("--max-steps", type=int, default=20_000, help="step limit per run; default 20000")
     parser.add_argument("--stop-fraction", type=float, default=0.02,
                         help="stop once this fraction of the mass that started outside the targets is left; "
@@ -129,6 +135,12 @@ def main(argv=None) -> None:
     parser.add_argument("--quick", action="store_true", help="a 24x24 piles scene, N = 1 and 2 (a smoke test)")
     parser.add_argument("--name", default="fleet", help="results file stem; default fleet")
     args = parser.parse_args(argv)
+    try:
+        caps = [None if c == "default" else int(c) for c in args.walk_cap]
+    except ValueError:
+        parser.error(f"--walk-cap {' '.join(args.walk_cap)}: give positive integers or 'default'")
+    if any(c is not None and c < 1 for c in caps):
+        parser.error(f"--walk-cap {' '.join(args.walk_cap)}: give positive integers or 'default'")
     if args.quick:
         scenes = {"piles24": random_scene(0, (24, 24), layout="piles")}
         args.rovers, args.max_steps = [1, 2], 2000
@@ -143,10 +155,11 @@ def main(argv=None) -> None:
         for strategy in args.strategies:
             for n in args.rovers:
                 for aside in _set_aside_modes(args.set_aside, strategy):
-                    rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps, args.candidates_by,
-                                     aside))
-                    # rewritten after every run: an interrupted benchmark keeps the rows it finished
-                    write_results(RESULTS_DIR, args.name, {"meta": meta, "rows": rows}, _markdown(rows, meta))
+                    for cap in caps:
+                        rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps,
+                                         args.candidates_by, aside, cap))
+                        # rewritten after every run: an interrupted benchmark keeps the rows it finished
+                        write_results(RESULTS_DIR, args.name, {"meta": meta, "rows": rows}, _markdown(rows, meta))
 
 
 if __name__ == "__main__":

@@ -119,8 +119,10 @@ class FleetConfig:
     """Static fleet settings (part of the jit cache key).
 
     n_rovers: N, an int in [1, 1024]. strategy: one of ``STRATEGIES``. candidates: M sources planned
-    per coordinated assignment (None: 2 N, at least 8 and at most 64). walk_cap: static walk length of a plan (None:
-    ``episode.default_walk_cap``); routes have S = 2 (walk_cap + 1) slots. stall_steps: steps without
+    per coordinated assignment (None: 2 N, at least 8 and at most 64). walk_cap: static walk length of
+    a plan (None: ``episode.default_walk_cap``); routes have S = 2 (walk_cap + 1) slots, and every
+    planned task's arrays are sized by it, so a coordinated planning's time grows with it
+    (docs/fleet.md, "API"). stall_steps: steps without
     any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an
     independent or partitioned rover tries per step when footprints are taken. clearance: cells
     reserved around a route beyond the cells its push changes: 0 (default), 1 or 2, the rover's body
