@@ -32,9 +32,20 @@ import numpy as np
 
 from experiments.results_io import write_results
 from jaxplan import FabricParams, SpillParams
-from jaxplan.fleet import SITES, FleetConfig, assign, footprint, reset, set_aside, site
-from jaxplan.fleet.motion import IDLE
-from jaxplan.fleet.state import advance, keep_tasks, max_rovers, route_slots
+from jaxplan.fleet import (
+    SITES,
+    FleetConfig,
+    advance,
+    assign,
+    footprint,
+    keep_tasks,
+    max_rovers,
+    motion,
+    reset,
+    route_slots,
+    set_aside,
+    site,
+)
 from jaxplan.transport import EpisodeParams, build_fabric, selective_rebuild
 from jaxplan.transport.spillage import evaluator_for
 
@@ -76,13 +87,13 @@ def measure(site_name: str, n: int, warmup: int, repeats: int) -> dict:
     evaluator = evaluator_for(spill)
     config = FleetConfig(n, "coordinated").resolved(scene.shape)
     state = _warm_state(scene, n, warmup, params, spill, episode, config, evaluator)
-    idle = state.rovers.phase == IDLE
+    idle = state.rovers.phase == motion.IDLE
     m = state.candidates.exists.shape[0]
     cap, clearance = config.walk_cap, config.clearance
 
     def choose(state):
         holds = set_aside.holding(state.aside, state.rovers.phase, state.rovers.task_step)
-        idle = state.rovers.phase == IDLE
+        idle = state.rovers.phase == motion.IDLE
         return assign.choose_sources(state.scene, episode, state.fabric, state.owner, m,
                                      assign.wanted_candidates(idle, config.candidates), (state.rovers.base, idle),
                                      set_aside.withheld(state.aside, holds, scene.shape))
@@ -101,7 +112,7 @@ def measure(site_name: str, n: int, warmup: int, repeats: int) -> dict:
     cells = np.asarray(flat)
     fresh = np.asarray(passed) & np.asarray([divmod(int(c), scene.shape[1]) not in held for c in cells])
     two = jnp.asarray(np.asarray(passed) & (~fresh | (np.cumsum(fresh) <= 2)))
-    give = jax.jit(lambda s, p: assign.assign_planned(p, s.rovers.pos, s.rovers.phase == IDLE, s.owner,
+    give = jax.jit(lambda s, p: assign.assign_planned(p, s.rovers.pos, s.rovers.phase == motion.IDLE, s.owner,
                                                       jnp.int32(1_000_000), s.rovers.route))
     whole = jax.jit(lambda s, fresh: advance(s._replace(fresh=fresh), params, spill, episode, config, evaluator))
     build = jax.jit(lambda s: build_fabric(s.scene, params))

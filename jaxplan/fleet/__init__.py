@@ -10,6 +10,7 @@ move), ``assign`` (the strategies), ``make_way`` (parked rovers leave a task's f
 built-in sites ``site128``, ``site256``, ``site512``, ``site1024``), ``report`` (a run's summary,
 files, figure and animation), ``physics`` (concurrent pushes in one MuJoCo world).
 """
+from jaxplan.fleet import assign, footprint, motion, set_aside
 from jaxplan.fleet.generators import SITES, site
 from jaxplan.fleet.physics import (
     TOLERANCE,
@@ -29,12 +30,17 @@ from jaxplan.fleet.state import (
     FleetState,
     Rovers,
     Totals,
+    advance,
+    keep_tasks,
+    max_rovers,
     reset,
     rollout,
+    route_slots,
     step,
 )
 
 __all__ = ["FLEET_OUTPUTS", "FleetConfig", "FleetRecord", "FleetRun", "FleetState", "Rovers", "SITES",
-           "STOP_REASONS", "STRATEGIES", "TOLERANCE", "Totals", "check_concurrent_pushes", "check_first_round",
-           "check_fleet_memory", "disjoint_routes", "plot_fleet", "reset", "rollout", "route_footprint", "run_fleet",
+           "STOP_REASONS", "STRATEGIES", "TOLERANCE", "Totals", "advance", "assign", "check_concurrent_pushes",
+           "check_first_round", "check_fleet_memory", "disjoint_routes", "footprint", "keep_tasks", "max_rovers",
+           "motion", "plot_fleet", "reset", "rollout", "route_footprint", "route_slots", "run_fleet", "set_aside",
            "site", "step", "summary_of", "validate_fleet_inputs", "within_tolerance", "write_fleet_outputs"]
