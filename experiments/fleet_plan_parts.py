@@ -23,7 +23,6 @@ import argparse
 import datetime as _dt
 import platform
 import statistics
-import time
 from pathlib import Path
 
 import jax
@@ -32,6 +31,7 @@ import numpy as np
 
 from experiments.results_io import write_results
 from jaxplan import FabricParams, SpillParams
+from jaxplan.core import timed
 from jaxplan.fleet import (
     SITES,
     FleetConfig,
@@ -55,12 +55,7 @@ RESULTS_DIR = Path(__file__).resolve().parent / "results"
 def _median_ms(fn, *args, repeats: int) -> float:
     """Median wall ms of ``fn(*args)``, called once first to compile."""
     jax.block_until_ready(fn(*args))
-    runs = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        runs.append(1e3 * (time.perf_counter() - start))
-    return statistics.median(runs)
+    return statistics.median(timed(fn, *args)[1] for _ in range(repeats))
 
 
 def _warm_state(scene, n: int, steps: int, params, spill, episode, config, evaluator):
@@ -108,9 +103,8 @@ def measure(site_name: str, n: int, warmup: int, repeats: int) -> dict:
     planned = plan(state, flat, passed)
     new = int(assign.newly_planned(planned, state.candidates))
     # the same planning with only the first two of its new sources: the difference is what the others cost
-    held = set(map(tuple, np.asarray(state.candidates.tasks.source)[np.asarray(state.candidates.exists)].tolist()))
-    cells = np.asarray(flat)
-    fresh = np.asarray(passed) & np.asarray([divmod(int(c), scene.shape[1]) not in held for c in cells])
+    cached = np.asarray(state.candidates.tasks.source)[np.asarray(state.candidates.exists)]
+    fresh = np.asarray(passed) & ~np.isin(np.asarray(flat), cached[:, 0] * scene.shape[1] + cached[:, 1])
     two = jnp.asarray(np.asarray(passed) & (~fresh | (np.cumsum(fresh) <= 2)))
     give = jax.jit(lambda s, p: assign.assign_planned(p, s.rovers.pos, s.rovers.phase == motion.IDLE, s.owner,
                                                       jnp.int32(1_000_000), s.rovers.route))
