@@ -33,9 +33,10 @@ RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 
 def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="rate", set_aside=True,
-         walk_cap=None) -> dict:
+         walk_cap=None, short_cap=None) -> dict:
     start = time.perf_counter()
-    config = FleetConfig(n, strategy, candidates_by=candidates_by, set_aside=set_aside, walk_cap=walk_cap)
+    config = FleetConfig(n, strategy, candidates_by=candidates_by, set_aside=set_aside, walk_cap=walk_cap,
+                         short_cap=short_cap)
     run = run_fleet(scene, n, strategy, params, episode=episode, max_steps=max_steps, progress=True, config=config)
     wall = time.perf_counter() - start
     s = summary_of(run)
@@ -43,6 +44,8 @@ def _row(name, scene, n, strategy, params, episode, max_steps, candidates_by="ra
         f"coordinated ({candidates_by}{'' if set_aside else ', no set-aside'})"
     if walk_cap is not None:
         label += f", walk cap {walk_cap}"
+    if short_cap is not None and strategy == "coordinated":
+        label += f", short walk {short_cap}"
     return {"site": name, "rovers": n, "strategy": label, "T50": s["T50"], "T90": s["T90"], "steps": s["steps"],
             "pushes": s["pushes"], "delivered": s["delivered"], "outside_start": s["initial_outside"],
             "delivered_per_rover_step": s["delivered_per_rover_step"],
@@ -111,6 +114,17 @@ def _set_aside_modes(choice: str, strategy: str) -> tuple:
     return {"on": (True,), "off": (False,), "both": (True, False)}[choice]
 
 
+def _lengths(parser, flag: str, values) -> list:
+    """The walk lengths of ``flag`` (positive ints, None for 'default'); a bad one exits 2."""
+    try:
+        lengths = [None if v == "default" else int(v) for v in values]
+    except ValueError:
+        lengths = [0]
+    if any(v is not None and v < 1 for v in lengths):
+        parser.error(f"{flag} {' '.join(values)}: give positive integers or 'default'")
+    return lengths
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m experiments.fleet", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -128,6 +142,10 @@ def main(argv=None) -> None:
     parser.add_argument("--walk-cap", nargs="+", default=["default"],
                         help="static walk lengths of the fleet's plans (FleetConfig.walk_cap), each run side by "
                              "side; 'default': episode.default_walk_cap, 4 (H + W) on large grids; default: default")
+    parser.add_argument("--short-cap", nargs="+", default=["default"],
+                        help="walk lengths the coordinated planning tries first (FleetConfig.short_cap), each run "
+                             "side by side; one at least the walk cap plans every task at the walk cap; "
+                             "'default': 128 on grids whose walk cap is 512 or more; default: default")
     parser.add_argument("--max-steps", type=int, default=20_000, help="step limit per run; default 20000")
     parser.add_argument("--stop-fraction", type=float, default=0.02,
                         help="stop once this fraction of the mass that started outside the targets is left; "
@@ -135,12 +153,8 @@ def main(argv=None) -> None:
     parser.add_argument("--quick", action="store_true", help="a 24x24 piles scene, N = 1 and 2 (a smoke test)")
     parser.add_argument("--name", default="fleet", help="results file stem; default fleet")
     args = parser.parse_args(argv)
-    try:
-        caps = [None if c == "default" else int(c) for c in args.walk_cap]
-    except ValueError:
-        parser.error(f"--walk-cap {' '.join(args.walk_cap)}: give positive integers or 'default'")
-    if any(c is not None and c < 1 for c in caps):
-        parser.error(f"--walk-cap {' '.join(args.walk_cap)}: give positive integers or 'default'")
+    caps = _lengths(parser, "--walk-cap", args.walk_cap)
+    shorts = _lengths(parser, "--short-cap", args.short_cap)
     if args.quick:
         scenes = {"piles24": random_scene(0, (24, 24), layout="piles")}
         args.rovers, args.max_steps = [1, 2], 2000
@@ -156,10 +170,12 @@ def main(argv=None) -> None:
             for n in args.rovers:
                 for aside in _set_aside_modes(args.set_aside, strategy):
                     for cap in caps:
-                        rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps,
-                                         args.candidates_by, aside, cap))
-                        # rewritten after every run: an interrupted benchmark keeps the rows it finished
-                        write_results(RESULTS_DIR, args.name, {"meta": meta, "rows": rows}, _markdown(rows, meta))
+                        for short in shorts:
+                            rows.append(_row(name, scene, n, strategy, params, episode, args.max_steps,
+                                             args.candidates_by, aside, cap, short))
+                            # rewritten after every run: an interrupted benchmark keeps the rows it finished
+                            write_results(RESULTS_DIR, args.name, {"meta": meta, "rows": rows},
+                                          _markdown(rows, meta))
 
 
 if __name__ == "__main__":

@@ -97,10 +97,16 @@ def measure(site_name: str, n: int, warmup: int, repeats: int) -> dict:
     flat, exists = choose(state)
     screen = jax.jit(lambda s, flat, todo: set_aside.path_blockers(s.scene, s.fabric, s.owner, flat, todo, cap))
     passed = exists & (screen(state, flat, exists) < 0)
-    plan = jax.jit(lambda s, flat, todo: assign.plan_candidates(
-        s.scene, params, episode, spill, s.fabric, s.owner, candidates=config.candidates, cap=cap, evaluator=evaluator,
-        clearance=clearance, previous=s.candidates, chosen=(flat, todo)))
+    def planner(short_cap):
+        return jax.jit(lambda s, flat, todo: assign.plan_candidates(
+            s.scene, params, episode, spill, s.fabric, s.owner, candidates=config.candidates, cap=cap,
+            evaluator=evaluator, clearance=clearance, previous=s.candidates, chosen=(flat, todo), short_cap=short_cap))
+
+    plan, plan_whole = planner(config.short_cap), planner(None)
     planned = plan(state, flat, passed)
+    whole_cap = plan_whole(state, flat, passed)
+    same = bool(np.array_equal(np.asarray(planned.exists), np.asarray(whole_cap.exists))
+                and np.array_equal(np.asarray(planned.tasks.route.cells), np.asarray(whole_cap.tasks.route.cells)))
     new = int(assign.newly_planned(planned, state.candidates))
     # the same planning with only the first two of its new sources: the difference is what the others cost
     cached = np.asarray(state.candidates.tasks.source)[np.asarray(state.candidates.exists)]
@@ -115,6 +121,7 @@ def measure(site_name: str, n: int, warmup: int, repeats: int) -> dict:
         "path_screen": _median_ms(screen, state, flat, exists, repeats=repeats),
         "plan_candidates": _median_ms(plan, state, flat, passed, repeats=repeats),
         "plan_two_new": _median_ms(plan, state, flat, two, repeats=repeats),
+        "plan_whole_cap": _median_ms(plan_whole, state, flat, passed, repeats=repeats),
         "assign_planned": _median_ms(give, state, planned, repeats=repeats),
         "step_planning": _median_ms(whole, state, jnp.bool_(False), repeats=repeats),
         "step_fresh_candidates": _median_ms(whole, state, jnp.bool_(True), repeats=repeats),
@@ -126,7 +133,8 @@ def measure(site_name: str, n: int, warmup: int, repeats: int) -> dict:
     core = footprint.path_slots(s, scene.shape) + s * spill.samples_per_step
     return dict(site=site_name, n_rovers=n, warmup=warmup, idle=int(np.asarray(idle).sum()),
                 chosen=int(np.asarray(exists).sum()), screened_out=int(np.asarray(exists & ~passed).sum()),
-                newly_planned=new, ms=times, route_slots=s, core_rows=int(core),
+                newly_planned=new, ms=times, route_slots=s, core_rows=int(core), short_cap=config.short_cap,
+                walk_cap=cap, same_tasks_whole_cap=same,
                 route_cells_median=float(np.median(lengths)) if lengths.size else None,
                 route_cells_max=int(lengths.max()) if lengths.size else None)
 
@@ -139,6 +147,8 @@ def markdown(result: dict, meta: str) -> str:
             (f"screen their paths ({result['chosen']} chosen, {result['screened_out']} set aside)", ms["path_screen"]),
             (f"plan the others ({result['newly_planned']} new tasks)", ms["plan_candidates"]),
             ("plan the same with two new tasks only", ms["plan_two_new"]),
+            (f"plan the same at the whole walk cap only ({result['walk_cap']}; the default tries "
+             f"{result['short_cap']} first)", ms["plan_whole_cap"]),
             ("greedy assignment", ms["assign_planned"]),
             ("whole step, candidates stale (plans)", ms["step_planning"]),
             ("whole step, candidates fresh (no planning)", ms["step_fresh_candidates"]),
@@ -151,9 +161,11 @@ def markdown(result: dict, meta: str) -> str:
     lengths = ("-" if result["route_cells_median"] is None
                else f"median {result['route_cells_median']:.0f}, max {result['route_cells_max']}")
     each = "-" if per_task is None else f"{per_task:.2f} ms"
-    lines += ["", f"Per task planned beyond two: {each}. A task's arrays are sized for the longest walk: "
+    same = "the same tasks" if result["same_tasks_whole_cap"] else "DIFFERENT tasks"
+    lines += ["", f"Per task planned beyond two: {each}. A task's arrays are sized for the walk cap: "
               f"{result['route_slots']} route slots and {result['core_rows']} footprint core rows, against "
-              f"routes of {lengths} cells among the tasks planned here.", ""]
+              f"routes of {lengths} cells among the tasks planned here. Planned with a short walk first "
+              f"({result['short_cap']}), they are planned at its size and padded; both ways planned {same}.", ""]
     return "\n".join(lines)
 
 

@@ -60,7 +60,7 @@ __all__ = ["Attempts", "BLOCKED", "Candidates", "PLAN_CHUNK", "RATE_BLOCK", "RAT
            "clear_of", "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "keep_only",
            "newly_planned", "no_attempts", "overlap_rows", "pack_bits", "plan_candidates", "plan_task", "rate_sources",
            "reserve", "rovers_in", "rovers_inside", "select_rows", "unchanged_tasks", "unpack_bits",
-           "wanted_candidates"]
+           "walks_fit", "wanted_candidates", "widen"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
@@ -309,7 +309,7 @@ def choose_sources(scene, ep, fabric, owner, m: int, wanted=None, by_rate=None, 
 
 def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int, cap: int, evaluator,
                     clearance: int, wanted=None, by_rate=None, previous: Candidates | None = None,
-                    withheld=None, chosen=None) -> Candidates:
+                    withheld=None, chosen=None, short_cap: int | None = None) -> Candidates:
     """The top ``M = candidates`` sources by the source rule's score among the occupied cells outside
     every footprint (``owner: i32[H, W]``, -1 free); the first ``wanted`` of them (i32[], default M)
     planned as ``Task`` s, the others left empty (``exists`` False). by_rate: optional ``(cells
@@ -326,9 +326,15 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     highway anchor first; within a chunk, the sources sharing an anchor share its connector DP, run on
     a window around the anchor when that holds them (``transport.connector_walk``), and the rest of
     each plan is vmapped.
+
+    short_cap (static, default ``cap``): a chunk is planned with this walk length first; when every
+    walk its plans read ends within it (``walks_fit``), its tasks are those of planning with ``cap``,
+    padded to ``cap``'s slots (``widen``), and otherwise the chunk is planned again with ``cap``. A
+    task's arrays are sized by the walk length, so routes much shorter than ``cap`` plan sooner.
     """
     h, w = scene.shape
     m = min(int(candidates), h * w)
+    short = cap if short_cap is None else min(int(short_cap), cap)
     if chosen is None:
         chosen = choose_sources(scene, ep, fabric, owner, m, wanted, by_rate, withheld)
     idx, exists = chosen
@@ -357,14 +363,21 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     group = jnp.argsort(jnp.where(todo, anchors, h * w), stable=True)
     order, src, todo, anchors = order[group], src[group], todo[group], anchors[group]
 
-    def plan_chunk(args):
+    def plan_at(args, walk: int):
         sources, exists, anchors = args
-        conns = connector_walk(scene, params, fabric, sources, anchors, cap)
+        conns = connector_walk(scene, params, fabric, sources, anchors, walk)
         tasks = jax.vmap(lambda s, e, a, c: plan_task(
-            scene, params, ep, spill, fabric, s, e, cap, evaluator, clearance, connector=(a, c)))(
+            scene, params, ep, spill, fabric, s, e, walk, evaluator, clearance, connector=(a, c)))(
             sources, exists, anchors, conns)
-        reads = jax.vmap(lambda s, a: plan_reads(scene, params, fabric, s, a, cap))(sources, anchors)
-        return tasks._replace(footprint=pack_bits(tasks.footprint)), reads
+        reads = jax.vmap(lambda s, a: plan_reads(scene, params, fabric, s, a, walk))(sources, anchors)
+        return tasks._replace(footprint=pack_bits(tasks.footprint)), reads, conns.complete
+
+    def plan_chunk(args):
+        if short >= cap:
+            return plan_at(args, cap)[:2]
+        tasks, reads, connected = plan_at(args, short)
+        fits = walks_fit(reads, connected) | ~args[1]
+        return jax.lax.cond(jnp.all(fits), lambda: widen(tasks, reads, cap), lambda: plan_at(args, cap)[:2])
 
     chunk = min(PLAN_CHUNK, m)
     pad = -m % chunk
@@ -393,6 +406,24 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     overlap = jnp.where(kept[:, None] & kept[None], previous.overlap[was][:, was], rows | rows.T)
     return Candidates(tasks, exists, usable, clear_of(tasks.footprint, owner), overlap & usable[:, None] & usable[None],
                       reads)
+
+
+def walks_fit(reads: PlanReads, connected):
+    """bool[B]: which of B plans read only walks that ended within their walk length: no walk of
+    ``reads`` (``PlanReads[B]``) fills its last slot and the connector walked to its end
+    (``connected``: bool[B], ``Paths.complete`` of ``connector_walk``). A walk that fills its last
+    slot may have been cut; a plan whose walks all fit is the same with any longer walk length."""
+    return connected & ~jnp.any(reads.walks[..., -1] >= 0, -1)
+
+
+def widen(tasks: Task, reads: PlanReads, cap: int):
+    """``(tasks, reads)`` planned with a shorter walk length, padded (-1) to the slots of walk length
+    ``cap``: routes to S = 2 (cap + 1) rows, each read walk to cap + 1 cells."""
+    cells = tasks.route.cells
+    route = tasks.route._replace(cells=jnp.pad(cells, ((0, 0), (0, 2 * (cap + 1) - cells.shape[1]), (0, 0)),
+                                                constant_values=-1))
+    walks = jnp.pad(reads.walks, ((0, 0), (0, 0), (0, cap + 1 - reads.walks.shape[-1])), constant_values=-1)
+    return tasks._replace(route=route), reads._replace(walks=walks)
 
 
 def newly_planned(planned: Candidates, previous: Candidates):

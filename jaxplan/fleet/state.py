@@ -102,6 +102,9 @@ FIELD_CHUNK = 4
 # the Chebyshev distance, and a stuck rover waits for a free slot).
 FIELD_SLOTS = 32
 DEFAULT_MAX_STEPS = 100_000
+# The walk length a coordinated planning tries first on long walk caps (FleetConfig.short_cap): the
+# routes of the built-in sites are a few dozen cells against caps of thousands.
+SHORT_CAP = 128
 
 
 def field_slots(n_rovers: int) -> int:
@@ -122,7 +125,10 @@ class FleetConfig:
     per coordinated assignment (None: 2 N, at least 8 and at most 64). walk_cap: static walk length of
     a plan (None: ``episode.default_walk_cap``); routes have S = 2 (walk_cap + 1) slots, and every
     planned task's arrays are sized by it, so a coordinated planning's time grows with it
-    (docs/fleet.md, "API"). stall_steps: steps without
+    (docs/fleet.md, "API"). short_cap: the walk length a coordinated planning tries first
+    (``assign.plan_candidates``): tasks whose walks all end within it are planned at its size and
+    padded, the others planned again at walk_cap; the same tasks either way (None: ``SHORT_CAP``
+    when walk_cap is at least ``4 SHORT_CAP``, else walk_cap, one planning). stall_steps: steps without
     any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an
     independent or partitioned rover tries per step when footprints are taken. clearance: cells
     reserved around a route beyond the cells its push changes: 0 (default), 1 or 2, the rover's body
@@ -147,14 +153,20 @@ class FleetConfig:
     clearance: int = 0
     candidates_by: str = "rate"
     set_aside: bool = True
+    short_cap: int | None = None
 
     def resolved(self, shape) -> FleetConfig:
         """This config with every None replaced by its value for a grid of ``shape``."""
         h, w = shape
+        cap = default_walk_cap(shape) if self.walk_cap is None else self.walk_cap
+        if self.short_cap is None:
+            short = SHORT_CAP if cap >= 4 * SHORT_CAP else cap
+        else:
+            short = min(self.short_cap, cap)
         return dataclasses.replace(
             self,
             candidates=min(max(2 * self.n_rovers, 8), MAX_CANDIDATES) if self.candidates is None else self.candidates,
-            walk_cap=default_walk_cap(shape) if self.walk_cap is None else self.walk_cap,
+            walk_cap=cap, short_cap=short,
             stall_steps=2 * (h + w) if self.stall_steps is None else self.stall_steps)
 
     def kernel(self) -> FleetConfig:
@@ -171,8 +183,8 @@ class FleetConfig:
                              f"[1, {MAX_ROVERS}] rovers.")
         if self.strategy not in STRATEGIES:
             raise ValueError(f"FleetConfig.strategy: {self.strategy!r} is not a strategy; use one of {STRATEGIES}.")
-        for name, low, high in (("candidates", 1, 4096), ("walk_cap", 1, 1 << 24), ("stall_steps", 1, 1 << 30),
-                                ("retries", 1, 64)):
+        for name, low, high in (("candidates", 1, 4096), ("walk_cap", 1, 1 << 24), ("short_cap", 1, 1 << 24),
+                                ("stall_steps", 1, 1 << 30), ("retries", 1, 64)):
             value = getattr(self, name)
             if value is not None and (not is_int(value) or not low <= value <= high):
                 raise ValueError(f"FleetConfig.{name}: {value!r} is out of range; it must be an int in "
@@ -532,7 +544,8 @@ def _plan_setting_aside(state: FleetState, params, spill, ep: EpisodeParams, cfg
     if not cfg.set_aside:
         return assign.plan_candidates(
             state.scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
-            evaluator=evaluator, clearance=cfg.clearance, wanted=assign.wanted_candidates(idle, cfg.candidates),
+            short_cap=cfg.short_cap, evaluator=evaluator, clearance=cfg.clearance,
+            wanted=assign.wanted_candidates(idle, cfg.candidates),
             by_rate=(rovers.base, idle) if cfg.candidates_by == "rate" else None,
             previous=state.candidates), state.aside, jnp.bool_(True)
     holds = set_aside.holding(state.aside, rovers.phase, rovers.task_step)
@@ -545,7 +558,8 @@ def _plan_setting_aside(state: FleetState, params, spill, ep: EpisodeParams, cfg
     aside = set_aside.add(state.aside, flat, met, screened, rovers.task_step)
     planned = assign.plan_candidates(
         state.scene, params, ep, spill, state.fabric, state.owner, candidates=cfg.candidates, cap=cfg.walk_cap,
-        evaluator=evaluator, clearance=cfg.clearance, previous=state.candidates, chosen=(flat, exists & ~screened))
+        short_cap=cfg.short_cap, evaluator=evaluator, clearance=cfg.clearance, previous=state.candidates,
+        chosen=(flat, exists & ~screened))
     blocked = planned.usable & ~planned.clear
     cells = planned.tasks.source[:, 0] * shape[1] + planned.tasks.source[:, 1]
     aside = jax.lax.cond(jnp.any(blocked), lambda: set_aside.add(

@@ -1,12 +1,13 @@
-"""The fleet benchmark script (experiments/fleet.py): bad walk caps are refused before any work. The
+"""The fleet benchmark script (experiments/fleet.py): bad walk lengths are refused before any work. The
 runs themselves are ``run_fleet``'s, tested in tests/fleet."""
 import pytest
 
 from experiments import fleet
 
 
+@pytest.mark.parametrize("flag", ["--walk-cap", "--short-cap"])
 @pytest.mark.parametrize("caps", [["0"], ["1024", "-3"], ["long"]])
-def test_bad_walk_caps_exit_before_any_work(caps, capsys):
+def test_bad_walk_lengths_exit_before_any_work(flag, caps, capsys):
     with pytest.raises(SystemExit) as err:
-        fleet.main(["--walk-cap", *caps])
-    assert err.value.code == 2 and "--walk-cap" in capsys.readouterr().err
+        fleet.main([flag, *caps])
+    assert err.value.code == 2 and flag in capsys.readouterr().err
