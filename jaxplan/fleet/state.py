@@ -127,8 +127,9 @@ class FleetConfig:
     planned task's arrays are sized by it, so a coordinated planning's time grows with it
     (docs/fleet.md, "API"). short_cap: the walk length a coordinated planning tries first
     (``assign.plan_candidates``): tasks whose walks all end within it are planned at its size and
-    padded, the others planned again at walk_cap; the same tasks either way (None: ``SHORT_CAP``
-    when walk_cap is at least ``4 SHORT_CAP``, else walk_cap, one planning). stall_steps: steps without
+    padded, the others planned again at walk_cap, and a push whose route ends within 2 (short_cap + 1)
+    rows is applied on those rows; the same tasks and pushes either way (None: ``SHORT_CAP`` when
+    walk_cap is at least ``4 SHORT_CAP``, else walk_cap, one planning). stall_steps: steps without
     any move or push before the fleet stops "deadlock" (None: 2 (H + W)). retries: sources an
     independent or partitioned rover tries per step when footprints are taken. clearance: cells
     reserved around a route beyond the cells its push changes: 0 (default), 1 or 2, the rover's body
@@ -693,10 +694,11 @@ def _move(rovers: Rovers, pool: motion.FieldPool, owner, blocked):
     return rovers, moved, ended, conflicts
 
 
-def _apply_pushes(scene, rovers: Rovers, owner, ended, spill, evaluator):
+def _apply_pushes(scene, rovers: Rovers, owner, ended, spill, evaluator, short_cap: int):
     """Step 4: the ``ended`` pushes applied in rover order, on the counts at that moment, their
     footprints released and their rovers idle: ``(scene, rovers, owner, (collected, delivered,
-    spilled))``, f32[N] objects each (0 for the other rovers). The fabric is left as it is."""
+    spilled))``, f32[N] objects each (0 for the other rovers). The fabric is left as it is.
+    short_cap: static, ``FleetConfig.short_cap`` (``_push_fitted``)."""
     n = ended.shape[0]
     zeros = jnp.zeros(n, jnp.float32)
     # the loop visits the rovers whose push ended only, in rover order
@@ -706,14 +708,28 @@ def _apply_pushes(scene, rovers: Rovers, owner, ended, spill, evaluator):
         obj, collected, delivered, spilled = carry
         r = order[i]
         mine = jax.tree.map(lambda a: a[r], rovers.route)
-        new_obj, result = execute_push(scene.with_obj(obj), mine, spill, evaluator)
-        return (new_obj, collected.at[r].set(result.collected), delivered.at[r].set(result.delivered),
-                spilled.at[r].set(result.spilled))
+        new_obj, got = _push_fitted(scene.with_obj(obj), mine, spill, evaluator, short_cap)
+        return (new_obj, collected.at[r].set(got[0]), delivered.at[r].set(got[1]), spilled.at[r].set(got[2]))
 
     obj, *applied = jax.lax.fori_loop(0, jnp.sum(ended, dtype=jnp.int32), one, (scene.obj, zeros, zeros, zeros))
     rovers = rovers._replace(phase=jnp.where(ended, IDLE, rovers.phase), pushes=rovers.pushes + ended,
                              base=jnp.where(ended[:, None], rovers.pos, rovers.base))
     return scene.with_obj(obj), rovers, _release(owner, ended), tuple(applied)
+
+
+def _push_fitted(scene, route: Route, spill, evaluator, short_cap: int):
+    """``(obj, (collected, delivered, spilled))`` of ``execute_push``: on the route's first 2 (short_cap
+    + 1) rows when its cells end before them, the same push at a route's size rather than the walk
+    cap's (the rows after ``n_cells`` are padding), else on all its rows."""
+    rows = 2 * (short_cap + 1)
+
+    def push(cells):
+        obj, result = execute_push(scene, route._replace(cells=cells), spill, evaluator)
+        return obj, (result.collected, result.delivered, result.spilled)
+
+    if rows >= route.cells.shape[0]:
+        return push(route.cells)
+    return jax.lax.cond(route.n_cells < rows, lambda: push(route.cells[:rows]), lambda: push(route.cells))
 
 
 def _stop(totals: Totals, scene, phase, parked, made_way, assigned, dropped, moved, ended, applied, failure,
@@ -834,7 +850,8 @@ def _advance(state: FleetState, params, spill, ep: EpisodeParams, cfg: FleetConf
     # 3. move
     rovers, moved, ended, conflicts = _move(rovers, fields, owner, blocked)
     # 4. apply the pushes that ended, release their footprints (the fabric is refreshed by ``refresh``)
-    scene, rovers, owner, applied = _apply_pushes(state.scene, rovers, owner, ended, spill, evaluator)
+    scene, rovers, owner, applied = _apply_pushes(state.scene, rovers, owner, ended, spill, evaluator,
+                                                  cfg.short_cap)
     # 5. totals and stop
     totals = _stop(state.totals, scene, rovers.phase, _parked(rovers.pos, rovers.home, rovers.phase), made_way,
                    assigned, dropped, moved, ended, applied, failure, cfg.stall_steps)
