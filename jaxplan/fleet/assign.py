@@ -328,9 +328,10 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     each plan is vmapped.
 
     short_cap (static, default ``cap``): a chunk is planned with this walk length first; when every
-    walk its plans read ends within it (``walks_fit``), its tasks are those of planning with ``cap``,
-    padded to ``cap``'s slots (``widen``), and otherwise the chunk is planned again with ``cap``. A
-    task's arrays are sized by the walk length, so routes much shorter than ``cap`` plan sooner.
+    walk its plans read ends within it (``walks_fit``), its tasks are those of planning with ``cap``
+    (the predicted mass within float rounding: it is summed over shorter arrays), padded to ``cap``'s
+    slots (``widen``), and otherwise the chunk is planned again with ``cap``. A task's arrays are
+    sized by the walk length, so routes much shorter than ``cap`` plan sooner.
     """
     h, w = scene.shape
     m = min(int(candidates), h * w)
