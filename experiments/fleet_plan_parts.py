@@ -97,6 +97,7 @@ def measure(site_name: str, n: int, warmup: int, repeats: int) -> dict:
     flat, exists = choose(state)
     screen = jax.jit(lambda s, flat, todo: set_aside.path_blockers(s.scene, s.fabric, s.owner, flat, todo, cap))
     passed = exists & (screen(state, flat, exists) < 0)
+
     def planner(short_cap):
         return jax.jit(lambda s, flat, todo: assign.plan_candidates(
             s.scene, params, episode, spill, s.fabric, s.owner, candidates=config.candidates, cap=cap,

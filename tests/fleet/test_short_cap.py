@@ -112,12 +112,13 @@ def test_walks_fit_only_when_no_walk_fills_its_last_slot():
 
 def test_widen_pads_routes_and_walks_to_the_caps_slots():
     scene, fabric, owner = _inputs(0, "uniform")
-    short = _planner(None)(scene, fabric, owner)
-    tasks, reads = assign.widen(short.tasks, short.reads, 2 * CAP)
+    planned = _planner(None)(scene, fabric, owner)
+    tasks, reads = assign.widen(planned.tasks, planned.reads, 2 * CAP)
     assert tasks.route.cells.shape == (M, 2 * (2 * CAP + 1), 2) and reads.walks.shape[-1] == 2 * CAP + 1
     assert np.all(np.asarray(tasks.route.cells)[:, 2 * (CAP + 1):] == -1)
     assert np.all(np.asarray(reads.walks)[..., CAP + 1:] == -1)
-    np.testing.assert_array_equal(np.asarray(tasks.route.cells)[:, :2 * (CAP + 1)], np.asarray(short.tasks.route.cells))
+    np.testing.assert_array_equal(np.asarray(tasks.route.cells)[:, :2 * (CAP + 1)],
+                                  np.asarray(planned.tasks.route.cells))
 
 
 def test_the_config_resolves_the_short_cap():
