@@ -23,8 +23,16 @@ PARAMS = FabricParams()
 SPILL = SpillParams(lam=0.1)
 
 
-@pytest.mark.parametrize("n, strategy, candidates_by", [(n, s, "value") for s in STRATEGIES for n in sorted(SITES)]
-                         + [(3, "coordinated", "rate")])
+# A covering design, not the cross product: each case's fleet size and settings are a program of their own
+# (minutes of compiling for the 10 of the product), while these 4 take each strategy, each fleet size and
+# each candidate rule; independent and partitioned fleets of one size share one step (FleetConfig.kernel), and
+# the coordinated pair of 2 is the selective-refresh test's program.
+CASES = [(2, "coordinated", "rate"), (3, "independent", "value"), (3, "partitioned", "value"),
+         (5, "coordinated", "value")]
+assert {c[0] for c in CASES} == set(SITES) and {c[1] for c in CASES} == set(STRATEGIES)
+
+
+@pytest.mark.parametrize("n, strategy, candidates_by", CASES)
 @settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=False)
 @given(seed=st.integers(0, 10 ** 6), layout=st.sampled_from(LAYOUTS), fraction=st.sampled_from((0.02, 0.4)),
        pushes=st.integers(0, 12))
@@ -260,13 +268,39 @@ def test_candidates_equal_tasks_planned_alone_and_plan_only_what_is_wanted():
         np.testing.assert_array_equal(np.asarray(getattr(kept, name)), np.asarray(getattr(fresh, name)))
 
 
-def test_the_selective_refresh_gives_the_full_refresh_run():
+@pytest.fixture(scope="module")
+def piles_run():
+    """Two coordinated rovers on a 12 x 12 site with piles, six pushes, the fabric rebuilt in full: the
+    run the selective refresh and the short walk first are compared with (one compiled program, one run)."""
+    ep = EpisodeParams(max_pushes=6, rebuild="full")
+    return run_fleet(site(2, SITES[2], "piles"), 2, "coordinated", PARAMS, SPILL, ep, max_steps=300)
+
+
+def _assert_same_run(got, want):
+    np.testing.assert_array_equal(got.pos, want.pos)
+    np.testing.assert_array_equal(got.delivered, want.delivered)
+    np.testing.assert_array_equal(np.asarray(got.final_scene.obj), np.asarray(want.final_scene.obj))
+
+
+def test_the_selective_refresh_gives_the_full_refresh_run(piles_run):
     """``EpisodeParams.rebuild="selective"`` updates the shared fabric selectively inside the step:
     the same run as the full build, step by step."""
-    scene = site(2, SITES[2], "piles")
-    runs = [run_fleet(scene, 2, "coordinated", PARAMS, SPILL, EpisodeParams(max_pushes=6, rebuild=mode),
-                      max_steps=300) for mode in ("full", "selective")]
-    assert len(runs[0].pushes) > 2
-    np.testing.assert_array_equal(runs[0].pos, runs[1].pos)
-    np.testing.assert_array_equal(runs[0].delivered, runs[1].delivered)
-    np.testing.assert_array_equal(np.asarray(runs[0].final_scene.obj), np.asarray(runs[1].final_scene.obj))
+    selective = run_fleet(site(2, SITES[2], "piles"), 2, "coordinated", PARAMS, SPILL,
+                          EpisodeParams(max_pushes=6, rebuild="selective"), max_steps=300)
+    assert len(piles_run.pushes) > 2
+    _assert_same_run(selective, piles_run)
+
+
+def test_a_fleet_with_a_short_walk_first_runs_as_with_the_whole_cap(piles_run):
+    """The same run, step by step, when tasks are planned with a walk of 3 first and pushes whose
+    routes end within 2 (3 + 1) = 8 rows are applied on those rows only: some of its pushes are, some
+    are not (``FleetConfig.short_cap``; tests/fleet/test_short_cap.py tests the planning itself). Here,
+    not in that module, so that the whole-cap run is ``piles_run``: its program is compiled once."""
+    assert FleetConfig(2, short_cap=None) == FleetConfig(2, "coordinated")      # piles_run's: the whole cap's
+    short = run_fleet(site(2, SITES[2], "piles"), 2, "coordinated", PARAMS, SPILL,
+                      EpisodeParams(max_pushes=6, rebuild="full"), max_steps=300, config=FleetConfig(2, short_cap=3))
+    lengths = [len(p["cells"]) for p in short.pushes]
+    assert min(lengths) < 8 <= max(lengths), lengths
+    _assert_same_run(short, piles_run)
+    assert [p["delivered"] for p in piles_run.pushes] == [p["delivered"] for p in short.pushes]
+    assert short.conflicts == 0

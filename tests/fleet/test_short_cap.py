@@ -1,6 +1,7 @@
 """A coordinated planning that tries a short walk length first (``FleetConfig.short_cap``) plans the
 tasks of planning with the whole walk cap: the chunks whose walks fit are padded to the cap's slots,
-the others planned again with the cap."""
+the others planned again with the cap. A fleet run with a short walk first is tests/fleet/test_fleet.py's
+(test_a_fleet_with_a_short_walk_first_runs_as_with_the_whole_cap), which compiles its whole-cap run anyway."""
 from __future__ import annotations
 
 import functools
@@ -13,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxplan import FabricParams, SpillParams, build_fabric
-from jaxplan.fleet import FleetConfig, assign, run_fleet
+from jaxplan.fleet import FleetConfig, assign
 from jaxplan.fleet.state import SHORT_CAP
 from jaxplan.transport import connector_walk, execute, plan_reads, source_anchors, spillage
 from jaxplan.transport.episode import EpisodeParams
@@ -129,21 +130,3 @@ def test_the_config_resolves_the_short_cap():
     for bad in (0, -3, 2.5, "64"):
         with pytest.raises(ValueError, match="FleetConfig.short_cap"):
             FleetConfig(4, short_cap=bad).validate()
-
-
-def test_a_fleet_with_a_short_walk_first_runs_as_with_the_whole_cap():
-    """The same run, step by step, when tasks are planned with a walk of 3 first and pushes whose
-    routes end within 2 (3 + 1) = 8 rows are applied on those rows only: some of its pushes are, some
-    are not."""
-    # the whole-cap run is test_fleet's selective-refresh test's full run: its program is compiled once
-    scene = site(2, (12, 12), "piles")
-    ep = EpisodeParams(max_pushes=6, rebuild="full")
-    runs = [run_fleet(scene, 2, "coordinated", PARAMS, SPILL, ep, max_steps=300,
-                      config=FleetConfig(2, short_cap=short)) for short in (None, 3)]
-    lengths = [len(p["cells"]) for p in runs[1].pushes]
-    assert min(lengths) < 8 <= max(lengths), lengths
-    np.testing.assert_array_equal(runs[0].pos, runs[1].pos)
-    np.testing.assert_array_equal(runs[0].delivered, runs[1].delivered)
-    np.testing.assert_array_equal(np.asarray(runs[0].final_scene.obj), np.asarray(runs[1].final_scene.obj))
-    assert [p["delivered"] for p in runs[0].pushes] == [p["delivered"] for p in runs[1].pushes]
-    assert runs[1].conflicts == 0

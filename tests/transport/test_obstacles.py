@@ -31,8 +31,8 @@ def _straight_geometry(scene):
 
 @pytest.fixture(scope="module")
 def walled():
-    """A 14 x 16 site: a wall between the material and the target, a pile behind it."""
-    h, w = 14, 16
+    """A 16 x 16 site: a wall between the material and the target, a pile behind it."""
+    h, w = 16, 16   # a shape of SHAPES: the fabric the property tests compiled
     blocked = np.zeros((h, w), bool)
     blocked[5:7, 3:12] = True
     obj = np.zeros((h, w), np.float32)
@@ -88,10 +88,10 @@ def test_cells_behind_the_wall_detour_around_it(walled):
 
 
 def test_material_cut_off_from_every_target_is_counted_and_not_planned():
-    blocked = np.zeros((10, 10), bool)
-    blocked[5:10, 5] = True
-    blocked[5, 5:10] = True
-    obj = np.zeros((10, 10), np.float32)
+    blocked = np.zeros((13, 9), bool)   # a shape of SHAPES: a fabric the property tests compile too
+    blocked[5:13, 5] = True
+    blocked[5, 5:9] = True
+    obj = np.zeros((13, 9), np.float32)
     obj[7, 7] = 4.0                      # inside the courtyard
     obj[2, 2] = 1.0
     scene = Scene.from_arrays(obj, box(0, 0, 2, 2), blocked=blocked)
