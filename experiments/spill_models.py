@@ -158,20 +158,28 @@ def within_share(routes: dict, params, rows) -> float:
 
 
 def fit_models(routes: dict, steps: int, progress: bool, quick: bool = False, hidden=(8,)) -> dict:
-    """Every model of the comparison, fitted on the training records (``quick``: a few steps each and
-    a coarse capacity grid, a smoke test); the learned model's hidden size chosen on validation
-    scenes of the training seeds when ``hidden`` offers more than one (``choose_hidden``)."""
+    """Every model of the comparison, fitted on the training records (``quick``: a few steps each, a
+    coarse capacity grid and a coarse ``miss`` search, a smoke test); the learned model's hidden size
+    chosen on validation scenes of the training seeds when ``hidden`` offers more than one
+    (``choose_hidden``)."""
     from jaxplan import tune
-    from jaxplan.transport.spillage import FIT_GRID, ROVER_FIT, SpillParams, fit_capacity
+    from jaxplan.transport.spillage import FIT_GRID, ROVER_FIT, CapacitySpillParams, SpillParams, fit_capacity, fit_miss
 
     train = np.where(~routes["heldout"])[0]
     data = _subset(routes["data"], train)
     fit_steps = {"steps": 20, "polish_steps": 5} if quick else {}
     curvature = tune.fit_spill(data, SpillParams(lam=0.05, threshold=0.1, temperature=0.01), **fit_steps).params
     grid = {k: v[::3] for k, v in FIT_GRID.items()} if quick else None
+    left_behind, base = routes["left_behind"][train], None
+    if quick:   # miss searched in steps of 0.01 (fit_capacity's own search: 5e-4, 20x the candidates), then held
+        base = CapacitySpillParams()
+        base = base.replace(miss=fit_miss(data.waypoints, data.n_points, data.pickup, left_behind,
+                                          samples_per_step=base.samples_per_step, spline_alpha=base.spline_alpha,
+                                          resolution=0.01))
+        left_behind = None
     capacity = fit_capacity(data.waypoints, data.n_points, data.pickup, data.delivered,
                             fields=("capacity", "lam", "mu", "turn_saturation"), grid=grid,
-                            steps=20 if quick else 300, left_behind=routes["left_behind"][train]).params
+                            steps=20 if quick else 300, left_behind=left_behind, base=base).params
     size, shares = (int(hidden[0]), {}) if len(hidden) == 1 else choose_hidden(routes, hidden, steps, progress)
     learned = tune.fit_learned(data, hidden=size, steps=steps, progress=progress)
     return {"curvature": curvature, "capacity": capacity, "ROVER_FIT": ROVER_FIT, "learned": learned.params,
@@ -331,7 +339,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--cost-size", type=int, default=48, help="grid side of the build-cost scene; default 48")
     parser.add_argument("--cost-repeats", type=int, default=5, help="timed builds per model; default 5")
     parser.add_argument("--quick", action="store_true",
-                        help="a smoke test: 20 steps per fit, a coarse capacity grid (use with --seeds)")
+                        help="a smoke test: 20 steps per fit, a coarse capacity grid and miss search "
+                             "(use with --seeds)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     if args.data is None:

@@ -27,6 +27,7 @@ def test_models_are_scored_on_held_out_routes_and_the_fit_is_written(tmp_path):
         physics["collected"], abs=0.02)
     assert set(result["build_cost"]["ratio_to_ROVER_FIT"]) == {"ROVER_FIT", "learned"}   # --quick: the two
     assert result["default"] in ("learned", "ROVER_FIT")
+    assert 0.0 <= result["fitted"]["capacity"]["miss"] <= 2.0                  # fit_miss's range
     written = json.loads((tmp_path / "spill_models.json").read_text())
     assert written["scores"] == result["scores"]
     assert "| density 0.6 |" in (tmp_path / "spill_models.md").read_text()

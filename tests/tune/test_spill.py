@@ -105,7 +105,8 @@ def test_loss_gradients_agree_with_finite_differences(clean_data):
 def test_sample_lengths_have_finite_gradients_on_padded_routes():
     """A route shorter than its waypoint slots repeats its last point; ds there is 0 and so is its gradient."""
     way = jnp.array([[0.0, 0.0], [1.0, 0.0], [2.0, 1.0], [2.0, 1.0], [2.0, 1.0]])
-    grad = jax.grad(lambda w: spillage.sample_route(w, 3, 4).ds.sum())(way)
+    # jitted: one compile (eagerly, each of the spline's many small operations compiled apart took 5x longer)
+    grad = jax.jit(jax.grad(lambda w: spillage.sample_route(w, 3, 4).ds.sum()))(way)
     assert np.all(np.isfinite(np.asarray(grad)))
     assert float(jnp.abs(grad[:3]).sum()) > 0.0
 

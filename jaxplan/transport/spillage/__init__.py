@@ -25,7 +25,14 @@ from jaxplan.transport.spillage.base import (
 )
 from jaxplan.transport.spillage.capacity import ROVER_FIT, CapacitySpillParams, capacity_spill, validate_capacity_params
 from jaxplan.transport.spillage.curvature import curvature_spill
-from jaxplan.transport.spillage.fit import FIT_FIELDS, FIT_GRID, fit_capacity, predict_delivered, predict_missed
+from jaxplan.transport.spillage.fit import (
+    FIT_FIELDS,
+    FIT_GRID,
+    fit_capacity,
+    fit_miss,
+    predict_delivered,
+    predict_missed,
+)
 from jaxplan.transport.spillage.learned import (
     FEATURES,
     LEARNED_FIT,
@@ -42,6 +49,6 @@ ROVER_MODELS = {"learned": LEARNED_FIT, "rover-fit": ROVER_FIT}
 __all__ = ["CENTRIPETAL", "CapacitySpillParams", "EVALUATORS", "Evaluator", "FEATURES", "FIT_FIELDS", "FIT_GRID",
            "LEARNED_FIT", "LearnedSpillParams", "PathSamples", "ROVER_FIT", "ROVER_MODELS",
            "SpillParams", "capacity_spill", "curvature_spill", "evaluate_route", "evaluator_for", "fit_capacity",
-           "pickups_per_sample", "predict_delivered", "predict_missed", "register", "sample_route",
+           "fit_miss", "pickups_per_sample", "predict_delivered", "predict_missed", "register", "sample_route",
            "sample_route_prefix", "threshold_spill", "validate_capacity_params", "validate_learned_params",
            "validate_spill_params", "learned_spill", "load_learned", "chord_lengths"]
