@@ -12,6 +12,7 @@ divided by the mean collected mass squared (dimensionless, so one learning rate 
 """
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -250,7 +251,7 @@ def fit_learned(data: SpillData, *, hidden: int = 8, steps: int = 1500, learning
     params = _initial_learned(int(hidden), int(seed), LearnedSpillParams()) if init is None else init
     validate_learned_params(params)
     data = SpillData(*(jnp.asarray(x) for x in data))
-    opt = optax.adam(optax.cosine_decay_schedule(float(learning_rate), int(steps), alpha=0.05))
+    opt = _learned_adam(float(learning_rate), int(steps))
     state = opt.init(params)
     losses = []
     with tqdm(total=int(steps), desc="fit", disable=not progress) as bar:
@@ -262,6 +263,13 @@ def fit_learned(data: SpillData, *, hidden: int = 8, steps: int = 1500, learning
             done += n
             bar.update(n)
     return LearnedFit(params, np.concatenate(losses))
+
+
+@functools.cache
+def _learned_adam(learning_rate: float, steps: int) -> optax.GradientTransformation:
+    # one optimiser object per schedule: it is a static argument of _learned_steps, so a new object
+    # each call would compile the steps again
+    return optax.adam(optax.cosine_decay_schedule(learning_rate, steps, alpha=0.05))
 
 
 @jax.jit(static_argnums=(3, 4))

@@ -132,6 +132,13 @@ def test_fit_learned_brings_the_loss_down_on_data_of_a_learned_model():
     delivered, _ = predict_spill(fit.params, data)
     rel = np.abs(np.asarray(delivered) - np.asarray(data.delivered)) / np.maximum(np.asarray(data.delivered), 1.0)
     assert np.median(rel) < 0.05
+    # a second fit with the same schedule runs the compiled steps again: the same weights from the same start
+    from jaxplan.tune import spill as tune_spill
+
+    compiled = tune_spill._learned_steps._cache_size()
+    again = fit_learned(data, hidden=4, steps=200, learning_rate=0.02, seed=0, chunk=100)
+    assert tune_spill._learned_steps._cache_size() == compiled
+    np.testing.assert_array_equal(again.losses, fit.losses)
 
 
 @pytest.mark.parametrize("kwargs, match", [({"hidden": 0}, "hidden: must be an int >= 1"),
