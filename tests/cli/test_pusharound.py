@@ -108,8 +108,10 @@ def test_failed_planning_still_writes_the_result(tmp_path):
     blocked = {**TINY, "movables": [{**TINY["movables"][0], "mass": 1e6}]}
     scene_file = tmp_path / "blocked.json"
     scene_file.write_text(json.dumps(blocked))
+    # --fps 1: the animation holds its last frame for 2 frames, not 15 (the default 10 fps x 1.5 s), the
+    # same picture drawn again
     rc = main(["pusharound", "--scene", str(scene_file), "--out", str(tmp_path), "--time-limit", "0.01",
-               "--no-execute", "--max-frames", "2", "--backend", "c"])
+               "--no-execute", "--max-frames", "2", "--fps", "1", "--backend", "c"])
     assert rc == 0
     res = json.loads((tmp_path / "result.json").read_text())
     assert res["success"] is False and res["reason"] and res["w_clear_path"] is None
@@ -126,7 +128,7 @@ def test_scene_without_movables_is_already_clear(tmp_path, capsys):
     scene_file.write_text(json.dumps({**TINY, "movables": []}))
     out = tmp_path / "o"
     assert main(["pusharound", "--scene", str(scene_file), "--out", str(out), "--time-limit", "1",
-                 "--max-frames", "2", "--backend", "c"]) == 0
+                 "--max-frames", "2", "--fps", "1", "--backend", "c"]) == 0   # --fps 1: see above
     res = json.loads((out / "result.json").read_text())
     assert res["success"] is True and res["schedule"] == [] and res["execution"] is None
     assert json.loads((out / "run.json").read_text())["status"] == "complete"

@@ -13,7 +13,15 @@ from jaxplan.cli import main
 from jaxplan.cli import transport as cli_transport
 from jaxplan.core.outputs import MANIFEST
 
-EPISODE = ["episode", "--scene", "default", "--max-pushes", "1"]
+# Every episode of this module, in this process and in the subprocesses, runs the default scene under the
+# capacity-aware spill model with a blade that carries at most 0.01 objects: the same compiled programs
+# (the push budget and the stop fraction are not compiled in), so the subprocesses load what the
+# ``earlier_run`` fixture compiled from the persistent cache; and a push delivers at most about 0.01
+# objects (the overflow spills beside the route), so clearing the scene's 505 objects would take over
+# 50,000 pushes: the long episodes below cannot end on their own within the tests' waits.
+SCENE = ["--scene", "default", "--capacity", "0.01"]
+EPISODE = ["episode", *SCENE, "--max-pushes", "1"]
+LONG_EPISODE = ["episode", *SCENE, "--stop-fraction", "0", "--max-pushes", "100000"]
 
 
 def _files(folder) -> list[str]:
@@ -43,6 +51,7 @@ def test_manifest_of_a_complete_run(earlier_run):
     m = _manifest(earlier_run)
     assert m["status"] == "complete" and m["command"] == "episode"
     assert m["arguments"]["max_pushes"] == 1 and m["arguments"]["scene"] == "default"
+    assert m["arguments"]["capacity"] == 0.01
     assert sorted(m["files"]) == sorted(f for f in _files(earlier_run) if f != MANIFEST)
     assert "episode.gif" in m["files"] and "summary.json" in m["files"]
 
@@ -111,15 +120,14 @@ def test_failed_write_marks_the_run_failed(tmp_path, monkeypatch, capsys):
 
 def _start_long_episode(out):
     """A real ``jaxplan episode`` process that cannot end on its own within the tests' waits, however
-    warm the compilation cache (the 65 x 65 scene down to its last object), and the list its stderr
-    is read into."""
+    warm the compilation cache (``LONG_EPISODE``: every object down to the last, 0.01 per push), and
+    the list its stderr is read into."""
     import os
     import subprocess
     import sys
     import threading
 
-    long_episode = ["episode", "--scene", "sparse65", "--stop-fraction", "0", "--max-pushes", "100000"]
-    proc = subprocess.Popen([sys.executable, "-m", "jaxplan.cli", *long_episode, "--out", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "jaxplan.cli", *LONG_EPISODE, "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "JAX_PLATFORMS": "cpu"})
     chunks: list[bytes] = []
     threading.Thread(target=lambda: chunks.extend(iter(lambda: proc.stderr.read1(4096), b"")), daemon=True).start()

@@ -9,8 +9,9 @@ Kinds of input (each case picks one, writes a fresh valid file and mutates it, o
 - ``sweep.toml``: a sweep spec (docs/sweeps.md) over a 6x6 scene file beside it and one 5x5 random scene,
   run through ``jaxplan sweep SPEC --out D/out/s.csv --no-progress``;
 - ``pusharound.json``: a one-box PushAround scene (docs/pusharound.md), run through ``jaxplan pusharound
-  --scene F --out D/out --no-execute --time-limit 0.3 --backend c --max-frames 2`` (a scene that still
-  loads is planned in full, about 2 s).
+  --scene F --out D/out --no-execute --time-limit 0.3 --backend c --max-frames 2 --fps 1`` (a scene that
+  still loads is planned in full, about 2 s; ``--fps 1`` holds the last frame for 2 frames instead of
+  15 at the default 10 fps, which were most of a case's time, drawing the same picture again).
 
 Mutations. Of the parsed document (JSON, TOML): wrong types, NaN and +-inf, negated values, zeros,
 huge numbers (1e308, 2**64, 10**400, ...), missing keys, extra keys, values wrapped in or stripped of a
@@ -1019,7 +1020,7 @@ def make_case(rng, folder: Path, kind: str | None = None, cls: str = "inputs") -
     else:
         command, out = "pusharound", out_dir
         argv = ["pusharound", "--scene", str(path), "--out", str(out), "--no-execute", "--time-limit",
-                str(PUSH_TIME_LIMIT_S), "--backend", "c", "--max-frames", "2"]
+                str(PUSH_TIME_LIMIT_S), "--backend", "c", "--max-frames", "2", "--fps", "1"]
     case = Case(kind, command, notes, folder, path, out, argv, cls=cls)
     if cls == "fs":
         prepare_out(case, rng)
