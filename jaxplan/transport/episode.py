@@ -70,9 +70,11 @@ class EpisodeParams:
     """Parameters of an episode (``reset``, ``step``, ``run.run_episode``).
 
     Traced: rearrange_margin: f32[] (>= 0), see the choice rule; stop_fraction: f32[] in [0, 1).
-    Static: max_pushes (push budget, an int in [0, ``MAX_PUSHES``] = 10^6); source_rule ("max_value" or
-    "nearest"); rebuild ("auto", "selective" or "full": how the fabric is refreshed after a push; all give the same
-    fabric, only the time differs; "auto" picks by ``rebuild_mode``);
+    Static: max_pushes (push budget, an int in [0, ``MAX_PUSHES``] = 10^6; ``run.run_episode`` hands it
+    to its compiled programs as an array, so a sweep over budgets compiles them once; ``step_jit``
+    and the rollouts compile per budget); source_rule ("max_value" or "nearest"); rebuild ("auto",
+    "selective" or "full": how the fabric is refreshed after a push; all give the same fabric, only
+    the time differs; "auto" picks by ``rebuild_mode``);
     reselect (apply Eq. 6 to every source before planning, module docstring; off by default: it
     costs a spill evaluation of every candidate route of every source with two or more per tick).
     """
@@ -226,8 +228,9 @@ def outside_mass(scene):
     return jnp.sum(jnp.where(scene.target_mask, 0.0, scene.obj))
 
 
-def _stop_code(remaining, initial_remaining, stop_at, tick, max_pushes: int):
-    """i32[]: the stop code checked before each push (run_episode's order: no material, done, budget)."""
+def _stop_code(remaining, initial_remaining, stop_at, tick, max_pushes):
+    """i32[]: the stop code checked before each push (run_episode's order: no material, done, budget).
+    max_pushes: the push budget, an int or i32[]."""
     return _i32(jnp.select([initial_remaining <= 0, remaining <= stop_at, tick >= max_pushes],
                            [NO_MATERIAL, DONE, BUDGET], RUNNING))
 
@@ -268,10 +271,15 @@ def reset(scene, params: FabricParams | None = None, spill: spillage.SpillParams
                         initial_remaining, zero, initial_mass, initial_remaining, stop_at)
 
 
-def advance(state: EpisodeState, plan: Plan, push: execute.Push, new_obj, go, ep: EpisodeParams):
+def advance(state: EpisodeState, plan: Plan, push: execute.Push, new_obj, go, ep: EpisodeParams, budget=None):
     """``(state, record)`` after pushing ``plan`` (``push``, ``new_obj``: ``execute``'s output) when
     ``go: bool[]``; otherwise ``state`` unchanged and an invalid record. The fabric is left as it was:
-    the caller refreshes it (``step`` in full, ``run.run_episode`` selectively)."""
+    the caller refreshes it (``step`` in full, ``run.run_episode`` selectively).
+
+    budget: the push budget, an int or i32[] (default ``ep.max_pushes``, the only field of ``ep`` that
+    ``advance`` reads). Given as an argument it is traced under ``jit``: ``run.run_episode`` passes it
+    with ``ep.max_pushes`` set to 0, so that ``advance_jit`` compiles once for every budget.
+    """
     scene = state.scene.with_obj(new_obj)
     remaining = _f32(outside_mass(scene))
     approach = jnp.linalg.norm(scene.cell_centers()[plan.source[0], plan.source[1]] - state.rovers[0])
@@ -279,7 +287,8 @@ def advance(state: EpisodeState, plan: Plan, push: execute.Push, new_obj, go, ep
     delivered = state.delivered + push.delivered
     spilled = state.spilled + push.spilled
     driven = state.driven + approach + push.length
-    stop = _stop_code(remaining, state.initial_remaining, state.stop_at, tick, ep.max_pushes)
+    budget = ep.max_pushes if budget is None else budget
+    stop = _stop_code(remaining, state.initial_remaining, state.stop_at, tick, budget)
     pushed = EpisodeState(scene, state.fabric, state.rovers.at[0].set(plan.route.end), tick, stop != RUNNING,
                           stop, delivered, spilled, remaining, driven, state.initial_mass,
                           state.initial_remaining, state.stop_at)

@@ -312,7 +312,8 @@ def build_fabric(scene, params: FabricParams | None = None, spill=None) -> Fabri
         raise ValueError("spill: build_fabric takes SpillParams with the soft kernels only (FabricParams."
                          "temperature > 0); for the hard fabric apply Eq. 6 with "
                          "jaxplan.transport.selection.reselect.")
-    return _build_jit(scene, params)
+    # "policy" with the monotone rule (or "wavefront" without) is what "auto" runs: one program for both
+    return _build_jit(scene, params.with_canonical_solver())
 
 
 # ----------------------------------------------------------------------------------------------

@@ -81,6 +81,20 @@ class FabricParams:
     def replace(self, **changes) -> FabricParams:
         return dataclasses.replace(self, **changes)
 
+    def resolved_solver(self) -> str:
+        """The solver the build runs: ``solver`` unless it is "auto", which is "policy" with the monotone
+        rule and "wavefront" without."""
+        if self.solver != "auto":
+            return self.solver
+        return "policy" if self.monotone else "wavefront"
+
+    def with_canonical_solver(self) -> FabricParams:
+        """These parameters with ``solver`` spelled "auto" where it names the solver "auto" runs, so that
+        both spellings share one jit cache key (one compiled program); any other solver is kept."""
+        if self.solver != "auto" and self.solver == self.replace(solver="auto").resolved_solver():
+            return self.replace(solver="auto")
+        return self
+
     def resolved_max_hops(self, shape) -> int:
         if self.max_hops is not None:
             return int(self.max_hops)

@@ -193,7 +193,10 @@ def plan_episode_tick(scene, params: FabricParams, ep: EpisodeParams, spill: spi
     length. Host-level: ``plan_tick`` runs jitted inside."""
     if ep.reselect and spill.enabled:
         fabric = selection.reselect(scene, params, fabric, spill, max_steps=cap, evaluator=evaluator)
-    return plan_tick_jit(scene, params, ep, spill, fabric, max_steps=cap, evaluator=evaluator), fabric
+    # plan_tick reads only source_rule among the static fields: fixing the others (the budget, the
+    # rebuild mode, reselect, applied above) lets episodes that differ in them share one program
+    planning = ep.replace(max_pushes=0, rebuild="auto", reselect=False)
+    return plan_tick_jit(scene, params, planning, spill, fabric, max_steps=cap, evaluator=evaluator), fabric
 
 
 class PlanReads(NamedTuple):

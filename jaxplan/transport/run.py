@@ -158,6 +158,8 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     require_hard(params)
     if params.temperature is not None:   # a concrete 0 is the hard fabric; None keeps it so under jit
         params = params.replace(temperature=None)
+    # the solver that "auto" runs is spelled "auto", as build_fabric does: one set of programs for both
+    params = params.with_canonical_solver()
     spillage.validate_spill_params(spill)
     plan_spill = spill if plan_spill is None else plan_spill
     spillage.validate_spill_params(plan_spill)
@@ -168,6 +170,9 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
     initial_mass, initial_remaining = float(state.initial_mass), float(state.initial_remaining)
     cap = default_walk_cap(shape)
     mode = rebuild_mode(ep.rebuild, shape)
+    # advance reads no field of EpisodeParams but the budget, which it takes traced here: runs that
+    # differ in any of them share one compiled program
+    bookkeeping = EpisodeParams(max_pushes=0)
     rows: list[dict] = []
     frames: list[dict] = []
     bar = _progress(ep.max_pushes, progress)
@@ -187,7 +192,7 @@ def run_episode(scene, params: FabricParams | None = None, spill: spillage.Spill
             if code != RUNNING:
                 break
             (new_obj, push), execute_ms = timed(lambda: execute.execute_jit(state.scene, plan.route, spill, evaluator))
-            state, rec = advance_jit(state, plan, push, new_obj, True, ep)
+            state, rec = advance_jit(state, plan, push, new_obj, True, bookkeeping, budget=ep.max_pushes)
             if mode == "selective":
                 (fabric, affected), rebuild_ms = timed(lambda: rebuild.selective_rebuild(state.scene, params,
                                                                                          state.fabric, push.changed))

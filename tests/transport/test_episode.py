@@ -10,8 +10,9 @@ from jaxplan import FabricParams, Scene, box, build_fabric
 from jaxplan.reference import execute as ref_ex
 from jaxplan.transport import selection
 from jaxplan.transport import spillage as sp
-from jaxplan.transport.episode import EpisodeParams, rebuild_mode
-from jaxplan.transport.fabric import table_hops
+from jaxplan.transport.episode import EpisodeParams, advance_jit, rebuild_mode
+from jaxplan.transport.fabric import table_hops, walk_table
+from jaxplan.transport.plan import plan_tick_jit
 from jaxplan.transport.run import run_episode
 
 
@@ -87,6 +88,20 @@ def test_auto_rebuild_runs_the_resolved_mode(site):
     ep = run_episode(site, episode=EpisodeParams(max_pushes=2))   # 196 cells: full on any backend
     assert EpisodeParams().rebuild == "auto" and ep.rebuild == "full"
     assert ep.n_pushes == 2 and np.all(ep.full_rebuild) and ep.totals()["rebuild"] == "full"
+
+
+def test_budget_rebuild_and_solver_spelling_share_the_compiled_tick(site):
+    """The jitted plan and bookkeeping do not depend on max_pushes (advance takes it traced), on
+    rebuild, or on whether the solver is spelled "auto" or "policy" (what "auto" runs here): a sweep
+    over them compiles them once."""
+    first = run_episode(site, episode=EpisodeParams(max_pushes=2))
+    compiled = (plan_tick_jit._cache_size(), advance_jit._cache_size())
+    again = run_episode(site, FabricParams(solver="policy"), episode=EpisodeParams(max_pushes=3, rebuild="full"))
+    assert (plan_tick_jit._cache_size(), advance_jit._cache_size()) == compiled
+    assert first.stop_reason == again.stop_reason == "budget" and again.n_pushes == 3
+    np.testing.assert_array_equal(again.source[:2], first.source)
+    np.testing.assert_array_equal(again.collected[:2], first.collected)
+    np.testing.assert_array_equal(again.remaining[:2], first.remaining)
 
 
 def test_infinite_margin_never_rearranges(site):
@@ -168,10 +183,12 @@ def test_a_concrete_zero_temperature_is_the_hard_episode(site):
 
 # --------------------------------------------------------------------------------- Eq. 6 selection
 
-def _reference_delivered(scene, fabric, source, rank, spill, max_steps):
-    from jaxplan.transport.fabric import walk_table
+# jitted: run eagerly, the walk's while loop compiled anew for every call
+_walk_table_jit = jax.jit(walk_table, static_argnums=3)
 
-    path = walk_table(fabric.table, jnp.asarray(source, jnp.int32), jnp.int32(rank), max_steps)
+
+def _reference_delivered(scene, fabric, source, rank, spill, max_steps):
+    path = _walk_table_jit(fabric.table, jnp.asarray(source, jnp.int32), jnp.int32(rank), max_steps)
     n = int(path.n_cells)
     cells = [tuple(int(v) for v in rc) for rc in np.asarray(path.cells)[:n]]
     _, info = ref_ex.execute_route(np.asarray(scene.obj), np.asarray(scene.target_mask),

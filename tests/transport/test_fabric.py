@@ -165,6 +165,20 @@ def test_no_recompilation_for_new_counts_or_angle(small_scene):
     assert fabric_module._build_jit._cache_size() == before
 
 
+def test_auto_solver_shares_the_program_of_the_solver_it_runs(small_scene):
+    """"policy" (what "auto" runs with the monotone rule) is spelled "auto" before the jit, so both
+    compile one program and build the same fabric."""
+    auto = build_fabric(small_scene, FabricParams())
+    before = fabric_module._build_jit._cache_size()
+    policy = build_fabric(small_scene, FabricParams(solver="policy"))
+    assert fabric_module._build_jit._cache_size() == before
+    for a, b in zip(jax.tree_util.tree_leaves(auto), jax.tree_util.tree_leaves(policy)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert FabricParams(monotone=False).resolved_solver() == "wavefront"
+    assert FabricParams(monotone=False, solver="wavefront").with_canonical_solver().solver == "auto"
+    assert FabricParams(solver="wavefront").with_canonical_solver().solver == "wavefront"   # another solver
+
+
 def test_vmap_over_angles_equals_single_calls(small_scene):
     angles = jnp.array([30.0, 45.0, 60.0, 90.0])
     batch = FabricParams(theta_tol_deg=angles, tau_h=jnp.full(4, 0.5), anchor_lambda=jnp.ones(4),
