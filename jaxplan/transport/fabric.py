@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from jaxplan.core import SMALL_GRID_CELLS, available_memory_bytes, grid_jit, lattice, traced
 from jaxplan.transport import heatmap, kbest, obstacles, visibility
-from jaxplan.transport.params import FabricParams, validate_params
+from jaxplan.transport.params import FabricParams, resolve_solver, validate_params
 from jaxplan.transport.scene import Scene, occupied_cells
 
 
@@ -130,7 +130,7 @@ def continuation_dp(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, *
     blocked: optional bool[H, W], blocked cells (``visibility.feasible_successors``).
     """
     graph = visibility.successor_graph(obj, occupied, goal, dist, tvec, theta_tol_deg, cell_size, monotone, blocked)
-    use_policy = solver == "policy" or (solver == "auto" and monotone)
+    use_policy = resolve_solver(solver, monotone) == "policy"
     if use_policy and not monotone:
         raise ValueError("solver='policy' needs the monotone rule (an acyclic successor graph); "
                          "use solver='wavefront' or 'auto' with monotone=False.")

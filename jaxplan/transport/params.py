@@ -25,6 +25,14 @@ backend): about 0.3 GB and 15 s at K = 8, 7 GB and 140 s at K = 16, 50 GB at K =
 Routes are chosen among the entries within ``slack_tau`` of the best, so a few entries suffice."""
 
 
+def resolve_solver(solver: str, monotone: bool) -> str:
+    """The DP solver a build runs: ``solver`` unless it is "auto", which is "policy" with the monotone
+    rule and "wavefront" without."""
+    if solver != "auto":
+        return solver
+    return "policy" if monotone else "wavefront"
+
+
 @dataclasses.dataclass(frozen=True)
 class FabricParams:
     """Parameters of ``build_fabric``.
@@ -82,18 +90,14 @@ class FabricParams:
         return dataclasses.replace(self, **changes)
 
     def resolved_solver(self) -> str:
-        """The solver the build runs: ``solver`` unless it is "auto", which is "policy" with the monotone
-        rule and "wavefront" without."""
-        if self.solver != "auto":
-            return self.solver
-        return "policy" if self.monotone else "wavefront"
+        """The solver the build runs (``resolve_solver``)."""
+        return resolve_solver(self.solver, self.monotone)
 
     def with_canonical_solver(self) -> FabricParams:
         """These parameters with ``solver`` spelled "auto" where it names the solver "auto" runs, so that
         both spellings share one jit cache key (one compiled program); any other solver is kept."""
-        if self.solver != "auto" and self.solver == self.replace(solver="auto").resolved_solver():
-            return self.replace(solver="auto")
-        return self
+        auto = self.replace(solver="auto")
+        return auto if auto.resolved_solver() == self.solver else self
 
     def resolved_max_hops(self, shape) -> int:
         if self.max_hops is not None:
