@@ -306,8 +306,9 @@ def run_fleet(scene, n_rovers: int, strategy: str = "coordinated", params: Fabri
         params = params.replace(temperature=None)
     config = (FleetConfig(n_rovers, strategy) if config is None else config).resolved(scene.shape)
 
-    # the compiled programs do not depend on the budget (a static field): reset copies it into the state
-    planning = episode.replace(max_pushes=0)
+    # the compiled programs depend on neither the budget (reset copies it into the state) nor the rebuild
+    # mode (the host refreshes the fabric): runs that differ only in these static fields share them
+    planning = episode.replace(max_pushes=0, rebuild="auto")
     state = _reset_jit(scene, params, spill, planning, config=config, starts=starts, max_steps=int(max_steps),
                        max_pushes=int(episode.max_pushes))
     # not the whole start state (its fabric and fields would stay alive), and a copy: the steps donate theirs

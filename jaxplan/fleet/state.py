@@ -473,13 +473,22 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
                       fresh=jnp.bool_(False), totals=totals)
 
 
+def _plan_afresh(scene, params, ep, spill, fabric, m: int, cap: int, clearance: int) -> assign.Candidates:
+    return assign.plan_candidates(scene, params, ep, spill, fabric, jnp.full(scene.shape, -1, jnp.int32),
+                                  candidates=m, cap=cap, evaluator=curvature_spill, clearance=clearance)
+
+
+# only its shapes are used: jit keeps the traced program per argument shapes, so that a reset outside
+# jit does not trace the whole candidate planning again each time
+_plan_afresh_jit = jax.jit(_plan_afresh, static_argnames=("m", "cap", "clearance"))
+
+
 def _no_candidates(scene, params, ep, spill, fabric, cfg: FleetConfig) -> assign.Candidates:
     """Zeros shaped like ``assign.plan_candidates``'s result: M slots for the coordinated strategy,
     none for the others (which do not cache)."""
     m = min(cfg.candidates, scene.shape[0] * scene.shape[1]) if cfg.strategy == "coordinated" else 0
-    shapes = jax.eval_shape(lambda: assign.plan_candidates(
-        scene, params, ep, spill, fabric, jnp.full(scene.shape, -1, jnp.int32), candidates=max(m, 1),
-        cap=cfg.walk_cap, evaluator=curvature_spill, clearance=cfg.clearance))
+    shapes = _plan_afresh_jit.eval_shape(scene, params, ep, spill, fabric, m=max(m, 1), cap=cfg.walk_cap,
+                                         clearance=cfg.clearance)
     # every leaf leads with M (overlap is [M, M]); the strategies that do not cache keep 0 slots
     return jax.tree.map(lambda a: jnp.zeros((m,) + a.shape[1:], a.dtype), shapes)
 

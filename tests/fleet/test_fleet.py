@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from jaxplan import FabricParams, SpillParams
 from jaxplan.fleet import STOP_REASONS, STRATEGIES, FleetConfig, reset, rollout, run_fleet, step
+from jaxplan.fleet import run as fleet_run
 from jaxplan.fleet.motion import IDLE, PATIENCE
 from jaxplan.transport.episode import EpisodeParams
 from tests.fleet._sites import LAYOUTS, site
@@ -234,10 +235,11 @@ def test_candidates_equal_tasks_planned_alone_and_plan_only_what_is_wanted():
     ep, cap, m = EpisodeParams(), 64, 10
     fabric = build_fabric(scene, PARAMS)
     owner = np.full(SITES[3], -1, np.int32)
-    plan = jax.jit(lambda wanted: assign.plan_candidates(
+    # one program plans afresh (previous None) for any owner map and wanted count, one reuses previous ones
+    plan = jax.jit(lambda owner, wanted, previous: assign.plan_candidates(
         scene, PARAMS, ep, SPILL, fabric, owner, candidates=m, cap=cap, evaluator=spillage.curvature_spill,
-        clearance=0, wanted=wanted))
-    full, part = plan(jnp.int32(m)), plan(jnp.int32(3))
+        clearance=0, wanted=wanted, previous=previous))
+    full, part = plan(owner, jnp.int32(m), None), plan(owner, jnp.int32(3), None)
     alone = jax.jit(jax.vmap(lambda s: assign.plan_task(scene, PARAMS, ep, SPILL, fabric, s, True, cap,
                                                          spillage.curvature_spill, 0)))(full.tasks.source)
     alone = alone._replace(footprint=assign.pack_bits(alone.footprint))      # candidates keep them packed
@@ -253,10 +255,7 @@ def test_candidates_equal_tasks_planned_alone_and_plan_only_what_is_wanted():
     # plans only the new ones, and gives what planning them all gives
     taken = np.asarray(assign.unpack_bits(full.tasks.footprint[0], scene.shape))
     reserved = np.where(taken, 0, owner).astype(np.int32)
-    again = jax.jit(lambda previous: assign.plan_candidates(
-        scene, PARAMS, ep, SPILL, fabric, reserved, candidates=m, cap=cap, evaluator=spillage.curvature_spill,
-        clearance=0, previous=previous))
-    fresh, kept = again(None), again(full)
+    fresh, kept = plan(reserved, jnp.int32(m), None), plan(reserved, jnp.int32(m), full)
     now = np.asarray(fresh.exists)
     assert np.array_equal(np.asarray(kept.exists), now) and now.sum() > 3
     assert set(map(tuple, np.asarray(fresh.tasks.source)[now].tolist())) & \
@@ -283,10 +282,12 @@ def _assert_same_run(got, want):
 
 
 def test_the_selective_refresh_gives_the_full_refresh_run(piles_run):
-    """``EpisodeParams.rebuild="selective"`` updates the shared fabric selectively inside the step:
-    the same run as the full build, step by step."""
+    """``EpisodeParams.rebuild="selective"`` updates the shared fabric selectively after each push: the
+    same run as the full build, step by step, with the same compiled step (the host refreshes)."""
+    compiled = fleet_run._advance_jit._cache_size()
     selective = run_fleet(site(2, SITES[2], "piles"), 2, "coordinated", PARAMS, SPILL,
                           EpisodeParams(max_pushes=6, rebuild="selective"), max_steps=300)
+    assert fleet_run._advance_jit._cache_size() == compiled
     assert len(piles_run.pushes) > 2
     _assert_same_run(selective, piles_run)
 

@@ -18,10 +18,10 @@ from jaxplan.transport.rebuild import selective_rebuild
 from jaxplan.transport.scene import Scene, box
 
 TICKS = 240      # 12 s: the tiny routes finish in 10.2 and 9.3 s (blade pushed 1 cell past the end)
-# MJX's demo-route rollout is bound by running, not compiling (90 contact-rich ticks of 22 particles):
-# with LLVM's optimisations, which tests/conftest.py turns off suite-wide, it compiles ~15% slower and
-# runs ~5x faster. Not for the tiny fixture: its checks compare MJX programs to 1e-5, and optimised
-# programs of different horizons or batch sizes round differently.
+# MJX's rollouts here are bound by running, not compiling (hundreds of contact-rich ticks): with LLVM's
+# optimisations, which tests/conftest.py turns off suite-wide, they compile ~15% slower and run ~5x
+# faster. Optimised programs of different horizons or batch sizes round differently, so a check to 1e-5
+# compares runs of one program.
 MJX_OPTIONS = {"xla_backend_optimization_level": 2}
 
 
@@ -38,7 +38,7 @@ def tiny():
     _, routes, _ = bridge.plan_routes(scene, n_routes=2)
     world = bridge.world_for_routes(scene, routes)
     sims = {be: Simulator(world.model, bridge.pursuit_policy, substeps=world.config.substeps,
-                          bounds=world.bounds, backend=be) for be in ("c", "mjx")}
+                          bounds=world.bounds, backend=be, compiler_options=MJX_OPTIONS) for be in ("c", "mjx")}
     checks = {be: bridge.check_routes(scene, routes, n_ticks=TICKS, world=world, simulator=sim)
               for be, sim in sims.items()}
     return scene, routes, world, sims, checks
@@ -119,10 +119,11 @@ def test_backends_agree_on_the_demo_route_while_it_pushes_gravel():
 @pytest.mark.parametrize("backend, broken", [("c", 0), ("c", 1), ("mjx", 0)])
 def test_divergence_is_flagged_not_fatal(tiny, backend, broken):
     """One element starts broken (element 0: a NaN velocity; element 1: a particle outside the world):
-    it is flagged at its first tick and its healthy neighbour is untouched. Batch 2. Both engines check a
-    state with one function (``rollout._state_ok``), so MJX, slow to run on a CPU, runs the NaN case
-    only, and for SHORT_TICKS (past the blade's first contacts with the gravel, where the solver works
-    hardest); the C engine runs the fixture's whole horizon."""
+    it is flagged at its first tick and its healthy neighbour is untouched: the same trajectory as in the
+    unbroken batch (for MJX, run by the same program). Batch 2. Both engines check a state with one
+    function (``rollout._state_ok``), so MJX, slow to run on a CPU, runs the NaN case only, and for
+    SHORT_TICKS (past the blade's first contacts with the gravel, where the solver works hardest); the C
+    engine runs the fixture's whole horizon."""
     _, _, world, sims, checks = tiny
     ref = checks[backend]
     params, pstate = _stack(ref.params, [0, 1]), _stack(_pstate0(2), [0, 1])
@@ -137,7 +138,12 @@ def test_divergence_is_flagged_not_fatal(tiny, backend, broken):
     healthy = 1 - broken
     assert not bool(out.finite[broken]) and bool(out.finite[healthy])
     assert out.first_bad[broken] == 1 and out.first_bad[healthy] == -1
-    np.testing.assert_allclose(out.qpos[healthy], ref.trajectory.qpos[healthy, :n_ticks + 1], atol=1e-5)
+    if backend == "c":
+        unbroken = ref.trajectory.qpos[:, :n_ticks + 1]
+    else:
+        unbroken = sims[backend].run(ref.trajectory.qpos[:, 0], ref.trajectory.qvel[:, 0], params, pstate,
+                                     n_ticks).qpos
+    np.testing.assert_allclose(out.qpos[healthy], unbroken[healthy], atol=1e-5)
 
 
 def _pstate0(b):
@@ -160,9 +166,10 @@ def test_vmapped_batch_equals_single_rollouts(tiny):
     for i in range(2):
         one = sims["mjx"].run(ref.trajectory.qpos[i:i + 1, 0], ref.trajectory.qvel[i:i + 1, 0],
                               _stack(ref.params, [i]), _stack(_pstate0(2), [i]), n)
-        # a B=1 program is compiled differently (float32 rounding differs), and contacts amplify
-        # rounding: states agree tightly before the blade meets the gravel, and the verdict after
-        np.testing.assert_allclose(one.qpos[0, :FREE_TICKS], ref.trajectory.qpos[i, :FREE_TICKS], atol=1e-4)
+        # a B=1 program is compiled differently (float32 rounding differs, more so optimised), and
+        # contacts amplify rounding: states agree within 5e-4 world units before the blade meets the
+        # gravel, and the verdict after
+        np.testing.assert_allclose(one.qpos[0, :FREE_TICKS], ref.trajectory.qpos[i, :FREE_TICKS], atol=5e-4)
         assert np.max(np.abs(one.qpos[0, -1, :2] - ref.trajectory.qpos[i, n, :2])) < 0.05
         first_bad = int(ref.trajectory.first_bad[i])
         assert bool(one.finite[0]) == (first_bad == -1 or first_bad > n)
