@@ -114,8 +114,8 @@ def _check_name(name) -> None:
 def build_site(name: str) -> Scene:
     """Build the fleet site ``name`` afresh (no cache; :func:`site` is the cached one).
 
-    About a second on 2 CPU cores for ``site512`` once the geometry kernel is compiled, a few for
-    ``site1024``.
+    About a second on 2 CPU cores for ``site512`` or ``site1024`` once the geometry kernels are
+    compiled.
     """
     _check_name(name)
     side, targets, seed, rects = _LAYOUTS[name]

@@ -154,6 +154,44 @@ def test_chunked_kernel_equals_single_block():
     np.testing.assert_allclose(whole[2], chunked[2], rtol=0, atol=1e-6)
 
 
+def _star(center, r_out, r_in, points):
+    ang = np.pi * np.arange(2 * points) / points
+    rad = np.where(np.arange(2 * points) % 2 == 0, r_out, r_in)
+    return Polygon(np.stack([center[0] + rad * np.cos(ang), center[1] + rad * np.sin(ang)], axis=1))
+
+
+# Every scene has 80 segments on the same grid, so each kernel variant compiles once for all of them.
+_TILED_GRID = ((70, 90), 0.75, (-3.25, 2.5))   # shape, cell size, origin: x in [-3.25, 64.25], y in [2.5, 55]
+_TILED_SCENES = {
+    "two_circles": MultiPolygon([S.circle((12.3, 20.1), 7.0, 48), S.circle((50.7, 40.2), 4.5, 32)]),
+    "hole_box_circle": MultiPolygon([
+        Polygon(S.circle((20.0, 30.0), 12.0, 40).exterior.coords, [S.circle((21.0, 29.0), 5.0, 24).exterior.coords]),
+        S.box(44.0, 10.0, 58.0, 13.5),
+        S.circle((55.0, 45.0), 3.0, 12),
+    ]),
+    # long concave edges reaching past the grid
+    "star": _star((35.0, 30.0), 40.0, 9.0, 40),
+}
+
+
+@pytest.mark.parametrize("options", [
+    {},                                    # default tiles
+    {"tile": 4, "pair_budget": 256},       # many tiles, and many small blocks of every pass
+    {"max_candidates": 2},                 # tiles on the boundary keep more: the brute-force fallback
+], ids=["default", "many_tiles", "fallback"])
+@pytest.mark.parametrize("name", list(_TILED_SCENES))
+def test_tiled_kernel_equals_brute_force(name, options):
+    shape, s, origin = _TILED_GRID
+    segs = jnp.asarray(G.target_segments(_TILED_SCENES[name]))
+    assert segs.shape[0] == 80
+    args = (segs, shape, jnp.float32(s), jnp.asarray(origin, jnp.float32))
+    brute = G.target_geometry(*args, method="brute")
+    tiled = G.target_geometry(*args, method="tiled", **options)
+    np.testing.assert_array_equal(tiled[0], brute[0])
+    np.testing.assert_allclose(tiled[1], brute[1], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(tiled[2], brute[2], rtol=0, atol=1e-6)
+
+
 def test_segments_order_and_shape():
     hole = S.box(1, 1, 2, 2)
     poly = Polygon(S.box(0, 0, 4, 4).exterior.coords, [hole.exterior.coords])
