@@ -32,7 +32,7 @@ from shapely.geometry import box as _shapely_box
 
 from jaxplan.core import grid_jit
 
-__all__ = ["ON_BOUNDARY_EPS", "box", "circle", "target_geometry", "target_segments"]
+__all__ = ["ON_BOUNDARY_EPS", "box", "circle", "segment_bucket", "target_geometry", "target_segments"]
 
 # A centre this close to the boundary (in cell sizes) is "on" it and therefore covered.
 ON_BOUNDARY_EPS = 1e-9
@@ -411,14 +411,18 @@ def _tiled_offsets(seg, cand, count, tile: int, n_rows: int, n_cols: int, cell_s
     return grid(ex), grid(ey)
 
 
-def _geometry_cells(segments, shape, *args, **kwargs) -> int:
+def _geometry_cells(segments, n_segments, shape, *args, **kwargs) -> int:
     return int(shape[0]) * int(shape[1])
 
 
-# the process's first compilation, usually: on the paper's grids the older code generator keeps the
-# newer one's compiler (and its memory) out of the process
-@functools.partial(grid_jit, static_argnames=("shape", "pair_budget", "seg_chunk", "method", "tile",
-                                              "max_candidates"), cells_of=_geometry_cells)
+def segment_bucket(m: int) -> int:
+    """The padded segment count the geometry kernel compiles for ``m`` segments: a power of two from 16
+    up to ``_SEG_CHUNK``, then whole chunks, so that targets with other vertex counts share programs."""
+    if m <= _SEG_CHUNK:
+        return max(16, 1 << (max(m, 1) - 1).bit_length())
+    return -(-m // _SEG_CHUNK) * _SEG_CHUNK
+
+
 def target_geometry(segments, shape, cell_size, origin, pair_budget: int = _PAIR_BUDGET,
                     seg_chunk: int = _SEG_CHUNK, method: str = "auto", tile: int = _TILE,
                     max_candidates: int = _MAX_CANDIDATES):
@@ -438,8 +442,27 @@ def target_geometry(segments, shape, cell_size, origin, pair_budget: int = _PAIR
       dist: f32[H, W], world units, distance to the closest boundary segment, 0 on target cells;
       tvec: f32[H, W, 2], unit (x, y) vector to the closest boundary point, (0, 0) on target cells.
 
-    Compiles once per (H, W, M) and static options; cell_size and origin are traced.
+    Compiles once per (H, W), segment bucket (``segment_bucket(M)``) and static options; cell_size and
+    origin are traced.
     """
+    m = int(segments.shape[0])
+    padded = segment_bucket(m)
+    if isinstance(segments, jax.core.Tracer):
+        segments = jnp.pad(jnp.asarray(segments, jnp.float32), ((0, padded - m), (0, 0), (0, 0)))
+    else:   # on the host: no small program compiled per segment count
+        segments = np.pad(np.asarray(segments, np.float32), ((0, padded - m), (0, 0), (0, 0)))
+    return _target_geometry(segments, np.int32(m), shape, cell_size, origin, pair_budget=pair_budget,
+                            seg_chunk=seg_chunk, method=method, tile=tile, max_candidates=max_candidates)
+
+
+# the process's first compilation, usually: on the paper's grids the older code generator keeps the
+# newer one's compiler (and its memory) out of the process
+@functools.partial(grid_jit, static_argnames=("shape", "pair_budget", "seg_chunk", "method", "tile",
+                                              "max_candidates"), cells_of=_geometry_cells)
+def _target_geometry(segments, n_segments, shape, cell_size, origin, pair_budget: int, seg_chunk: int,
+                     method: str, tile: int, max_candidates: int):
+    """:func:`target_geometry` on ``segments: f32[B, 2, 2]`` padded to a bucket, the first ``n_segments``
+    (i32[]) real."""
     h, w = (int(v) for v in shape)
     if method not in ("auto", "tiled", "brute"):
         raise ValueError(f"target_geometry: method must be 'auto', 'tiled' or 'brute', got {method!r}.")
@@ -450,6 +473,10 @@ def target_geometry(segments, shape, cell_size, origin, pair_budget: int = _PAIR
     # Work relative to the grid corner: small coordinates keep float32 rounding small.
     seg = jnp.asarray(segments, jnp.float32) - origin
     m = seg.shape[0]
+    real = jnp.arange(m) < n_segments
+    span = jnp.maximum(jnp.max(jnp.where(real[:, None, None], jnp.abs(seg), 0.0)), max(h, w) * cell_size)
+    # the padding: zero-length segments far outside the grid, which no ray crosses and no cell has closest
+    seg = jnp.where(real[:, None, None], seg, -10.0 * span)
     if method == "auto":
         method = "tiled" if h * w * m >= _TILED_MIN_PAIRS else "brute"
 
@@ -461,7 +488,7 @@ def target_geometry(segments, shape, cell_size, origin, pair_budget: int = _PAIR
         # Target cells need no distance: a tile of target cells only is idle.
         busy = jnp.pad(~parity, ((0, n_rows * tile - h), (0, n_cols * tile - w)))
         busy = busy.reshape(n_rows, tile, n_cols, tile).any(axis=(1, 3)).reshape(-1)
-        margin = jnp.maximum(jnp.max(jnp.abs(seg)), max(h, w) * cell_size) * _CULL_MARGIN
+        margin = span * _CULL_MARGIN
         chunk = min(_CANDIDATE_CHUNK, max_candidates)
         slots = -(-max_candidates // chunk) * chunk
         cand, count = _cull_tiles(seg, busy, tile, h, w, cell_size, margin, pair_budget, slots)

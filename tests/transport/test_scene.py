@@ -192,6 +192,19 @@ def test_tiled_kernel_equals_brute_force(name, options):
     np.testing.assert_allclose(tiled[2], brute[2], rtol=0, atol=1e-6)
 
 
+def test_targets_of_one_segment_bucket_share_a_program():
+    """Targets whose segment counts round up to one bucket compile one program, and the padding changes
+    nothing: each still matches the shapely reference."""
+    assert [G.segment_bucket(m) for m in (1, 16, 17, 392, 1024, 1025)] == [16, 16, 32, 512, 1024, 2048]
+    targets = [S.circle((6.2, 3.4), 2.5, n) for n in (17, 24, 31)]
+    assert {G.segment_bucket(len(G.target_segments(t))) for t in targets} == {32}
+    _assert_matches_reference((7, 12), 1.0, (0.0, 0.0), targets[0])
+    compiled = G._target_geometry._cache_size()
+    for target in targets[1:]:
+        _assert_matches_reference((7, 12), 1.0, (0.0, 0.0), target)
+    assert G._target_geometry._cache_size() == compiled
+
+
 def test_segments_order_and_shape():
     hole = S.box(1, 1, 2, 2)
     poly = Polygon(S.box(0, 0, 4, 4).exterior.coords, [hole.exterior.coords])
