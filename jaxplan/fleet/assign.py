@@ -58,9 +58,9 @@ from jaxplan.transport.spillage import evaluate_route
 __all__ = ["Attempts", "BLOCKED", "Candidates", "PLAN_CHUNK", "RATE_BLOCK", "RATE_BLOCKS", "RATE_CHUNK", "RATE_REACH",
            "RATE_WIDEN", "Task", "assign_each", "assign_greedy", "assign_planned", "bits_at", "choose_sources",
            "clear_of", "failure_rank", "footprint_free", "footprint_relations", "greedy_choice", "keep_only",
-           "newly_planned", "no_attempts", "overlap_rows", "pack_bits", "plan_candidates", "plan_task", "rate_sources",
-           "reserve", "rovers_in", "rovers_inside", "select_rows", "unchanged_tasks", "unpack_bits",
-           "walks_fit", "wanted_candidates", "widen"]
+           "newly_planned", "no_attempts", "no_candidates", "overlap_rows", "pack_bits", "plan_candidates",
+           "plan_task", "rate_sources", "reserve", "rovers_in", "rovers_inside", "select_rows", "unchanged_tasks",
+           "unpack_bits", "walks_fit", "wanted_candidates", "widen"]
 
 BLOCKED = 9
 """Code of an assignment that found pushable tasks whose footprints were all taken (the fleet's
@@ -387,8 +387,8 @@ def plan_candidates(scene, params, ep, spill, fabric, owner, *, candidates: int,
     into = jnp.where(todo, order, m)
     into = jnp.pad(into, (0, pad), constant_values=m).reshape(-1, chunk)
     if reused is None:
-        shapes = jax.eval_shape(plan_chunk, jax.tree.map(lambda a: a[0], args))
-        reused = jax.tree.map(lambda a: jnp.zeros((m,) + a.shape[1:], a.dtype), shapes)
+        empty = no_candidates(m, (h, w), fabric.table.raw.shape[-1], cap)
+        reused = (empty.tasks, empty.reads)
 
     def plan_into(carry):
         # planned chunk by chunk straight into their slots: the table is written in place, and
@@ -623,6 +623,21 @@ class Attempts(NamedTuple):
     seen: jax.Array
     failure: jax.Array
     valid: jax.Array
+
+
+def no_candidates(m: int, shape, k: int, cap: int) -> Candidates:
+    """``Candidates`` of M = ``m`` empty slots (every field zero, ``exists`` False), shaped as
+    ``plan_candidates``'s result for an H x W grid (``shape``), K table entries and walk length
+    ``cap``: routes of 2 (cap + 1) slots, read walks of cap + 1 cells. Built directly: learning the
+    shapes by tracing a planning took seconds per grid."""
+    h, w = shape
+    i32 = lambda *dims: jnp.zeros((m,) + dims, jnp.int32)   # noqa: E731
+    no = lambda *dims: jnp.zeros((m,) + dims, bool)   # noqa: E731
+    route = Route(cells=i32(2 * (cap + 1), 2), n_cells=i32(), fallback=no(), end=jnp.zeros((m, 2), jnp.float32))
+    tasks = Task(source=i32(2), route=route, mode=i32(), code=i32(), predicted=jnp.zeros(m, jnp.float32),
+                 steps=i32(), footprint=jnp.zeros((m, -(-h * w // 32)), jnp.uint32))
+    reads = PlanReads(source=i32(2), anchor=i32(), walks=i32(k + 1, cap + 1), window=i32(4))
+    return Candidates(tasks, exists=no(), usable=no(), clear=no(), overlap=no(m), reads=reads)
 
 
 def no_attempts(n: int, shape) -> Attempts:

@@ -78,7 +78,7 @@ from jaxplan.transport import (
     selective_rebuild,
 )
 from jaxplan.transport import STOP_REASONS as EPISODE_STOP_REASONS
-from jaxplan.transport.spillage import Evaluator, SpillParams, curvature_spill, evaluator_for
+from jaxplan.transport.spillage import Evaluator, SpillParams, evaluator_for
 
 __all__ = ["DEADLOCK", "MAX_STEPS", "NO_REACHABLE", "STOP_REASONS", "STRATEGIES", "FleetConfig", "FleetRecord",
            "FleetState", "Rovers", "Totals", "advance", "estimate_fleet_bytes", "fleet_rebuild", "keep_tasks",
@@ -467,30 +467,17 @@ def reset(scene, params: FabricParams | None = None, spill: SpillParams | None =
                     initial_outside=outside, stop_at=stop_at, done=stop != RUNNING, stop=stop)
     return FleetState(scene=scene, fabric=fabric, rovers=rovers, fields=motion.empty_pool(field_slots(n), shape),
                       owner=jnp.full(shape, -1, jnp.int32), region=region,
-                      candidates=_no_candidates(scene, params, ep, spill, fabric, cfg),
+                      candidates=_no_candidates(scene, params, cfg),
                       aside=set_aside.empty(_aside_slots(cfg, shape)),
                       attempts=assign.no_attempts(0 if cfg.strategy == "coordinated" else n, shape),
                       fresh=jnp.bool_(False), totals=totals)
 
 
-def _plan_afresh(scene, params, ep, spill, fabric, m: int, cap: int, clearance: int) -> assign.Candidates:
-    return assign.plan_candidates(scene, params, ep, spill, fabric, jnp.full(scene.shape, -1, jnp.int32),
-                                  candidates=m, cap=cap, evaluator=curvature_spill, clearance=clearance)
-
-
-# only its shapes are used: jit keeps the traced program per argument shapes, so that a reset outside
-# jit does not trace the whole candidate planning again each time
-_plan_afresh_jit = jax.jit(_plan_afresh, static_argnames=("m", "cap", "clearance"))
-
-
-def _no_candidates(scene, params, ep, spill, fabric, cfg: FleetConfig) -> assign.Candidates:
-    """Zeros shaped like ``assign.plan_candidates``'s result: M slots for the coordinated strategy,
-    none for the others (which do not cache)."""
+def _no_candidates(scene, params, cfg: FleetConfig) -> assign.Candidates:
+    """Empty candidates shaped like ``assign.plan_candidates``'s result: M slots for the coordinated
+    strategy, none for the others (which do not cache)."""
     m = min(cfg.candidates, scene.shape[0] * scene.shape[1]) if cfg.strategy == "coordinated" else 0
-    shapes = _plan_afresh_jit.eval_shape(scene, params, ep, spill, fabric, m=max(m, 1), cap=cfg.walk_cap,
-                                         clearance=cfg.clearance)
-    # every leaf leads with M (overlap is [M, M]); the strategies that do not cache keep 0 slots
-    return jax.tree.map(lambda a: jnp.zeros((m,) + a.shape[1:], a.dtype), shapes)
+    return assign.no_candidates(m, scene.shape, params.k, cfg.walk_cap)
 
 
 def _aside_slots(cfg: FleetConfig, shape) -> int:

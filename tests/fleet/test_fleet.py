@@ -251,6 +251,9 @@ def test_candidates_equal_tasks_planned_alone_and_plan_only_what_is_wanted():
         _same_tasks(name, jax.tree.map(lambda a: a[:3], getattr(part.tasks, name)),
                     jax.tree.map(lambda a: a[:3], getattr(full.tasks, name)))
     assert np.array_equal(np.asarray(part.exists), exists & (np.arange(m) < 3))
+    # the empty candidates a reset starts from are built without planning, in the planned ones' shapes
+    shapes = lambda tree: jax.tree.map(lambda a: (a.shape, a.dtype), tree)   # noqa: E731
+    assert shapes(assign.no_candidates(m, scene.shape, PARAMS.k, cap)) == shapes(full)
     # a footprint reserved: planning again with the previous candidates keeps their sources' tasks and
     # plans only the new ones, and gives what planning them all gives
     taken = np.asarray(assign.unpack_bits(full.tasks.footprint[0], scene.shape))
