@@ -125,30 +125,39 @@ def test_local_refresh_of_psi_flags_a_walk_that_overflows(pushed):
     assert int(count) > touched.shape[0]
 
 
+@jax.jit
+def _cell_and_grid_kernels(scene, fabric, theta):
+    """The selective rebuild's per-cell kernels on every cell (then 3 padding cells) beside the
+    whole-grid ones they stand in for; one program per grid shape."""
+    h, w = scene.shape
+    cells = jnp.arange(h * w + 3, dtype=jnp.int32).at[-3:].set(h * w)
+    target = scene.target_mask
+    args = (scene.obj, ~target & (scene.obj > 0), target, scene.dist, scene.tvec, theta, scene.cell_size, True)
+    _, _, hop_len = first_hops(fabric.table, scene.tvec, scene.cell_size)
+    return dict(grid=visibility.successor_graph(*args), lanes=visibility.successor_lanes(cells, *args),
+                fallback_at=visibility.fallback_direction_at(scene.tvec, cells),
+                fallback=visibility.fallback_direction(scene.tvec),
+                heat_at=heatmap.heat_at(cells, fabric.psi, fabric.occupied, fabric.heading, hop_len, target,
+                                        scene.cell_size),
+                hop_len=hop_len, hop_lengths=hop_lengths(fabric.first_hop, scene.cell_size))
+
+
 @SETTINGS
 @given(scene=scenes(max_side=16), theta=st.sampled_from(ANGLES))
 def test_cell_lists_give_the_grid_kernels_values(scene, theta):
     # the selective rebuild's per-cell kernels against the whole-grid ones they stand in for
-    params = FabricParams(theta_tol_deg=theta)
-    fabric = build_fabric(scene, params)
+    fabric = build_fabric(scene, FabricParams(theta_tol_deg=theta))
     h, w = scene.shape
-    cells = jnp.arange(h * w + 3, dtype=jnp.int32).at[-3:].set(h * w)        # every cell, then padding
-    obj = jnp.asarray(scene.obj)
-    target = jnp.asarray(scene.target_mask)
-    occupied = ~target & (obj > 0)
-    args = (obj, occupied, target, scene.dist, scene.tvec, theta, scene.cell_size, True)
-    grid = visibility.successor_graph(*args)
-    lanes = visibility.successor_lanes(cells, *args)
+    got = jax.tree.map(np.asarray, _cell_and_grid_kernels(scene, fabric, jnp.float32(theta)))
+    lanes, grid = got["lanes"], got["grid"]
     for name in ("obj", "feasible", "enters_goal", "fallback", "fallback_len"):
-        got, want = np.asarray(getattr(lanes, name)), np.asarray(getattr(grid, name))
-        np.testing.assert_array_equal(got[..., : h * w], want.reshape(want.shape[:-2] + (-1,)), err_msg=name)
-    assert not np.asarray(lanes.feasible)[:, h * w:].any()
-    np.testing.assert_array_equal(np.asarray(visibility.fallback_direction_at(scene.tvec, cells))[: h * w],
-                                  np.asarray(visibility.fallback_direction(scene.tvec)).reshape(-1))
-    _, _, hop_len = first_hops(fabric.table, scene.tvec, scene.cell_size)
-    heat = heatmap.heat_at(cells, fabric.psi, fabric.occupied, fabric.heading, hop_len, target, scene.cell_size)
-    np.testing.assert_array_equal(np.asarray(heat)[: h * w], np.asarray(fabric.heat).reshape(-1))
-    np.testing.assert_array_equal(np.asarray(hop_lengths(fabric.first_hop, scene.cell_size)), np.asarray(hop_len))
+        want = getattr(grid, name)
+        np.testing.assert_array_equal(getattr(lanes, name)[..., : h * w], want.reshape(want.shape[:-2] + (-1,)),
+                                      err_msg=name)
+    assert not lanes.feasible[:, h * w:].any()
+    np.testing.assert_array_equal(got["fallback_at"][: h * w], got["fallback"].reshape(-1))
+    np.testing.assert_array_equal(got["heat_at"][: h * w], np.asarray(fabric.heat).reshape(-1))
+    np.testing.assert_array_equal(got["hop_lengths"], got["hop_len"])
 
 
 def test_without_the_monotone_rule_the_rebuild_is_a_full_build(pushed):

@@ -2,6 +2,7 @@
 prediction over routes, a coarse grid search, then Adam (optax) from its best point."""
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -19,6 +20,9 @@ from jaxplan.transport.spillage.capacity import (
 __all__ = ["FIT_FIELDS", "FIT_GRID", "CapacityFit", "fit_capacity", "fit_miss", "predict_delivered", "predict_missed"]
 
 
+# jitted (one program per route shape and model): called eagerly, each of the spline's small
+# operations compiled apart, dozens of programs for every new route length
+@functools.partial(jax.jit, static_argnames=("evaluator",))
 def predict_delivered(waypoints, n_points, waypoint_pickup, params: spillage.SpillParams,
                       evaluator: spillage.Evaluator = capacity_spill):
     """``f32[R]``: delivered objects of R routes under one parameter set (``vmap`` of ``evaluate_route``).
@@ -79,6 +83,7 @@ def _missed_totals(near, pickup, miss):
     return jnp.sum(jnp.clip(miss * near, 0.0, 1.0) * pickup, -1)
 
 
+@functools.partial(jax.jit, static_argnames=("samples_per_step", "spline_alpha"))
 def predict_missed(waypoints, n_points, waypoint_pickup, miss, samples_per_step: int = 8,
                    spline_alpha: float = spillage.CENTRIPETAL):
     """``f32[R]``: objects the blade leaves behind on each of R routes at ``miss`` (per radian).
