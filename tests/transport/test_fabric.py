@@ -113,7 +113,7 @@ def test_extracted_paths_reproduce_table_scores(scene):
     k = fab.table.raw.shape[-1]
     ranks = np.arange(len(sources) * k) % k
     sources = np.repeat(sources, k, axis=0)
-    paths = extract_paths(fab, sources, ranks)
+    paths = jax.tree.map(np.asarray, extract_paths(fab, sources, ranks))   # indexed on the host, per path
     obj, target = np.asarray(scene.obj), np.asarray(scene.target_mask)
     dist = np.asarray(scene.dist)
     for i in range(len(sources)):

@@ -169,8 +169,8 @@ def test_walked_paths_drive_the_detour_and_keep_the_table_length(scene):
     sources = np.argwhere(np.asarray(fab.occupied))
     if len(sources) == 0:
         return
-    plain = extract_paths(fab, sources)
-    walked = extract_paths(fab, sources, detour=scene.detour)
+    plain = jax.tree.map(np.asarray, extract_paths(fab, sources))      # indexed on the host, per path
+    walked = jax.tree.map(np.asarray, extract_paths(fab, sources, detour=scene.detour))
     dist = np.asarray(scene.dist, np.float64)
     for i in range(len(sources)):
         cells = np.asarray(walked.cells[i, : int(walked.n_cells[i])])
