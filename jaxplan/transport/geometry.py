@@ -30,7 +30,7 @@ from jax import lax
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry import box as _shapely_box
 
-from jaxplan.core import grid_jit
+from jaxplan.core import grid_jit, traced
 
 __all__ = ["ON_BOUNDARY_EPS", "box", "circle", "segment_bucket", "target_geometry", "target_segments"]
 
@@ -158,11 +158,18 @@ def _pair_terms(px, py, seg):
     qy = jnp.where(t <= 0, ay, jnp.where(t >= 1, by, ay + _rounded(t * dy, zero)))
     ex, ey = qx - px, qy - py
     d2 = _rounded(ex * ex, zero) + _rounded(ey * ey, zero)
-    # Even-odd rule, half-open in y so a ray through a vertex counts it exactly once.
+    straddle, x_cross = _row_crossing(ax, ay, by, dx, dy, py)
+    return ex, ey, d2, straddle & (px < x_cross)
+
+
+def _row_crossing(ax, ay, by, dx, dy, py):
+    """``(straddle, x_cross)``: whether each segment crosses the line y = ``py`` and at which x.
+
+    Even-odd rule, half-open in y so a ray through a vertex counts it exactly once. Every kernel takes
+    the crossing from this one expression, so they agree to the bit.
+    """
     straddle = (ay > py) != (by > py)
-    x_cross = ax + (py - ay) * dx / jnp.where(straddle, dy, 1.0)
-    cross = straddle & (px < x_cross)
-    return ex, ey, d2, cross
+    return straddle, ax + (py - ay) * dx / jnp.where(straddle, dy, 1.0)
 
 
 def _centres(index, cell_size):
@@ -274,8 +281,8 @@ def _prefix_counts(x):
 def _crossing_parity(seg, h: int, w: int, cell_size, pair_budget: int):
     """Even-odd parity ``bool[H, W]`` of the +x rays' crossings, from (row, segment) pairs only.
 
-    A segment that straddles row ``h`` crosses it at ``x_cross`` (the expression of :func:`_pair_terms`,
-    so bit-identical), and the rays of the centres with ``px < x_cross`` cross it: the first
+    A segment that straddles row ``h`` crosses it at ``x_cross`` (:func:`_row_crossing`, as in
+    :func:`_pair_terms`), and the rays of the centres with ``px < x_cross`` cross it: the first
     ``searchsorted(px, x_cross)`` centres of the row. A histogram of those counts per row, summed from
     the right, gives each centre's number of crossings.
     """
@@ -286,8 +293,7 @@ def _crossing_parity(seg, h: int, w: int, cell_size, pair_budget: int):
 
     def block(rows):
         py = _centres(rows, cell_size)[:, None]
-        straddle = (ay > py) != (by > py)
-        x_cross = ax + (py - ay) * dx / jnp.where(straddle, dy, 1.0)
+        straddle, x_cross = _row_crossing(ax, ay, by, dx, dy, py)
         n_left = jnp.searchsorted(px, x_cross, side="left")   # centres with px < x_cross
         hist = jnp.zeros((rows.shape[0], w + 1), jnp.int32)
         hist = hist.at[jnp.arange(rows.shape[0])[:, None], n_left].add(straddle.astype(jnp.int32))
@@ -445,9 +451,13 @@ def target_geometry(segments, shape, cell_size, origin, pair_budget: int = _PAIR
     Compiles once per (H, W), segment bucket (``segment_bucket(M)``) and static options; cell_size and
     origin are traced.
     """
+    if method not in ("auto", "tiled", "brute"):
+        raise ValueError(f"target_geometry: method must be 'auto', 'tiled' or 'brute', got {method!r}.")
+    if int(tile) < 1 or int(max_candidates) < 1:
+        raise ValueError(f"target_geometry: tile and max_candidates must be >= 1, got {tile!r}, {max_candidates!r}.")
     m = int(segments.shape[0])
     padded = segment_bucket(m)
-    if isinstance(segments, jax.core.Tracer):
+    if traced(segments):
         segments = jnp.pad(jnp.asarray(segments, jnp.float32), ((0, padded - m), (0, 0), (0, 0)))
     else:   # on the host: no small program compiled per segment count
         segments = np.pad(np.asarray(segments, np.float32), ((0, padded - m), (0, 0), (0, 0)))
@@ -464,10 +474,6 @@ def _target_geometry(segments, n_segments, shape, cell_size, origin, pair_budget
     """:func:`target_geometry` on ``segments: f32[B, 2, 2]`` padded to a bucket, the first ``n_segments``
     (i32[]) real."""
     h, w = (int(v) for v in shape)
-    if method not in ("auto", "tiled", "brute"):
-        raise ValueError(f"target_geometry: method must be 'auto', 'tiled' or 'brute', got {method!r}.")
-    if int(tile) < 1 or int(max_candidates) < 1:
-        raise ValueError(f"target_geometry: tile and max_candidates must be >= 1, got {tile!r}, {max_candidates!r}.")
     cell_size = jnp.asarray(cell_size, jnp.float32)
     origin = jnp.asarray(origin, jnp.float32)
     # Work relative to the grid corner: small coordinates keep float32 rounding small.
